@@ -1,0 +1,29 @@
+// Declarations of the C++ side of the cxx bridge declared in src/bridge.rs.
+//
+// This header is included by the cxx-generated glue, so it deliberately pulls in no OpenVDB or
+// OpenImageIO header: the shared structs are only forward-declared here (cxx defines them in the
+// generated "volgrad/src/bridge.rs.h", which cpp/bridge.cpp includes).
+#pragma once
+
+#include "rust/cxx.h"
+
+#include <cstdint>
+
+namespace volgrad {
+
+struct MetaEntry;
+struct GridSummary;
+struct FloatGridData;
+struct ImageData;
+
+rust::Vec<GridSummary> list_grids(rust::Str path);
+
+FloatGridData read_float_grid(rust::Str path, rust::Str name, std::int32_t index);
+
+void write_float_grids(rust::Str path, rust::Slice<const FloatGridData> grids, bool save_half);
+
+ImageData read_image(rust::Str path);
+
+void write_image(rust::Str path, const ImageData &image, rust::Str pixel_type);
+
+}  // namespace volgrad

@@ -1,0 +1,337 @@
+//! Sparse voxel storage that mirrors an OpenVDB float tree: 8³ bricks (VDB leaves) and constant
+//! active tiles, found through a dense table of brick slots so that a lookup is two array reads and
+//! no hashing.
+//!
+//! Conventions are OpenVDB's: voxel centres at integer index coordinates, leaf values in the order
+//! `x*64 + y*8 + z`, and the value 0 wherever there is no leaf or tile (fog volumes' background).
+
+use std::collections::HashMap;
+
+use glam::{IVec3, Vec3};
+
+pub const BRICK_EDGE: i32 = 8;
+pub const BRICK_VOXELS: usize = 512;
+
+/// One 8³ leaf: every value of its buffer (inactive voxels included, as OpenVDB keeps them) and its
+/// active mask.
+#[derive(Clone)]
+pub struct Leaf {
+    pub origin: IVec3,
+    pub values: [f32; BRICK_VOXELS],
+    pub active: [u64; 8],
+}
+
+/// A constant active region of `size`³ voxels (a multiple of 8) starting at `origin`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Tile {
+    pub origin: IVec3,
+    pub size: u32,
+    pub value: f32,
+}
+
+/// Slot encoding: 0 = empty, `TILE_BIT | j` = tile j, otherwise leaf `slot - 1`.
+const EMPTY: u32 = 0;
+const TILE_BIT: u32 = 1 << 31;
+
+#[inline]
+pub fn leaf_offset(local: IVec3) -> usize {
+    ((local.x << 6) | (local.y << 3) | local.z) as usize
+}
+
+pub struct BrickMap {
+    leaves: Vec<Leaf>,
+    tiles: Vec<Tile>,
+    /// Brick coordinates (index >> 3) of slot (0, 0, 0), and the slot table's extent.
+    slot_origin: IVec3,
+    slot_dims: IVec3,
+    slots: Vec<u32>,
+    /// Inclusive bounding box of the active voxels; `None` for an empty grid.
+    active_bounds: Option<(IVec3, IVec3)>,
+}
+
+/// What a brick slot holds, resolved once so that neighbouring lookups can reuse it.
+#[derive(Clone, Copy)]
+enum Brick<'a> {
+    Empty,
+    Constant(f32),
+    Leaf(&'a [f32; BRICK_VOXELS]),
+}
+
+impl BrickMap {
+    /// Builds the map from leaves and tiles. The slot table covers the active bounding box plus a
+    /// one-voxel apron (trilinear lookups at the medium's edge read one voxel beyond the active box);
+    /// leaves entirely outside it are unreachable and dropped.
+    pub fn new(leaves: Vec<Leaf>, tiles: Vec<Tile>) -> Self {
+        let active_bounds = active_bounds(&leaves, &tiles);
+        let (lo, hi) = match active_bounds {
+            Some((lo, hi)) => ((lo - 1) >> 3i32, (hi + 1) >> 3i32),
+            None => (IVec3::ZERO, IVec3::splat(-1)),
+        };
+        let slot_dims = (hi - lo + 1).max(IVec3::ZERO);
+        let mut map = BrickMap {
+            leaves: Vec::new(),
+            tiles,
+            slot_origin: lo,
+            slot_dims,
+            slots: vec![EMPTY; (slot_dims.x * slot_dims.y * slot_dims.z) as usize],
+            active_bounds,
+        };
+        for leaf in leaves {
+            if let Some(slot) = map.slot_index(leaf.origin >> 3) {
+                map.slots[slot] = map.leaves.len() as u32 + 1;
+                map.leaves.push(leaf);
+            }
+        }
+        for (j, tile) in map.tiles.iter().enumerate() {
+            let b0: IVec3 = tile.origin >> 3;
+            let n = (tile.size as i32 / BRICK_EDGE).max(1);
+            for bx in b0.x..b0.x + n {
+                for by in b0.y..b0.y + n {
+                    for bz in b0.z..b0.z + n {
+                        if let Some(slot) = map.slot_index(IVec3::new(bx, by, bz)) {
+                            map.slots[slot] = TILE_BIT | j as u32;
+                        }
+                    }
+                }
+            }
+        }
+        map
+    }
+
+    pub fn leaves(&self) -> &[Leaf] {
+        &self.leaves
+    }
+
+    pub fn tiles(&self) -> &[Tile] {
+        &self.tiles
+    }
+
+    pub fn active_bounds(&self) -> Option<(IVec3, IVec3)> {
+        self.active_bounds
+    }
+
+    /// Bytes held by the map (leaf buffers and masks, tiles, the slot table).
+    pub fn memory_bytes(&self) -> usize {
+        self.leaves.len() * std::mem::size_of::<Leaf>()
+            + self.tiles.len() * std::mem::size_of::<Tile>()
+            + self.slots.len() * std::mem::size_of::<u32>()
+            + std::mem::size_of::<Self>()
+    }
+
+    #[inline]
+    fn slot_index(&self, brick: IVec3) -> Option<usize> {
+        let b = brick - self.slot_origin;
+        if b.cmplt(IVec3::ZERO).any() || b.cmpge(self.slot_dims).any() {
+            return None;
+        }
+        Some(((b.x * self.slot_dims.y + b.y) * self.slot_dims.z + b.z) as usize)
+    }
+
+    #[inline]
+    fn brick(&self, brick: IVec3) -> Brick<'_> {
+        match self.slot_index(brick).map(|i| self.slots[i]) {
+            None | Some(EMPTY) => Brick::Empty,
+            Some(s) if s & TILE_BIT != 0 => Brick::Constant(self.tiles[(s & !TILE_BIT) as usize].value),
+            Some(s) => Brick::Leaf(&self.leaves[(s - 1) as usize].values),
+        }
+    }
+
+    /// The value stored for voxel `v` (0 where there is no data).
+    #[inline]
+    pub fn voxel(&self, v: IVec3) -> f32 {
+        match self.brick(v >> 3) {
+            Brick::Empty => 0.0,
+            Brick::Constant(c) => c,
+            Brick::Leaf(values) => values[leaf_offset(v & 7)],
+        }
+    }
+
+    /// Whether voxel `v` is active (in a leaf's mask or inside an active tile).
+    pub fn is_active(&self, v: IVec3) -> bool {
+        match self.slot_index(v >> 3).map(|i| self.slots[i]) {
+            None | Some(EMPTY) => false,
+            Some(s) if s & TILE_BIT != 0 => true,
+            Some(s) => {
+                let o = leaf_offset(v & 7);
+                self.leaves[(s - 1) as usize].active[o >> 6] & (1u64 << (o & 63)) != 0
+            }
+        }
+    }
+
+    /// Value of the voxel whose cell contains `p` (index space).
+    #[inline]
+    pub fn nearest(&self, p: Vec3) -> f32 {
+        self.voxel((p + 0.5).floor().as_ivec3())
+    }
+
+    /// Trilinear interpolation between voxel centres (OpenVDB's BoxSampler).
+    #[inline]
+    pub fn trilinear(&self, p: Vec3) -> f32 {
+        let base = p.floor();
+        let f = p - base;
+        let v0 = base.as_ivec3();
+        let mut c = [0.0f32; 8];
+        let local = v0 & 7;
+        if local.cmplt(IVec3::splat(7)).all() {
+            // All eight corners in one brick: resolve it once.
+            match self.brick(v0 >> 3) {
+                Brick::Empty => return 0.0,
+                Brick::Constant(value) => return value,
+                Brick::Leaf(values) => {
+                    let o = leaf_offset(local);
+                    for (k, ck) in c.iter_mut().enumerate() {
+                        *ck = values[o + CORNER_OFFSETS[k]];
+                    }
+                }
+            }
+        } else {
+            for (k, ck) in c.iter_mut().enumerate() {
+                *ck = self.voxel(v0 + corner(k));
+            }
+        }
+        // Interpolate along z, then y, then x (corner k has bits x=4, y=2, z=1).
+        let z00 = c[0] + (c[1] - c[0]) * f.z;
+        let z01 = c[2] + (c[3] - c[2]) * f.z;
+        let z10 = c[4] + (c[5] - c[4]) * f.z;
+        let z11 = c[6] + (c[7] - c[6]) * f.z;
+        let y0 = z00 + (z01 - z00) * f.y;
+        let y1 = z10 + (z11 - z10) * f.y;
+        y0 + (y1 - y0) * f.x
+    }
+
+    /// Largest stored value (0 for an empty grid).
+    pub fn max_value(&self) -> f32 {
+        let leaf_max = self.leaves.iter().flat_map(|l| l.values.iter()).fold(0.0f32, |m, &v| m.max(v));
+        self.tiles.iter().fold(leaf_max, |m, t| m.max(t.value))
+    }
+
+    /// Smallest stored value (0 for an empty grid).
+    pub fn min_value(&self) -> f32 {
+        let leaf_min = self.leaves.iter().flat_map(|l| l.values.iter()).fold(0.0f32, |m, &v| m.min(v));
+        self.tiles.iter().fold(leaf_min, |m, t| m.min(t.value))
+    }
+
+    pub fn active_voxel_count(&self) -> u64 {
+        let in_leaves: u64 = self.leaves.iter().map(|l| l.active.iter().map(|w| w.count_ones() as u64).sum::<u64>()).sum();
+        in_leaves + self.tiles.iter().map(|t| (t.size as u64).pow(3)).sum::<u64>()
+    }
+}
+
+/// Corner k of a trilinear cell: bit 2 → +x, bit 1 → +y, bit 0 → +z.
+#[inline]
+pub fn corner(k: usize) -> IVec3 {
+    IVec3::new((k >> 2) as i32 & 1, (k >> 1) as i32 & 1, k as i32 & 1)
+}
+
+const CORNER_OFFSETS: [usize; 8] = [0, 1, 8, 9, 64, 65, 72, 73];
+
+fn active_bounds(leaves: &[Leaf], tiles: &[Tile]) -> Option<(IVec3, IVec3)> {
+    let mut lo = IVec3::splat(i32::MAX);
+    let mut hi = IVec3::splat(i32::MIN);
+    for leaf in leaves {
+        for o in (0..BRICK_VOXELS).filter(|o| leaf.active[o >> 6] & (1u64 << (o & 63)) != 0) {
+            let v = leaf.origin + IVec3::new((o >> 6) as i32, ((o >> 3) & 7) as i32, (o & 7) as i32);
+            lo = lo.min(v);
+            hi = hi.max(v);
+        }
+    }
+    for t in tiles {
+        lo = lo.min(t.origin);
+        hi = hi.max(t.origin + IVec3::splat(t.size as i32 - 1));
+    }
+    (lo.cmple(hi).all()).then_some((lo, hi))
+}
+
+/// Collects voxels one at a time (grid generators, gradient export) and produces a `BrickMap`.
+/// Not for hot loops: it hashes.
+#[derive(Default, Clone)]
+pub struct BrickMapBuilder {
+    leaves: HashMap<IVec3, Leaf>,
+}
+
+impl BrickMapBuilder {
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    pub fn set(&mut self, v: IVec3, value: f32, active: bool) {
+        let origin = v & !7;
+        let leaf = self.leaves.entry(origin).or_insert_with(|| Leaf {
+            origin,
+            values: [0.0; BRICK_VOXELS],
+            active: [0; 8],
+        });
+        let o = leaf_offset(v & 7);
+        leaf.values[o] = value;
+        if active {
+            leaf.active[o >> 6] |= 1u64 << (o & 63);
+        } else {
+            leaf.active[o >> 6] &= !(1u64 << (o & 63));
+        }
+    }
+
+    pub fn build(self) -> BrickMap {
+        let mut leaves: Vec<Leaf> = self.leaves.into_values().collect();
+        leaves.sort_by_key(|l| (l.origin.x, l.origin.y, l.origin.z));
+        BrickMap::new(leaves, Vec::new())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn ramp() -> BrickMap {
+        // value = x + 10 y + 100 z over a 20³ block, crossing brick boundaries.
+        let mut b = BrickMapBuilder::new();
+        for x in -4..16 {
+            for y in -4..16 {
+                for z in -4..16 {
+                    b.set(IVec3::new(x, y, z), (x + 10 * y + 100 * z) as f32, true);
+                }
+            }
+        }
+        b.build()
+    }
+
+    #[test]
+    fn trilinear_reproduces_linear_fields_across_bricks() {
+        let m = ramp();
+        for p in [Vec3::new(0.25, 0.5, 0.75), Vec3::new(7.3, 7.9, 6.5), Vec3::new(-0.5, 3.2, 7.99), Vec3::new(12.0, 1.0, 2.0)] {
+            let expect = p.x + 10.0 * p.y + 100.0 * p.z;
+            assert!((m.trilinear(p) - expect).abs() < 1e-3, "{p}: {} vs {expect}", m.trilinear(p));
+        }
+    }
+
+    #[test]
+    fn nearest_picks_the_voxel_whose_cell_contains_the_point() {
+        let m = ramp();
+        assert_eq!(m.nearest(Vec3::new(2.49, 3.51, -0.49)), (2 + 40) as f32);
+        assert_eq!(m.nearest(Vec3::new(7.6, 0.0, 0.0)), 8.0);
+    }
+
+    #[test]
+    fn tiles_are_constant_and_outside_is_zero() {
+        let tile = Tile { origin: IVec3::new(128, 0, 0), size: 128, value: 2.5 };
+        let m = BrickMap::new(Vec::new(), vec![tile]);
+        assert_eq!(m.voxel(IVec3::new(200, 5, 127)), 2.5);
+        assert_eq!(m.trilinear(Vec3::new(150.5, 60.2, 3.3)), 2.5);
+        assert!(m.is_active(IVec3::new(255, 127, 127)));
+        assert_eq!(m.voxel(IVec3::new(256, 5, 5)), 0.0);
+        assert_eq!(m.voxel(IVec3::new(-100000, 5, 5)), 0.0);
+        assert_eq!(m.active_bounds(), Some((IVec3::new(128, 0, 0), IVec3::new(255, 127, 127))));
+        // Constant tiles are not voxelised.
+        assert!(m.memory_bytes() < 4 * 20 * 20 * 20 + 1024);
+    }
+
+    #[test]
+    fn leaf_offsets_follow_openvdb() {
+        assert_eq!(leaf_offset(IVec3::new(1, 2, 3)), 64 + 16 + 3);
+        let mut b = BrickMapBuilder::new();
+        b.set(IVec3::new(-1, 9, 17), 4.0, true);
+        let m = b.build();
+        assert_eq!(m.leaves()[0].origin, IVec3::new(-8, 8, 16));
+        assert_eq!(m.leaves()[0].values[leaf_offset(IVec3::new(7, 1, 1))], 4.0);
+        assert_eq!(m.active_voxel_count(), 1);
+    }
+}

@@ -1,0 +1,102 @@
+//! The cxx bridge to OpenVDB and OpenImageIO (implemented in `cpp/bridge.cpp`).
+//!
+//! Everything crosses as plain data: the C++ side never hands out OpenVDB objects. Every function can
+//! throw (I/O, corrupt files, wrong types), so every one is declared `Result`: an exception escaping a
+//! non-`Result` cxx function would abort the process.
+
+#[cxx::bridge(namespace = "volgrad")]
+pub mod ffi {
+    /// One metadata entry. `type_name` is OpenVDB's type name ("string", "float", "int32", "int64",
+    /// "double", "bool", "vec3i", ...); `value` is its text form. For writing, the kinds "string",
+    /// "float" and "int" (int32) are accepted.
+    #[derive(Debug, Clone, PartialEq)]
+    pub struct MetaEntry {
+        pub name: String,
+        pub type_name: String,
+        pub value: String,
+    }
+
+    /// What `volgrad info` prints about one grid; the tree is not copied.
+    #[derive(Debug, Clone)]
+    pub struct GridSummary {
+        pub name: String,
+        /// OpenVDB's value type name: "float", "double", "vec3s", "ptdataidx32", ...
+        pub value_type: String,
+        /// "fog volume", "level set", "staggered", "unknown".
+        pub grid_class: String,
+        /// Index-to-world affine map, column-vector convention, row-major:
+        /// world[i] = sum_j m[4*i + j] * index[j] + m[4*i + 3].
+        pub index_to_world: [f64; 16],
+        pub voxel_size: [f64; 3],
+        /// True when the map is a pure scale + translation (axis-aligned voxels).
+        pub axis_aligned: bool,
+        /// False for non-linear (frustum) maps, which volgrad cannot render.
+        pub linear: bool,
+        pub active_voxels: u64,
+        pub leaf_count: u64,
+        pub active_tiles: u64,
+        /// Inclusive active index bounding box; min > max when the grid is empty.
+        pub index_min: [i32; 3],
+        pub index_max: [i32; 3],
+        /// World-space box of the index box grown by half a voxel, through the transform.
+        pub world_min: [f64; 3],
+        pub world_max: [f64; 3],
+        pub saved_as_half: bool,
+        pub metadata: Vec<MetaEntry>,
+    }
+
+    /// A float grid as flat arrays: every leaf (with its whole 512-value buffer, inactive voxels
+    /// included, in OpenVDB order x*64 + y*8 + z) and every active tile.
+    #[derive(Debug, Clone)]
+    pub struct FloatGridData {
+        pub name: String,
+        pub grid_class: String,
+        pub index_to_world: [f64; 16],
+        pub background: f32,
+        pub saved_as_half: bool,
+        /// 3 per leaf: the leaf origin (multiples of 8).
+        pub leaf_origins: Vec<i32>,
+        /// 512 per leaf.
+        pub leaf_values: Vec<f32>,
+        /// 8 per leaf: the active mask, bit (offset % 64) of word (offset / 64).
+        pub leaf_active: Vec<u64>,
+        /// 3 per active tile: its minimum index corner.
+        pub tile_origins: Vec<i32>,
+        /// 1 per active tile: its edge length in voxels (16·8 = 128, 32·128 = 4096, ...).
+        pub tile_sizes: Vec<u32>,
+        pub tile_values: Vec<f32>,
+        pub metadata: Vec<MetaEntry>,
+    }
+
+    /// An image in memory: `channels` interleaved f32 per pixel, rows top to bottom.
+    #[derive(Debug, Clone)]
+    pub struct ImageData {
+        pub width: u32,
+        pub height: u32,
+        pub channels: u32,
+        pub pixels: Vec<f32>,
+    }
+
+    unsafe extern "C++" {
+        include!("volgrad/cpp/bridge.h");
+
+        /// Every grid in the file, in file order.
+        fn list_grids(path: &str) -> Result<Vec<GridSummary>>;
+
+        /// Reads one float grid: by `index` (position in file order) when `index >= 0`, else by
+        /// `name`. Errors name the file and the reason (missing, corrupt, no such grid, not float).
+        fn read_float_grid(path: &str, name: &str, index: i32) -> Result<FloatGridData>;
+
+        /// Writes float grids to one file (pruned; stored as half when `save_half`), replacing it.
+        fn write_float_grids(path: &str, grids: &[FloatGridData], save_half: bool) -> Result<()>;
+
+        /// Reads any image OpenImageIO can open, converted to f32 (no colour conversion).
+        fn read_image(path: &str) -> Result<ImageData>;
+
+        /// Writes an image; the format follows the extension. `pixel_type` is "half", "float" or
+        /// "uint8" (8-bit values are the f32 values in [0, 1], already encoded by the caller).
+        fn write_image(path: &str, image: &ImageData, pixel_type: &str) -> Result<()>;
+    }
+}
+
+pub use ffi::{FloatGridData, GridSummary, ImageData, MetaEntry};

@@ -1,0 +1,34 @@
+//! A pinhole camera with a horizontal field of view.
+
+use glam::Vec3;
+
+#[derive(Debug, Clone, Copy)]
+pub struct Camera {
+    pub position: Vec3,
+    forward: Vec3,
+    right: Vec3,
+    up: Vec3,
+    /// tan(fov/2) horizontally and vertically.
+    tan_half: (f32, f32),
+    pub width: u32,
+    pub height: u32,
+}
+
+impl Camera {
+    /// `position != target` and `up` not parallel to the view direction (checked by the scene).
+    pub fn new(position: Vec3, target: Vec3, up: Vec3, fov_deg: f32, width: u32, height: u32) -> Self {
+        let forward = (target - position).normalize();
+        let right = forward.cross(up).normalize();
+        let up = right.cross(forward);
+        let tan_x = (fov_deg.to_radians() * 0.5).tan();
+        Camera { position, forward, right, up, tan_half: (tan_x, tan_x * height as f32 / width as f32), width, height }
+    }
+
+    /// Unit direction through image position (x, y) in pixels, (0, 0) the top-left corner.
+    #[inline]
+    pub fn direction(&self, x: f32, y: f32) -> Vec3 {
+        let sx = (2.0 * x / self.width as f32 - 1.0) * self.tan_half.0;
+        let sy = (1.0 - 2.0 * y / self.height as f32) * self.tan_half.1;
+        (self.forward + self.right * sx + self.up * sy).normalize()
+    }
+}

@@ -1,0 +1,176 @@
+//! Lights: an environment (a constant radiance plus an optional lat-long map, importance-sampled)
+//! and directional lights (suns, given by the direction their light travels and their irradiance).
+
+use std::f32::consts::PI;
+
+use glam::Vec3;
+
+use crate::sampling::{uniform_sphere, Distribution1D, UNIFORM_SPHERE_PDF};
+
+/// A lat-long environment map, y up, in Mitsuba 3's orientation: u = atan2(x, −z)/2π, v = θ/π with
+/// θ measured from +y. Texels are piecewise constant, and so is the sampling density.
+pub struct EnvMap {
+    width: usize,
+    height: usize,
+    texels: Vec<Vec3>,
+    rows: Distribution1D,
+    columns: Vec<Distribution1D>,
+}
+
+pub fn luminance(c: Vec3) -> f32 {
+    0.2126 * c.x + 0.7152 * c.y + 0.0722 * c.z
+}
+
+impl EnvMap {
+    /// `texels` are RGB, rows top (θ = 0) to bottom.
+    pub fn new(width: usize, height: usize, texels: Vec<Vec3>) -> Self {
+        assert_eq!(texels.len(), width * height);
+        let columns: Vec<Distribution1D> = (0..height)
+            .map(|y| {
+                let sin_theta = (PI * (y as f32 + 0.5) / height as f32).sin();
+                let w: Vec<f32> = texels[y * width..(y + 1) * width].iter().map(|&c| luminance(c).max(0.0) * sin_theta).collect();
+                Distribution1D::new(&w)
+            })
+            .collect();
+        let rows = Distribution1D::new(&columns.iter().map(|c| c.total).collect::<Vec<_>>());
+        EnvMap { width, height, texels, rows, columns }
+    }
+
+    fn texel_of(&self, dir: Vec3) -> (usize, usize) {
+        let u = (dir.x.atan2(-dir.z) / (2.0 * PI)).rem_euclid(1.0);
+        let v = dir.y.clamp(-1.0, 1.0).acos() / PI;
+        (((u * self.width as f32) as usize).min(self.width - 1), ((v * self.height as f32) as usize).min(self.height - 1))
+    }
+
+    fn direction(u: f32, v: f32) -> Vec3 {
+        let (phi, theta) = (2.0 * PI * u, PI * v);
+        Vec3::new(theta.sin() * phi.sin(), theta.cos(), -theta.sin() * phi.cos())
+    }
+
+    pub fn eval(&self, dir: Vec3) -> Vec3 {
+        let (x, y) = self.texel_of(dir);
+        self.texels[y * self.width + x]
+    }
+
+    /// Solid-angle density of `sample` for `dir`.
+    pub fn pdf(&self, dir: Vec3) -> f32 {
+        let (x, y) = self.texel_of(dir);
+        let sin_theta = (PI * (y as f32 + 0.5) / self.height as f32).sin();
+        let p_uv = self.rows.bin_probability(y) * self.columns[y].bin_probability(x) * (self.width * self.height) as f32;
+        if sin_theta <= 0.0 {
+            0.0
+        } else {
+            p_uv / (2.0 * PI * PI * sin_theta)
+        }
+    }
+
+    pub fn sample(&self, u: [f32; 2]) -> Vec3 {
+        let (y, dv) = self.rows.sample(u[0]);
+        let (x, du) = self.columns[y].sample(u[1]);
+        Self::direction((x as f32 + du) / self.width as f32, (y as f32 + dv) / self.height as f32)
+    }
+}
+
+/// Radiance arriving from infinitely far away in every direction.
+#[derive(Default)]
+pub struct Environment {
+    pub constant: Vec3,
+    pub map: Option<EnvMap>,
+}
+
+impl Environment {
+    pub fn is_black(&self) -> bool {
+        self.constant == Vec3::ZERO && self.map.is_none()
+    }
+
+    /// Radiance seen looking along `dir`.
+    #[inline]
+    pub fn eval(&self, dir: Vec3) -> Vec3 {
+        self.constant + self.map.as_ref().map_or(Vec3::ZERO, |m| m.eval(dir))
+    }
+
+    /// Probability of picking the map (rather than uniform directions) when both exist.
+    fn map_fraction(&self) -> f32 {
+        match (&self.map, self.constant == Vec3::ZERO) {
+            (None, _) => 0.0,
+            (Some(_), true) => 1.0,
+            (Some(_), false) => 0.5,
+        }
+    }
+
+    /// Solid-angle density of `sample` for `dir`.
+    #[inline]
+    pub fn pdf(&self, dir: Vec3) -> f32 {
+        if self.is_black() {
+            return 0.0;
+        }
+        let f = self.map_fraction();
+        let map_pdf = self.map.as_ref().map_or(0.0, |m| m.pdf(dir));
+        f * map_pdf + (1.0 - f) * UNIFORM_SPHERE_PDF
+    }
+
+    /// A direction toward the environment; its density is `pdf(dir)`.
+    #[inline]
+    pub fn sample(&self, u: [f32; 3]) -> Vec3 {
+        match &self.map {
+            Some(m) if u[2] < self.map_fraction() => m.sample([u[0], u[1]]),
+            _ => uniform_sphere([u[0], u[1]]),
+        }
+    }
+}
+
+/// A distant light with a single direction (a sun).
+#[derive(Debug, Clone, Copy)]
+pub struct DirectionalLight {
+    /// Unit vector pointing toward the light (the opposite of the direction its light travels).
+    pub to_light: Vec3,
+    pub irradiance: Vec3,
+}
+
+#[derive(Default)]
+pub struct Lights {
+    pub environment: Environment,
+    pub directional: Vec<DirectionalLight>,
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::sampling::pixel_rng;
+    use rand::Rng;
+
+    #[test]
+    fn envmap_pdf_matches_its_sampling_and_integrates_to_one() {
+        let (w, h) = (16, 8);
+        let texels = (0..w * h).map(|i| Vec3::splat(((i * 7919) % 13) as f32 + if i == 37 { 200.0 } else { 0.5 })).collect();
+        let map = EnvMap::new(w, h, texels);
+        // ∫ pdf dω = 1, by stratified directions.
+        let n = 400usize;
+        let mut integral = 0.0f64;
+        for i in 0..n {
+            for j in 0..n {
+                let dir = uniform_sphere([(i as f32 + 0.5) / n as f32, (j as f32 + 0.5) / n as f32]);
+                integral += map.pdf(dir) as f64;
+            }
+        }
+        integral *= 4.0 * std::f64::consts::PI / (n * n) as f64;
+        assert!((integral - 1.0).abs() < 0.02, "∫pdf = {integral}");
+        // E[L/pdf] over samples = ∫ L dω, the same as uniform estimation.
+        let mut rng = pixel_rng(3, 0, 0);
+        let m = 200_000;
+        let importance: f64 = (0..m).map(|_| {
+            let d = map.sample([rng.gen(), rng.gen()]);
+            (luminance(map.eval(d)) / map.pdf(d)) as f64
+        }).sum::<f64>() / m as f64;
+        let uniform: f64 = (0..m).map(|_| (luminance(map.eval(uniform_sphere([rng.gen(), rng.gen()]))) / UNIFORM_SPHERE_PDF) as f64).sum::<f64>() / m as f64;
+        assert!((importance / uniform - 1.0).abs() < 0.02, "importance {importance} vs uniform {uniform}");
+    }
+
+    #[test]
+    fn envmap_orientation_follows_mitsuba() {
+        // u = 0 looks toward −z, u = 0.25 toward +x, v = 0 straight up.
+        assert!((EnvMap::direction(0.0, 0.5) - Vec3::new(0.0, 0.0, -1.0)).length() < 1e-6);
+        assert!((EnvMap::direction(0.25, 0.5) - Vec3::X).length() < 1e-6);
+        assert!((EnvMap::direction(0.3, 0.0) - Vec3::Y).length() < 1e-6);
+    }
+}

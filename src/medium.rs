@@ -1,0 +1,106 @@
+//! The participating medium: a brick map of grid values, the grid's transform, and the optical
+//! properties a scene gives it. σt(x) = density_scale · grid(x); the albedo and phase function are
+//! constant over the medium.
+
+use glam::Vec3;
+
+use crate::brickmap::BrickMap;
+use crate::majorant::{MajorantGrid, MajorantMode};
+use crate::transform::IndexTransform;
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Filter {
+    Nearest,
+    Trilinear,
+}
+
+/// A ray in index space; `t` is a world distance (see `transform`).
+#[derive(Debug, Clone, Copy)]
+pub struct IndexRay {
+    pub o: Vec3,
+    pub d: Vec3,
+}
+
+impl IndexRay {
+    #[inline]
+    pub fn at(&self, t: f32) -> Vec3 {
+        self.o + self.d * t
+    }
+}
+
+pub struct Medium {
+    pub grid: BrickMap,
+    pub transform: IndexTransform,
+    /// Continuous index box the medium fills: the active voxels' box grown by half a voxel.
+    pub bounds: (Vec3, Vec3),
+    pub density_scale: f32,
+    pub filter: Filter,
+    pub albedo: Vec3,
+    pub phase_g: f32,
+    pub majorant: MajorantGrid,
+}
+
+impl Medium {
+    pub fn new(grid: BrickMap, transform: IndexTransform, density_scale: f32, filter: Filter, majorant: MajorantMode) -> Self {
+        let bounds = match grid.active_bounds() {
+            Some((lo, hi)) => (lo.as_vec3() - 0.5, hi.as_vec3() + 0.5),
+            None => (Vec3::ZERO, Vec3::ZERO),
+        };
+        let majorant = MajorantGrid::build(&grid, bounds, density_scale, majorant);
+        Medium {
+            grid,
+            transform,
+            bounds,
+            density_scale,
+            filter,
+            albedo: Vec3::ONE,
+            phase_g: 0.0,
+            majorant,
+        }
+    }
+
+    /// Extinction at an index-space point.
+    #[inline]
+    pub fn sigma_t(&self, p: Vec3) -> f32 {
+        self.density_scale
+            * match self.filter {
+                Filter::Nearest => self.grid.nearest(p),
+                Filter::Trilinear => self.grid.trilinear(p),
+            }
+    }
+
+    /// The world ray `o + t·ω` (unit ω) in index space.
+    #[inline]
+    pub fn to_index_ray(&self, o: Vec3, w: Vec3) -> IndexRay {
+        IndexRay { o: self.transform.point_to_index(o), d: self.transform.vector_to_index(w) }
+    }
+
+    /// The `[t0, t1]` (t ≥ 0) where the ray is inside the medium's box, if any.
+    #[inline]
+    pub fn intersect(&self, ray: &IndexRay) -> Option<(f32, f32)> {
+        let (lo, hi) = self.bounds;
+        let mut t0 = 0.0f32;
+        let mut t1 = f32::INFINITY;
+        for a in 0..3 {
+            if ray.d[a] == 0.0 {
+                if ray.o[a] < lo[a] || ray.o[a] > hi[a] {
+                    return None;
+                }
+                continue;
+            }
+            let inv = 1.0 / ray.d[a];
+            let (mut near, mut far) = ((lo[a] - ray.o[a]) * inv, (hi[a] - ray.o[a]) * inv);
+            if near > far {
+                std::mem::swap(&mut near, &mut far);
+            }
+            t0 = t0.max(near);
+            t1 = t1.min(far);
+        }
+        (t0 < t1).then_some((t0, t1))
+    }
+
+    /// Bytes held by the medium's data structures.
+    pub fn memory_bytes(&self) -> usize {
+        self.grid.memory_bytes() + self.majorant.memory_bytes()
+    }
+}

@@ -1,0 +1,189 @@
+//! The forward renderer: a volumetric path tracer with delta tracking, next-event estimation at
+//! every real collision, and MIS between environment sampling and phase sampling.
+
+use std::time::{Duration, Instant};
+
+use glam::Vec3;
+use rand::Rng;
+use rayon::prelude::*;
+
+use crate::image_io::RgbImage;
+use crate::sampling::{pixel_rng, power_heuristic, HenyeyGreenstein};
+use crate::scene::Scene;
+use crate::tracking::{sample_collision, transmittance, TrackingStats};
+
+/// Paths are terminated by Russian roulette on their throughput from this depth on.
+const RR_START_DEPTH: u32 = 3;
+const TILE: u32 = 16;
+
+#[derive(Debug, Clone, Copy)]
+pub struct RenderOptions {
+    pub spp: u32,
+    pub seed: u64,
+    pub max_depth: u32,
+    /// Show a progress bar on stderr.
+    pub progress: bool,
+}
+
+impl RenderOptions {
+    pub fn from_scene(scene: &Scene) -> Self {
+        RenderOptions { spp: scene.settings.spp, seed: scene.settings.seed, max_depth: scene.settings.max_depth, progress: false }
+    }
+}
+
+#[derive(Debug, Default, Clone, Copy)]
+pub struct RenderStats {
+    pub paths: u64,
+    pub wall: Duration,
+    pub tracking: TrackingStats,
+}
+
+impl RenderStats {
+    pub fn paths_per_second(&self) -> f64 {
+        self.paths as f64 / self.wall.as_secs_f64().max(1e-9)
+    }
+    pub fn lookups_per_path(&self) -> f64 {
+        (self.tracking.lookups + self.tracking.shadow_lookups) as f64 / self.paths.max(1) as f64
+    }
+    /// Real collisions per density lookup made by free-flight sampling (1 is ideal).
+    pub fn tracking_efficiency(&self) -> f64 {
+        self.tracking.collisions as f64 / self.tracking.lookups.max(1) as f64
+    }
+}
+
+/// The random numbers of one light sample, drawn before they are used so that callers can evaluate
+/// the same light sample at several points.
+#[derive(Debug, Clone, Copy)]
+pub struct LightSample {
+    pub u: [f32; 3],
+}
+
+impl LightSample {
+    pub fn draw(rng: &mut impl Rng) -> Self {
+        LightSample { u: [rng.gen(), rng.gen(), rng.gen()] }
+    }
+}
+
+/// Transmittance from world point `p` along unit `dir` to the medium's boundary.
+#[inline]
+pub fn transmittance_to_boundary(scene: &Scene, p: Vec3, dir: Vec3, rng: &mut impl Rng, stats: &mut TrackingStats) -> f32 {
+    let ray = scene.medium.to_index_ray(p, dir);
+    match scene.medium.intersect(&ray) {
+        Some((t0, t1)) => transmittance(&scene.medium, &ray, t0, t1, rng, stats),
+        None => 1.0,
+    }
+}
+
+/// Next-event estimation at a scattering point `p` reached along `dir`: the in-scattered radiance
+/// from all directional lights and one environment sample (MIS-weighted against phase sampling),
+/// before the albedo.
+pub fn direct_light(scene: &Scene, p: Vec3, dir: Vec3, sample: &LightSample, rng: &mut impl Rng, stats: &mut TrackingStats) -> Vec3 {
+    let phase = HenyeyGreenstein { g: scene.medium.phase_g };
+    let mut radiance = Vec3::ZERO;
+    for sun in &scene.lights.directional {
+        let contribution = sun.irradiance * phase.eval(dir.dot(sun.to_light));
+        if contribution.max_element() > 0.0 {
+            radiance += contribution * transmittance_to_boundary(scene, p, sun.to_light, rng, stats);
+        }
+    }
+    let env = &scene.lights.environment;
+    if !env.is_black() {
+        let wi = env.sample(sample.u);
+        let light_pdf = env.pdf(wi);
+        if light_pdf > 0.0 {
+            let phase_pdf = phase.eval(dir.dot(wi));
+            let contribution = env.eval(wi) * (phase_pdf * power_heuristic(light_pdf, phase_pdf) / light_pdf);
+            if contribution.max_element() > 0.0 {
+                radiance += contribution * transmittance_to_boundary(scene, p, wi, rng, stats);
+            }
+        }
+    }
+    radiance
+}
+
+/// Radiance arriving at world point `origin` from direction `-dir`, by one path.
+pub fn trace_path(scene: &Scene, origin: Vec3, dir: Vec3, max_depth: u32, rng: &mut impl Rng, stats: &mut TrackingStats) -> Vec3 {
+    let medium = &scene.medium;
+    let env = &scene.lights.environment;
+    let phase = HenyeyGreenstein { g: medium.phase_g };
+    let mut radiance = Vec3::ZERO;
+    let mut throughput = Vec3::ONE;
+    let (mut p, mut dir) = (origin, dir);
+    // Density of the phase sample that produced `dir`; None for the camera ray (no MIS).
+    let mut phase_pdf: Option<f32> = None;
+    let mut depth = 0;
+    loop {
+        let ray = medium.to_index_ray(p, dir);
+        let collision = medium.intersect(&ray).and_then(|(t0, t1)| sample_collision(medium, &ray, t0, t1, rng, stats));
+        let Some(t) = collision else {
+            let weight = phase_pdf.map_or(1.0, |pdf| power_heuristic(pdf, env.pdf(dir)));
+            radiance += throughput * env.eval(dir) * weight;
+            break;
+        };
+        if depth >= max_depth {
+            break;
+        }
+        depth += 1;
+        p += dir * t;
+        // A real collision scatters with probability α; the albedo weights the throughput.
+        throughput *= medium.albedo;
+        let light_sample = LightSample::draw(rng);
+        radiance += throughput * direct_light(scene, p, dir, &light_sample, rng, stats);
+        let new_dir = phase.sample(dir, [rng.gen(), rng.gen()]);
+        phase_pdf = Some(phase.eval(dir.dot(new_dir)));
+        dir = new_dir;
+        if depth >= RR_START_DEPTH {
+            let survive = throughput.max_element();
+            if survive < 1.0 {
+                if rng.gen::<f32>() >= survive {
+                    break;
+                }
+                throughput /= survive;
+            }
+        }
+    }
+    radiance
+}
+
+/// Renders the scene's camera view. Each pixel has its own random stream (seed, pixel), so the
+/// image does not depend on the number of threads.
+pub fn render(scene: &Scene, options: &RenderOptions) -> (RgbImage, RenderStats) {
+    let start = Instant::now();
+    let camera = &scene.camera;
+    let (w, h) = (camera.width, camera.height);
+    let tiles: Vec<(u32, u32)> = (0..h.div_ceil(TILE)).flat_map(|ty| (0..w.div_ceil(TILE)).map(move |tx| (tx * TILE, ty * TILE))).collect();
+    let progress = crate::progress::bar(options.progress, tiles.len() as u64, "rendering");
+    let results: Vec<((u32, u32), Vec<Vec3>, TrackingStats)> = tiles
+        .par_iter()
+        .map(|&(x0, y0)| {
+            let mut stats = TrackingStats::default();
+            let mut pixels = Vec::with_capacity((TILE * TILE) as usize);
+            for y in y0..(y0 + TILE).min(h) {
+                for x in x0..(x0 + TILE).min(w) {
+                    let mut rng = pixel_rng(options.seed, (y * w + x) as u64, 0);
+                    let mut sum = Vec3::ZERO;
+                    for _ in 0..options.spp {
+                        let dir = camera.direction(x as f32 + rng.gen::<f32>(), y as f32 + rng.gen::<f32>());
+                        sum += trace_path(scene, camera.position, dir, options.max_depth, &mut rng, &mut stats);
+                    }
+                    pixels.push(sum / options.spp as f32);
+                }
+            }
+            progress.inc(1);
+            ((x0, y0), pixels, stats)
+        })
+        .collect();
+    progress.finish_and_clear();
+    let mut image = RgbImage::new(w, h);
+    let mut stats = RenderStats { paths: w as u64 * h as u64 * options.spp as u64, ..Default::default() };
+    for ((x0, y0), pixels, tile_stats) in results {
+        let tw = (x0 + TILE).min(w) - x0;
+        for (i, c) in pixels.into_iter().enumerate() {
+            let (x, y) = (x0 + i as u32 % tw, y0 + i as u32 / tw);
+            image.pixels[(y * w + x) as usize] = c;
+        }
+        stats.tracking += tile_stats;
+    }
+    stats.wall = start.elapsed();
+    (image, stats)
+}

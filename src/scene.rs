@@ -1,0 +1,441 @@
+//! Scene files (TOML): parsing, validation with errors that name the key, and loading into the
+//! renderer's types. Paths inside a scene are relative to the scene file.
+
+use std::path::{Path, PathBuf};
+
+use anyhow::{bail, Context, Result};
+use glam::Vec3;
+use serde::Deserialize;
+
+use crate::camera::Camera;
+use crate::image_io;
+use crate::lights::{DirectionalLight, EnvMap, Environment, Lights};
+use crate::majorant::MajorantMode;
+use crate::medium::{Filter, Medium};
+use crate::vdb::{self, GridSelector};
+
+/// A grey value or an RGB triple.
+#[derive(Debug, Clone, Copy, Deserialize)]
+#[serde(untagged)]
+pub enum Spectrum {
+    Grey(f32),
+    Rgb([f32; 3]),
+}
+
+impl Spectrum {
+    pub fn rgb(self) -> Vec3 {
+        match self {
+            Spectrum::Grey(v) => Vec3::splat(v),
+            Spectrum::Rgb(c) => Vec3::from(c),
+        }
+    }
+}
+
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SceneFile {
+    pub camera: CameraFile,
+    pub medium: MediumFile,
+    #[serde(default)]
+    pub light: Vec<LightFile>,
+    #[serde(default)]
+    pub render: RenderFile,
+}
+
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CameraFile {
+    pub position: [f32; 3],
+    pub target: [f32; 3],
+    #[serde(default = "default_up")]
+    pub up: [f32; 3],
+    /// Horizontal field of view.
+    pub fov_deg: f32,
+    pub width: u32,
+    pub height: u32,
+}
+
+fn default_up() -> [f32; 3] {
+    [0.0, 1.0, 0.0]
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize, Default)]
+#[serde(rename_all = "lowercase")]
+pub enum FilterName {
+    Nearest,
+    #[default]
+    Trilinear,
+}
+
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct MediumFile {
+    pub vdb: String,
+    pub grid: Option<String>,
+    pub grid_index: Option<usize>,
+    #[serde(default = "one")]
+    pub density_scale: f32,
+    #[serde(default = "white")]
+    pub albedo: Spectrum,
+    #[serde(default)]
+    pub phase_g: f32,
+    #[serde(default)]
+    pub filter: FilterName,
+}
+
+fn one() -> f32 {
+    1.0
+}
+
+fn white() -> Spectrum {
+    Spectrum::Grey(1.0)
+}
+
+#[derive(Debug, Clone, Deserialize)]
+#[serde(tag = "type", rename_all = "lowercase", deny_unknown_fields)]
+pub enum LightFile {
+    Constant {
+        radiance: Spectrum,
+    },
+    Envmap {
+        /// A lat-long image (EXR, HDR, ...), relative to the scene file.
+        file: String,
+        #[serde(default = "one")]
+        scale: f32,
+    },
+    Directional {
+        /// The direction in which the light travels.
+        direction: [f32; 3],
+        irradiance: Spectrum,
+    },
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize, Default)]
+#[serde(rename_all = "lowercase")]
+pub enum MajorantName {
+    #[default]
+    Grid,
+    Global,
+}
+
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RenderFile {
+    #[serde(default = "default_spp")]
+    pub spp: u32,
+    #[serde(default = "default_max_depth")]
+    pub max_depth: u32,
+    #[serde(default = "default_seed")]
+    pub seed: u64,
+    /// Multiplies the image before the PNG's sRGB encoding (the EXR stays linear and unscaled).
+    #[serde(default = "one")]
+    pub exposure: f32,
+    #[serde(default)]
+    pub majorant: MajorantName,
+    /// Edge of a majorant cell, in voxels.
+    #[serde(default = "default_majorant_cell")]
+    pub majorant_cell: u32,
+}
+
+fn default_spp() -> u32 {
+    64
+}
+fn default_max_depth() -> u32 {
+    64
+}
+fn default_seed() -> u64 {
+    1
+}
+pub const DEFAULT_MAJORANT_CELL: u32 = 8;
+fn default_majorant_cell() -> u32 {
+    DEFAULT_MAJORANT_CELL
+}
+
+impl Default for RenderFile {
+    fn default() -> Self {
+        RenderFile {
+            spp: default_spp(),
+            max_depth: default_max_depth(),
+            seed: default_seed(),
+            exposure: 1.0,
+            majorant: MajorantName::Grid,
+            majorant_cell: DEFAULT_MAJORANT_CELL,
+        }
+    }
+}
+
+/// A scene ready to render.
+pub struct Scene {
+    pub path: PathBuf,
+    pub camera: Camera,
+    pub medium: Medium,
+    pub lights: Lights,
+    pub settings: RenderFile,
+    /// The grid the medium came from, as loaded (name, transform, metadata) for exports.
+    pub grid_name: String,
+    pub vdb_path: PathBuf,
+}
+
+impl SceneFile {
+    pub fn parse(text: &str, origin: &Path) -> Result<Self> {
+        toml::from_str(text).map_err(|e| anyhow::anyhow!("{}: {}", origin.display(), e.to_string().trim_end()))
+    }
+
+    pub fn read(path: &Path) -> Result<Self> {
+        let text = std::fs::read_to_string(path).with_context(|| format!("cannot read scene file '{}'", path.display()))?;
+        Self::parse(&text, path)
+    }
+
+    /// Checks every value a render depends on; the message names the key.
+    pub fn validate(&self) -> Result<()> {
+        let c = &self.camera;
+        finite3("camera.position", c.position)?;
+        finite3("camera.target", c.target)?;
+        finite3("camera.up", c.up)?;
+        let forward = Vec3::from(c.target) - Vec3::from(c.position);
+        if forward.length() <= 0.0 {
+            bail!("camera.target must differ from camera.position");
+        }
+        if forward.normalize().cross(Vec3::from(c.up)).length() < 1e-6 {
+            bail!("camera.up must not be zero or parallel to the view direction");
+        }
+        if !(c.fov_deg > 0.0 && c.fov_deg < 180.0) {
+            bail!("camera.fov_deg must be between 0 and 180 degrees (got {})", c.fov_deg);
+        }
+        if c.width == 0 || c.height == 0 {
+            bail!("camera.width and camera.height must be at least 1 (got {}×{})", c.width, c.height);
+        }
+        if c.width as u64 * c.height as u64 > 1 << 28 {
+            bail!("camera.width × camera.height is too large ({}×{})", c.width, c.height);
+        }
+        let m = &self.medium;
+        if m.grid.is_some() && m.grid_index.is_some() {
+            bail!("medium.grid and medium.grid_index are exclusive: give one");
+        }
+        if !(m.density_scale >= 0.0 && m.density_scale.is_finite()) {
+            bail!("medium.density_scale must be a finite number ≥ 0 (got {})", m.density_scale);
+        }
+        let albedo = m.albedo.rgb();
+        if !(albedo.cmpge(Vec3::ZERO).all() && albedo.cmple(Vec3::ONE).all()) {
+            bail!("medium.albedo must lie in [0, 1] (got {albedo})");
+        }
+        if !(m.phase_g.abs() < 1.0) {
+            bail!("medium.phase_g must satisfy |g| < 1 (got {})", m.phase_g);
+        }
+        let mut envmaps = 0;
+        for (i, light) in self.light.iter().enumerate() {
+            match light {
+                LightFile::Constant { radiance } => non_negative(&format!("light[{i}].radiance"), radiance.rgb())?,
+                LightFile::Envmap { scale, .. } => {
+                    envmaps += 1;
+                    if !(*scale >= 0.0 && scale.is_finite()) {
+                        bail!("light[{i}].scale must be a finite number ≥ 0 (got {scale})");
+                    }
+                }
+                LightFile::Directional { direction, irradiance } => {
+                    finite3(&format!("light[{i}].direction"), *direction)?;
+                    if Vec3::from(*direction).length() == 0.0 {
+                        bail!("light[{i}].direction must not be zero");
+                    }
+                    non_negative(&format!("light[{i}].irradiance"), irradiance.rgb())?;
+                }
+            }
+        }
+        if envmaps > 1 {
+            bail!("at most one light of type \"envmap\" is supported (found {envmaps})");
+        }
+        let r = &self.render;
+        if r.spp == 0 {
+            bail!("render.spp must be at least 1");
+        }
+        if !(r.exposure > 0.0 && r.exposure.is_finite()) {
+            bail!("render.exposure must be a finite number > 0 (got {})", r.exposure);
+        }
+        if r.majorant_cell == 0 || r.majorant_cell > 1024 {
+            bail!("render.majorant_cell must be between 1 and 1024 voxels (got {})", r.majorant_cell);
+        }
+        Ok(())
+    }
+}
+
+fn finite3(key: &str, v: [f32; 3]) -> Result<()> {
+    if v.iter().all(|x| x.is_finite()) {
+        Ok(())
+    } else {
+        bail!("{key} must be three finite numbers (got {v:?})")
+    }
+}
+
+fn non_negative(key: &str, v: Vec3) -> Result<()> {
+    if v.is_finite() && v.cmpge(Vec3::ZERO).all() {
+        Ok(())
+    } else {
+        bail!("{key} must be finite and ≥ 0 (got {v})")
+    }
+}
+
+impl Scene {
+    /// Reads, validates and loads a scene file with its grid and lights.
+    pub fn load(path: &Path) -> Result<Scene> {
+        let file = SceneFile::read(path)?;
+        Self::from_file(file, path)
+    }
+
+    /// Loads a parsed scene; `path` locates the files it names.
+    pub fn from_file(file: SceneFile, path: &Path) -> Result<Scene> {
+        file.validate().with_context(|| format!("invalid scene '{}'", path.display()))?;
+        let dir = path.parent().unwrap_or(Path::new("."));
+        let vdb_path = dir.join(&file.medium.vdb);
+        if !vdb_path.exists() {
+            bail!("medium.vdb: file '{}' does not exist (paths are relative to the scene file)", vdb_path.display());
+        }
+        let selector = match (&file.medium.grid, file.medium.grid_index) {
+            (Some(name), _) => GridSelector::Name(name.clone()),
+            (None, Some(i)) => GridSelector::Index(i),
+            (None, None) => GridSelector::Default,
+        };
+        let grid = vdb::read_grid(&vdb_path, &selector)?;
+        let c = &file.camera;
+        let camera = Camera::new(c.position.into(), c.target.into(), c.up.into(), c.fov_deg, c.width, c.height);
+        let filter = match file.medium.filter {
+            FilterName::Nearest => Filter::Nearest,
+            FilterName::Trilinear => Filter::Trilinear,
+        };
+        let r = &file.render;
+        let mode = match r.majorant {
+            MajorantName::Grid => MajorantMode::Grid { cell_voxels: r.majorant_cell },
+            MajorantName::Global => MajorantMode::Global,
+        };
+        if grid.bricks.min_value() < 0.0 {
+            bail!(
+                "grid '{}' in '{}' has negative values (min {}): extinction must be ≥ 0",
+                grid.name,
+                vdb_path.display(),
+                grid.bricks.min_value()
+            );
+        }
+        let mut medium = Medium::new(grid.bricks, grid.transform, file.medium.density_scale, filter, mode);
+        medium.albedo = file.medium.albedo.rgb();
+        medium.phase_g = file.medium.phase_g;
+        let lights = load_lights(&file.light, dir)?;
+        Ok(Scene {
+            path: path.to_path_buf(),
+            camera,
+            medium,
+            lights,
+            settings: file.render,
+            grid_name: grid.name,
+            vdb_path,
+        })
+    }
+
+    /// Rebuilds the majorant structure (e.g. for `--majorant global` from the command line).
+    pub fn set_majorant(&mut self, mode: MajorantMode) {
+        let m = &mut self.medium;
+        m.majorant = crate::majorant::MajorantGrid::build(&m.grid, m.bounds, m.density_scale, mode);
+        self.settings.majorant = match mode {
+            MajorantMode::Global => MajorantName::Global,
+            MajorantMode::Grid { cell_voxels } => {
+                self.settings.majorant_cell = cell_voxels;
+                MajorantName::Grid
+            }
+        };
+    }
+}
+
+fn load_lights(files: &[LightFile], dir: &Path) -> Result<Lights> {
+    let mut lights = Lights::default();
+    let mut environment = Environment::default();
+    for (i, light) in files.iter().enumerate() {
+        match light {
+            LightFile::Constant { radiance } => environment.constant += radiance.rgb(),
+            LightFile::Envmap { file, scale } => {
+                let path = dir.join(file);
+                let image = image_io::read_rgb(&path).with_context(|| format!("light[{i}].file"))?;
+                if image.pixels.iter().any(|c| !c.is_finite() || c.cmplt(Vec3::ZERO).any()) {
+                    bail!("light[{i}].file: '{}' has negative or non-finite pixels", path.display());
+                }
+                let texels = image.pixels.iter().map(|&c| c * *scale).collect();
+                environment.map = Some(EnvMap::new(image.width as usize, image.height as usize, texels));
+            }
+            LightFile::Directional { direction, irradiance } => lights.directional.push(DirectionalLight {
+                to_light: -Vec3::from(*direction).normalize(),
+                irradiance: irradiance.rgb(),
+            }),
+        }
+    }
+    lights.environment = environment;
+    Ok(lights)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const MINIMAL: &str = r#"
+[camera]
+position = [0, 0, 10]
+target = [0, 0, 0]
+fov_deg = 40
+width = 8
+height = 8
+[medium]
+vdb = "x.vdb"
+"#;
+
+    fn parse(extra: &str) -> Result<SceneFile> {
+        let f = SceneFile::parse(&format!("{MINIMAL}{extra}"), Path::new("t.toml"))?;
+        f.validate()?;
+        Ok(f)
+    }
+
+    #[test]
+    fn minimal_scene_has_defaults() {
+        let f = parse("").unwrap();
+        assert_eq!(f.render.spp, 64);
+        assert_eq!(f.medium.filter, FilterName::Trilinear);
+        assert!(f.light.is_empty());
+    }
+
+    #[test]
+    fn lights_accept_grey_and_rgb() {
+        let f = parse("[[light]]\ntype = \"constant\"\nradiance = [1, 0.5, 0]\n[[light]]\ntype = \"directional\"\ndirection = [0, -1, 0]\nirradiance = 3\n").unwrap();
+        assert_eq!(f.light.len(), 2);
+    }
+
+    #[test]
+    fn errors_name_the_key() {
+        let cases = [
+            ("[render]\nspp = 0\n", "render.spp"),
+            ("[render]\nmajorant = \"fast\"\n", "majorant"),
+            ("[[light]]\ntype = \"constant\"\nradiance = -1\n", "light[0].radiance"),
+            ("[[light]]\ntype = \"constant\"\nradiance = 1\ncolour = 2\n", "colour"),
+            ("[[light]]\ntype = \"spot\"\n", "spot"),
+            ("[[light]]\ntype = \"directional\"\ndirection = [0, 0, 0]\nirradiance = 1\n", "light[0].direction"),
+            ("[render]\nsamples = 3\n", "samples"),
+        ];
+        for (extra, key) in cases {
+            let err = format!("{:#}", parse(extra).unwrap_err());
+            assert!(err.contains(key), "error for {extra:?} does not name {key}: {err}");
+        }
+        let bad_medium = [
+            ("density_scale = -1", "medium.density_scale"),
+            ("phase_g = 1.0", "medium.phase_g"),
+            ("albedo = 1.5", "medium.albedo"),
+            ("albedo = [0.5, 2, 0.5]", "medium.albedo"),
+            ("grid = \"a\"\ngrid_index = 1", "grid_index"),
+            ("filter = \"cubic\"", "cubic"),
+            ("unknown_key = 1", "unknown_key"),
+        ];
+        for (line, key) in bad_medium {
+            let text = MINIMAL.replace("vdb = \"x.vdb\"", &format!("vdb = \"x.vdb\"\n{line}"));
+            let err = SceneFile::parse(&text, Path::new("t.toml")).and_then(|f| f.validate().map(|_| f));
+            let err = format!("{:#}", err.unwrap_err());
+            assert!(err.contains(key), "error for {line:?} does not name {key}: {err}");
+        }
+        for (from, to, key) in [("width = 8", "width = 0", "camera.width"), ("fov_deg = 40", "fov_deg = 180", "camera.fov_deg"), ("target = [0, 0, 0]", "target = [0, 0, 10]", "camera.target")] {
+            let err = SceneFile::parse(&MINIMAL.replace(from, to), Path::new("t.toml")).unwrap().validate().unwrap_err();
+            assert!(format!("{err}").contains(key), "{err}");
+        }
+    }
+}

@@ -1,0 +1,120 @@
+//! The grid's index-to-world affine map.
+//!
+//! Rays are traced in index space, where voxel centres sit at integer coordinates. A world ray
+//! `o + t·ω` with unit `ω` maps to the index ray `M⁻¹o + t·(M⁻¹ω)`: the parameter `t` stays a *world*
+//! distance, so extinction (per world unit) and distances need no conversion even for rotated or
+//! anisotropic voxels.
+
+use glam::{DAffine3, DMat3, DVec3, Vec3};
+
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct IndexTransform {
+    index_to_world: DAffine3,
+    world_to_index: DAffine3,
+}
+
+impl IndexTransform {
+    /// From the bridge's 4×4 (column-vector convention, row-major). Fails for singular or
+    /// non-finite maps.
+    pub fn from_rows(m: &[f64; 16]) -> anyhow::Result<Self> {
+        let linear = DMat3::from_cols(
+            DVec3::new(m[0], m[4], m[8]),
+            DVec3::new(m[1], m[5], m[9]),
+            DVec3::new(m[2], m[6], m[10]),
+        );
+        let translation = DVec3::new(m[3], m[7], m[11]);
+        Self::new(DAffine3::from_mat3_translation(linear, translation))
+    }
+
+    pub fn new(index_to_world: DAffine3) -> anyhow::Result<Self> {
+        let det = index_to_world.matrix3.determinant();
+        if !det.is_finite() || det.abs() < 1e-300 || !index_to_world.translation.is_finite() {
+            anyhow::bail!("the grid's index-to-world transform is singular or not finite");
+        }
+        Ok(Self {
+            index_to_world,
+            world_to_index: index_to_world.inverse(),
+        })
+    }
+
+    /// Uniform voxels of edge `voxel_size`, voxel (0,0,0) centred at `origin`.
+    pub fn uniform(voxel_size: f64, origin: DVec3) -> Self {
+        Self::new(DAffine3::from_mat3_translation(DMat3::from_diagonal(DVec3::splat(voxel_size)), origin))
+            .expect("a positive voxel size gives an invertible map")
+    }
+
+    /// Back to the bridge's 4×4 layout.
+    pub fn to_rows(&self) -> [f64; 16] {
+        let m = self.index_to_world.matrix3;
+        let t = self.index_to_world.translation;
+        [
+            m.x_axis.x, m.y_axis.x, m.z_axis.x, t.x, //
+            m.x_axis.y, m.y_axis.y, m.z_axis.y, t.y, //
+            m.x_axis.z, m.y_axis.z, m.z_axis.z, t.z, //
+            0.0, 0.0, 0.0, 1.0,
+        ]
+    }
+
+    pub fn index_to_world(&self) -> DAffine3 {
+        self.index_to_world
+    }
+
+    pub fn point_to_index(&self, world: Vec3) -> Vec3 {
+        self.world_to_index.transform_point3(world.as_dvec3()).as_vec3()
+    }
+
+    pub fn vector_to_index(&self, world: Vec3) -> Vec3 {
+        self.world_to_index.transform_vector3(world.as_dvec3()).as_vec3()
+    }
+
+    pub fn point_to_world(&self, index: Vec3) -> Vec3 {
+        self.index_to_world.transform_point3(index.as_dvec3()).as_vec3()
+    }
+
+    /// World lengths of the three index axes.
+    pub fn voxel_size(&self) -> DVec3 {
+        let m = self.index_to_world.matrix3;
+        DVec3::new(m.x_axis.length(), m.y_axis.length(), m.z_axis.length())
+    }
+
+    /// The world-space axis-aligned box around an index-space box.
+    pub fn world_bounds(&self, lo: Vec3, hi: Vec3) -> (Vec3, Vec3) {
+        let mut min = Vec3::splat(f32::INFINITY);
+        let mut max = Vec3::splat(f32::NEG_INFINITY);
+        for corner in 0..8 {
+            let p = Vec3::new(
+                if corner & 1 == 0 { lo.x } else { hi.x },
+                if corner & 2 == 0 { lo.y } else { hi.y },
+                if corner & 4 == 0 { lo.z } else { hi.z },
+            );
+            let w = self.point_to_world(p);
+            min = min.min(w);
+            max = max.max(w);
+        }
+        (min, max)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn rows_round_trip_and_invert() {
+        let rows = [0.0, -2.0, 0.0, 5.0, 1.0, 0.0, 0.0, -1.0, 0.0, 0.0, 0.5, 3.0, 0.0, 0.0, 0.0, 1.0];
+        let t = IndexTransform::from_rows(&rows).unwrap();
+        assert_eq!(t.to_rows(), rows);
+        let p = Vec3::new(1.0, 2.0, 3.0);
+        let w = t.point_to_world(p);
+        assert_eq!(w, Vec3::new(-4.0 + 5.0, 1.0 - 1.0, 1.5 + 3.0));
+        assert!((t.point_to_index(w) - p).length() < 1e-5);
+        assert_eq!(t.voxel_size(), DVec3::new(1.0, 2.0, 0.5));
+    }
+
+    #[test]
+    fn singular_map_is_an_error() {
+        let mut rows = [0.0; 16];
+        rows[15] = 1.0;
+        assert!(IndexTransform::from_rows(&rows).is_err());
+    }
+}

@@ -1,0 +1,129 @@
+//! Reading and writing float grids through the OpenVDB bridge, as brick maps.
+
+use std::path::Path;
+
+use anyhow::{anyhow, bail, Result};
+use glam::IVec3;
+
+use crate::brickmap::{BrickMap, Leaf, Tile, BRICK_VOXELS};
+use crate::bridge::ffi;
+use crate::bridge::{FloatGridData, GridSummary, MetaEntry};
+use crate::transform::IndexTransform;
+
+/// Which grid of a file to read.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum GridSelector {
+    Name(String),
+    /// Position in file order (names may repeat).
+    Index(usize),
+    /// "density" if there is one, else the file's only grid.
+    Default,
+}
+
+/// A float grid in memory.
+pub struct Grid {
+    pub name: String,
+    pub grid_class: String,
+    pub transform: IndexTransform,
+    pub bricks: BrickMap,
+    pub saved_as_half: bool,
+    pub metadata: Vec<MetaEntry>,
+}
+
+fn path_str(path: &Path) -> Result<&str> {
+    path.to_str().ok_or_else(|| anyhow!("path '{}' is not valid UTF-8", path.display()))
+}
+
+pub fn list_grids(path: &Path) -> Result<Vec<GridSummary>> {
+    Ok(ffi::list_grids(path_str(path)?).map_err(|e| anyhow!("{}", e.what()))?)
+}
+
+pub fn read_grid(path: &Path, selector: &GridSelector) -> Result<Grid> {
+    let p = path_str(path)?;
+    let data = match selector {
+        GridSelector::Name(name) => ffi::read_float_grid(p, name, -1),
+        GridSelector::Index(i) => ffi::read_float_grid(p, "", i32::try_from(*i).unwrap_or(i32::MAX)),
+        GridSelector::Default => {
+            let grids = list_grids(path)?;
+            match grids.iter().position(|g| g.name == "density") {
+                Some(i) => ffi::read_float_grid(p, "", i as i32),
+                None if grids.len() == 1 => ffi::read_float_grid(p, "", 0),
+                None => {
+                    let names: Vec<_> = grids.iter().map(|g| g.name.as_str()).collect();
+                    bail!(
+                        "'{}' has no grid named \"density\" and {} grids ({}): choose one with medium.grid or medium.grid_index",
+                        path.display(),
+                        grids.len(),
+                        names.join(", ")
+                    )
+                }
+            }
+        }
+    }
+    .map_err(|e| anyhow!("{}", e.what()))?;
+    Grid::from_data(data).map_err(|e| anyhow!("grid in '{}': {e}", path.display()))
+}
+
+/// Writes grids to `path`. Refuses to replace an existing file unless `overwrite`.
+pub fn write_grids(path: &Path, grids: &[&Grid], save_half: bool, overwrite: bool) -> Result<()> {
+    crate::refuse_overwrite(path, overwrite)?;
+    let data: Vec<FloatGridData> = grids.iter().map(|g| g.to_data()).collect();
+    ffi::write_float_grids(path_str(path)?, &data, save_half).map_err(|e| anyhow!("{}", e.what()))
+}
+
+impl Grid {
+    pub fn from_data(d: FloatGridData) -> Result<Grid> {
+        let n = d.leaf_origins.len() / 3;
+        if d.leaf_values.len() != n * BRICK_VOXELS || d.leaf_active.len() != n * 8 {
+            bail!("inconsistent leaf arrays from the bridge");
+        }
+        if d.leaf_values.iter().any(|v| !v.is_finite()) || d.tile_values.iter().any(|v| !v.is_finite()) {
+            bail!("grid '{}' holds NaN or infinite values", d.name);
+        }
+        let leaves = (0..n)
+            .map(|i| Leaf {
+                origin: IVec3::from_slice(&d.leaf_origins[3 * i..3 * i + 3]),
+                values: d.leaf_values[i * BRICK_VOXELS..(i + 1) * BRICK_VOXELS].try_into().unwrap(),
+                active: d.leaf_active[i * 8..(i + 1) * 8].try_into().unwrap(),
+            })
+            .collect();
+        let tiles = (0..d.tile_values.len())
+            .map(|i| Tile {
+                origin: IVec3::from_slice(&d.tile_origins[3 * i..3 * i + 3]),
+                size: d.tile_sizes[i],
+                value: d.tile_values[i],
+            })
+            .collect();
+        Ok(Grid {
+            transform: IndexTransform::from_rows(&d.index_to_world)?,
+            bricks: BrickMap::new(leaves, tiles),
+            name: d.name,
+            grid_class: d.grid_class,
+            saved_as_half: d.saved_as_half,
+            metadata: d.metadata,
+        })
+    }
+
+    pub fn to_data(&self) -> FloatGridData {
+        let leaves = self.bricks.leaves();
+        let tiles = self.bricks.tiles();
+        FloatGridData {
+            name: self.name.clone(),
+            grid_class: self.grid_class.clone(),
+            index_to_world: self.transform.to_rows(),
+            background: 0.0,
+            saved_as_half: self.saved_as_half,
+            leaf_origins: leaves.iter().flat_map(|l| l.origin.to_array()).collect(),
+            leaf_values: leaves.iter().flat_map(|l| l.values).collect(),
+            leaf_active: leaves.iter().flat_map(|l| l.active).collect(),
+            tile_origins: tiles.iter().flat_map(|t| t.origin.to_array()).collect(),
+            tile_sizes: tiles.iter().map(|t| t.size).collect(),
+            tile_values: tiles.iter().map(|t| t.value).collect(),
+            metadata: self.metadata.clone(),
+        }
+    }
+}
+
+pub fn meta(name: &str, type_name: &str, value: impl ToString) -> MetaEntry {
+    MetaEntry { name: name.into(), type_name: type_name.into(), value: value.to_string() }
+}

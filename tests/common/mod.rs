@@ -1,0 +1,74 @@
+//! Scenes built in memory for the renderer's tests.
+#![allow(dead_code)]
+
+use std::path::PathBuf;
+
+use glam::{DAffine3, DMat3, DVec3, IVec3, Vec3};
+use volgrad::brickmap::{BrickMap, BrickMapBuilder};
+use volgrad::camera::Camera;
+use volgrad::lights::{Environment, Lights};
+use volgrad::majorant::MajorantMode;
+use volgrad::medium::{Filter, Medium};
+use volgrad::scene::{RenderFile, Scene};
+use volgrad::transform::IndexTransform;
+
+/// A grid of `n`³ voxels (0..n) whose values come from `f`.
+pub fn grid(n: i32, f: impl Fn(IVec3) -> f32) -> BrickMap {
+    let mut b = BrickMapBuilder::new();
+    for x in 0..n {
+        for y in 0..n {
+            for z in 0..n {
+                let v = IVec3::new(x, y, z);
+                b.set(v, f(v), true);
+            }
+        }
+    }
+    b.build()
+}
+
+/// A uniform transform with voxel (0,0,0)... centred so that the `n`³ block sits around the origin.
+pub fn centred(n: i32, voxel: f64) -> IndexTransform {
+    IndexTransform::uniform(voxel, DVec3::splat(-(n - 1) as f64 * 0.5 * voxel))
+}
+
+pub fn affine(linear: DMat3, n: i32) -> IndexTransform {
+    let centre = DVec3::splat((n - 1) as f64 * 0.5);
+    IndexTransform::new(DAffine3::from_mat3_translation(linear, -(linear * centre))).unwrap()
+}
+
+pub struct SceneBuilder {
+    pub camera: Camera,
+    pub lights: Lights,
+    pub settings: RenderFile,
+}
+
+impl SceneBuilder {
+    /// A camera on +z looking at the origin.
+    pub fn new(distance: f32, fov_deg: f32, pixels: u32) -> Self {
+        SceneBuilder {
+            camera: Camera::new(Vec3::new(0.0, 0.0, distance), Vec3::ZERO, Vec3::Y, fov_deg, pixels, pixels),
+            lights: Lights::default(),
+            settings: RenderFile::default(),
+        }
+    }
+
+    pub fn constant_light(mut self, radiance: Vec3) -> Self {
+        self.lights.environment = Environment { constant: radiance, map: None };
+        self
+    }
+
+    pub fn build(self, grid: BrickMap, transform: IndexTransform, density_scale: f32, albedo: Vec3, g: f32, filter: Filter, majorant: MajorantMode) -> Scene {
+        let mut medium = Medium::new(grid, transform, density_scale, filter, majorant);
+        medium.albedo = albedo;
+        medium.phase_g = g;
+        Scene {
+            path: PathBuf::from("test.toml"),
+            camera: self.camera,
+            medium,
+            lights: self.lights,
+            settings: self.settings,
+            grid_name: "density".into(),
+            vdb_path: PathBuf::from("test.vdb"),
+        }
+    }
+}
