@@ -43,7 +43,6 @@
 #include <filesystem>
 #include <fstream>
 #include <limits>
-#include <map>
 #include <memory>
 #include <mutex>
 #include <set>
@@ -326,24 +325,37 @@ public:
     /// size). Throws plain exceptions; callers wrap them with context.
     explicit VdbArchive(const std::string& path) : path_(path) {
         file_size_ = static_cast<int64_t>(fs::file_size(path));
+        if (file_size_ == 0) corrupt("the file is empty");
         is_.open(path, std::ios::in | std::ios::binary);
         if (!is_) fail("cannot open " + quoted(path) + ": " + errno_text(errno));
         // Every short read throws (std::ios_base::failure) instead of leaving a length unset.
         is_.exceptions(std::ios::failbit | std::ios::badbit);
 
-        readHeader(is_);  // IoError "not a VDB file" for anything else
+        // The format version is checked here because readHeader() only warns about it.
+        if (file_size_ < 8 || pod<int64_t>() != openvdb::OPENVDB_MAGIC) corrupt("not a VDB file");
+        const auto version = pod<uint32_t>();
+        if (version > openvdb::OPENVDB_FILE_VERSION) {
+            corrupt("file format version " + std::to_string(version) + " is newer than the " +
+                    std::to_string(openvdb::OPENVDB_FILE_VERSION) + " this OpenVDB reads");
+        }
+        is_.seekg(0);
+        readHeader(is_);
         stream_meta_ = std::make_shared<openvdb::io::StreamMetadata>();
         stream_meta_->setSeekable(true);
         openvdb::io::setStreamMetadataPtr(is_, stream_meta_, /*transfer=*/false);
         setFormatVersion(is_);
         setLibraryVersion(is_);
         setDataCompression(is_);
+        // Lengths are validated before OpenVDB allocates buffers of those sizes.
+        check_meta_map(file_size_, "the file metadata");
         file_meta_.readMeta(is_);
 
         const int32_t count = readGridCount(is_);
         // A descriptor takes at least 3 lengths + 3 offsets = 36 bytes.
-        if (count < 0 || int64_t(count) * 36 > file_size_ - int64_t(is_.tellg())) {
-            corrupt("it claims " + std::to_string(count) + " grids");
+        const int64_t rest = file_size_ - int64_t(is_.tellg());
+        if (count < 0 || int64_t(count) * 36 > rest) {
+            corrupt("it declares " + std::to_string(count) + " grids but only " +
+                    std::to_string(rest) + " bytes follow");
         }
         if (inputHasGridOffsets()) {
             for (int32_t i = 0; i < count; ++i) {
@@ -352,6 +364,7 @@ public:
                     corrupt("grid " + std::to_string(i) + " of " + std::to_string(count) +
                             " starts past the end of the file");
                 }
+                check_descriptor(i);
                 openvdb::io::GridDescriptor gd;
                 gd.read(is_);  // also checks that the grid type is registered
                 const std::string name = gd.gridName();
@@ -394,6 +407,9 @@ public:
         if (!grid) corrupt("cannot create a grid of type " + gd.gridType());
         grid->setSaveFloatAsHalf(gd.saveFloatAsHalf());
         gd.seekToGrid(is_);
+        if (fileVersion() >= openvdb::OPENVDB_FILE_VERSION_NODE_MASK_COMPRESSION) pod<uint32_t>();
+        check_meta_map(gd.getEndPos(), "the metadata of grid '" + gd.gridName() + "'");
+        gd.seekToGrid(is_);
         Archive::readGrid(grid, gd, is_);
         if (gd.isInstance()) {
             // The tree is stored once, with the instance parent.
@@ -419,6 +435,51 @@ public:
 
 private:
     [[noreturn]] void corrupt(const std::string& why) const { throw std::runtime_error(why); }
+
+    template <typename T>
+    T pod() {
+        T v;
+        is_.read(reinterpret_cast<char*>(&v), sizeof v);
+        return v;
+    }
+
+    /// Skips `n` bytes, which must end at or before byte `limit`.
+    void skip(uint64_t n, int64_t limit, const std::string& what) {
+        const int64_t here = int64_t(is_.tellg());
+        if (here > limit || n > uint64_t(limit - here)) corrupt(what + " runs past its end");
+        is_.seekg(int64_t(n), std::ios::cur);
+    }
+
+    void skip_string(int64_t limit, const std::string& what) { skip(pod<uint32_t>(), limit, what); }
+
+    /// Checks the length fields of a serialized MetaMap (count, then per entry: name, type name,
+    /// byte count + value), leaving the stream where it was.
+    void check_meta_map(int64_t limit, const std::string& what) {
+        const auto start = is_.tellg();
+        const auto count = pod<uint32_t>();
+        if (uint64_t(count) * 12 > uint64_t(std::max<int64_t>(0, limit - int64_t(is_.tellg())))) {
+            corrupt(what + " declares " + std::to_string(count) + " entries, more than fit");
+        }
+        for (uint32_t i = 0; i < count; ++i) {
+            skip_string(limit, what);
+            skip_string(limit, what);
+            skip(pod<uint32_t>(), limit, what);
+        }
+        is_.seekg(start);
+    }
+
+    /// Checks the string lengths of grid descriptor `i`, leaving the stream where it was.
+    void check_descriptor(int32_t i) {
+        const auto start = is_.tellg();
+        const std::string what = "the descriptor of grid " + std::to_string(i);
+        skip_string(file_size_, what);  // unique name
+        skip_string(file_size_, what);  // grid type
+        if (fileVersion() >= openvdb::OPENVDB_FILE_VERSION_GRID_INSTANCING) {
+            skip_string(file_size_, what);  // instance parent
+        }
+        skip(3 * sizeof(int64_t), file_size_, what);
+        is_.seekg(start);
+    }
 
     std::string path_;
     int64_t file_size_ = 0;
@@ -877,6 +938,7 @@ void write_image(rust::Str path_str, const ImageData& image, rust::Str pixel_typ
         cleanup();
         fail(what + ": " + err);
     }
+    const OIIO::TypeDesc stored = out->spec().format;  // what the format actually stores
     if (!out->write_image(OIIO::TypeDesc::FLOAT, image.pixels.data())) {
         const std::string err = oiio_error(out->geterror());
         out->close();
@@ -887,6 +949,14 @@ void write_image(rust::Str path_str, const ImageData& image, rust::Str pixel_typ
         const std::string err = oiio_error(out->geterror());
         cleanup();
         fail(what + ": " + err);
+    }
+    // Formats that cannot store the requested type silently fall back to another (PNG: uint8 for
+    // "float"); that would lose precision the caller asked for, so it is an error. (Checked after
+    // closing: closing an unwritten PNG makes libpng print to stderr.)
+    if (stored != type) {
+        cleanup();
+        fail(what + ": the " + out->format_name() + " format cannot store " +
+             to_std(pixel_type) + " pixels (it would store " + stored.c_str() + ")");
     }
     commit_file(tmp, path);
 }

@@ -38,6 +38,7 @@ pub fn leaf_offset(local: IVec3) -> usize {
     ((local.x << 6) | (local.y << 3) | local.z) as usize
 }
 
+#[derive(Clone)]
 pub struct BrickMap {
     leaves: Vec<Leaf>,
     tiles: Vec<Tile>,
@@ -76,12 +77,6 @@ impl BrickMap {
             slots: vec![EMPTY; (slot_dims.x * slot_dims.y * slot_dims.z) as usize],
             active_bounds,
         };
-        for leaf in leaves {
-            if let Some(slot) = map.slot_index(leaf.origin >> 3) {
-                map.slots[slot] = map.leaves.len() as u32 + 1;
-                map.leaves.push(leaf);
-            }
-        }
         for (j, tile) in map.tiles.iter().enumerate() {
             let b0: IVec3 = tile.origin >> 3;
             let n = (tile.size as i32 / BRICK_EDGE).max(1);
@@ -93,6 +88,13 @@ impl BrickMap {
                         }
                     }
                 }
+            }
+        }
+        // Leaves after tiles: a leaf overrides the tile around it (see `with_added`).
+        for leaf in leaves {
+            if let Some(slot) = map.slot_index(leaf.origin >> 3) {
+                map.slots[slot] = map.leaves.len() as u32 + 1;
+                map.leaves.push(leaf);
             }
         }
         map
@@ -131,7 +133,9 @@ impl BrickMap {
     fn brick(&self, brick: IVec3) -> Brick<'_> {
         match self.slot_index(brick).map(|i| self.slots[i]) {
             None | Some(EMPTY) => Brick::Empty,
-            Some(s) if s & TILE_BIT != 0 => Brick::Constant(self.tiles[(s & !TILE_BIT) as usize].value),
+            Some(s) if s & TILE_BIT != 0 => {
+                Brick::Constant(self.tiles[(s & !TILE_BIT) as usize].value)
+            }
             Some(s) => Brick::Leaf(&self.leaves[(s - 1) as usize].values),
         }
     }
@@ -161,15 +165,14 @@ impl BrickMap {
     /// Value of the voxel whose cell contains `p` (index space).
     #[inline]
     pub fn nearest(&self, p: Vec3) -> f32 {
-        self.voxel((p + 0.5).floor().as_ivec3())
+        self.voxel(floor_ivec3(p + 0.5))
     }
 
     /// Trilinear interpolation between voxel centres (OpenVDB's BoxSampler).
     #[inline]
     pub fn trilinear(&self, p: Vec3) -> f32 {
-        let base = p.floor();
-        let f = p - base;
-        let v0 = base.as_ivec3();
+        let v0 = floor_ivec3(p);
+        let f = p - v0.as_vec3();
         let mut c = [0.0f32; 8];
         let local = v0 & 7;
         if local.cmplt(IVec3::splat(7)).all() {
@@ -199,22 +202,79 @@ impl BrickMap {
         y0 + (y1 - y0) * f.x
     }
 
+    /// A copy with `delta` added to the given voxels (finite differences). Voxels inside tiles get
+    /// their brick voxelised; active flags and the active bounds are kept; voxels beyond the slot
+    /// table (unreachable by lookups) are ignored.
+    pub fn with_added(&self, deltas: &[(IVec3, f32)]) -> BrickMap {
+        let mut leaves: HashMap<IVec3, Leaf> =
+            self.leaves.iter().map(|l| (l.origin, l.clone())).collect();
+        for &(v, delta) in deltas {
+            if self.slot_index(v >> 3).is_none() {
+                continue;
+            }
+            let origin = v & !7;
+            let leaf = leaves
+                .entry(origin)
+                .or_insert_with(|| match self.brick(v >> 3) {
+                    Brick::Constant(c) => Leaf {
+                        origin,
+                        values: [c; BRICK_VOXELS],
+                        active: [u64::MAX; 8],
+                    },
+                    _ => Leaf {
+                        origin,
+                        values: [0.0; BRICK_VOXELS],
+                        active: [0; 8],
+                    },
+                });
+            leaf.values[leaf_offset(v & 7)] += delta;
+        }
+        let mut leaves: Vec<Leaf> = leaves.into_values().collect();
+        leaves.sort_by_key(|l| (l.origin.x, l.origin.y, l.origin.z));
+        BrickMap::new(leaves, self.tiles.clone())
+    }
+
     /// Largest stored value (0 for an empty grid).
     pub fn max_value(&self) -> f32 {
-        let leaf_max = self.leaves.iter().flat_map(|l| l.values.iter()).fold(0.0f32, |m, &v| m.max(v));
+        let leaf_max = self
+            .leaves
+            .iter()
+            .flat_map(|l| l.values.iter())
+            .fold(0.0f32, |m, &v| m.max(v));
         self.tiles.iter().fold(leaf_max, |m, t| m.max(t.value))
     }
 
     /// Smallest stored value (0 for an empty grid).
     pub fn min_value(&self) -> f32 {
-        let leaf_min = self.leaves.iter().flat_map(|l| l.values.iter()).fold(0.0f32, |m, &v| m.min(v));
+        let leaf_min = self
+            .leaves
+            .iter()
+            .flat_map(|l| l.values.iter())
+            .fold(0.0f32, |m, &v| m.min(v));
         self.tiles.iter().fold(leaf_min, |m, t| m.min(t.value))
     }
 
     pub fn active_voxel_count(&self) -> u64 {
-        let in_leaves: u64 = self.leaves.iter().map(|l| l.active.iter().map(|w| w.count_ones() as u64).sum::<u64>()).sum();
-        in_leaves + self.tiles.iter().map(|t| (t.size as u64).pow(3)).sum::<u64>()
+        let in_leaves: u64 = self
+            .leaves
+            .iter()
+            .map(|l| l.active.iter().map(|w| w.count_ones() as u64).sum::<u64>())
+            .sum();
+        in_leaves
+            + self
+                .tiles
+                .iter()
+                .map(|t| (t.size as u64).pow(3))
+                .sum::<u64>()
     }
+}
+
+/// ⌊p⌋ per axis without a libm call (x86-64 without SSE4.1 has no floor instruction); index
+/// coordinates are far inside the i32 range.
+#[inline]
+pub fn floor_ivec3(p: Vec3) -> IVec3 {
+    let i = p.as_ivec3(); // truncates toward zero
+    i - IVec3::from(p.cmplt(i.as_vec3()))
 }
 
 /// Corner k of a trilinear cell: bit 2 → +x, bit 1 → +y, bit 0 → +z.
@@ -230,7 +290,8 @@ fn active_bounds(leaves: &[Leaf], tiles: &[Tile]) -> Option<(IVec3, IVec3)> {
     let mut hi = IVec3::splat(i32::MIN);
     for leaf in leaves {
         for o in (0..BRICK_VOXELS).filter(|o| leaf.active[o >> 6] & (1u64 << (o & 63)) != 0) {
-            let v = leaf.origin + IVec3::new((o >> 6) as i32, ((o >> 3) & 7) as i32, (o & 7) as i32);
+            let v =
+                leaf.origin + IVec3::new((o >> 6) as i32, ((o >> 3) & 7) as i32, (o & 7) as i32);
             lo = lo.min(v);
             hi = hi.max(v);
         }
@@ -297,9 +358,18 @@ mod tests {
     #[test]
     fn trilinear_reproduces_linear_fields_across_bricks() {
         let m = ramp();
-        for p in [Vec3::new(0.25, 0.5, 0.75), Vec3::new(7.3, 7.9, 6.5), Vec3::new(-0.5, 3.2, 7.99), Vec3::new(12.0, 1.0, 2.0)] {
+        for p in [
+            Vec3::new(0.25, 0.5, 0.75),
+            Vec3::new(7.3, 7.9, 6.5),
+            Vec3::new(-0.5, 3.2, 7.99),
+            Vec3::new(12.0, 1.0, 2.0),
+        ] {
             let expect = p.x + 10.0 * p.y + 100.0 * p.z;
-            assert!((m.trilinear(p) - expect).abs() < 1e-3, "{p}: {} vs {expect}", m.trilinear(p));
+            assert!(
+                (m.trilinear(p) - expect).abs() < 1e-3,
+                "{p}: {} vs {expect}",
+                m.trilinear(p)
+            );
         }
     }
 
@@ -312,14 +382,21 @@ mod tests {
 
     #[test]
     fn tiles_are_constant_and_outside_is_zero() {
-        let tile = Tile { origin: IVec3::new(128, 0, 0), size: 128, value: 2.5 };
+        let tile = Tile {
+            origin: IVec3::new(128, 0, 0),
+            size: 128,
+            value: 2.5,
+        };
         let m = BrickMap::new(Vec::new(), vec![tile]);
         assert_eq!(m.voxel(IVec3::new(200, 5, 127)), 2.5);
         assert_eq!(m.trilinear(Vec3::new(150.5, 60.2, 3.3)), 2.5);
         assert!(m.is_active(IVec3::new(255, 127, 127)));
         assert_eq!(m.voxel(IVec3::new(256, 5, 5)), 0.0);
         assert_eq!(m.voxel(IVec3::new(-100000, 5, 5)), 0.0);
-        assert_eq!(m.active_bounds(), Some((IVec3::new(128, 0, 0), IVec3::new(255, 127, 127))));
+        assert_eq!(
+            m.active_bounds(),
+            Some((IVec3::new(128, 0, 0), IVec3::new(255, 127, 127)))
+        );
         // Constant tiles are not voxelised.
         assert!(m.memory_bytes() < 4 * 20 * 20 * 20 + 1024);
     }

@@ -16,12 +16,27 @@ pub struct Camera {
 
 impl Camera {
     /// `position != target` and `up` not parallel to the view direction (checked by the scene).
-    pub fn new(position: Vec3, target: Vec3, up: Vec3, fov_deg: f32, width: u32, height: u32) -> Self {
+    pub fn new(
+        position: Vec3,
+        target: Vec3,
+        up: Vec3,
+        fov_deg: f32,
+        width: u32,
+        height: u32,
+    ) -> Self {
         let forward = (target - position).normalize();
         let right = forward.cross(up).normalize();
         let up = right.cross(forward);
         let tan_x = (fov_deg.to_radians() * 0.5).tan();
-        Camera { position, forward, right, up, tan_half: (tan_x, tan_x * height as f32 / width as f32), width, height }
+        Camera {
+            position,
+            forward,
+            right,
+            up,
+            tan_half: (tan_x, tan_x * height as f32 / width as f32),
+            width,
+            height,
+        }
     }
 
     /// Unit direction through image position (x, y) in pixels, (0, 0) the top-left corner.

@@ -18,7 +18,11 @@ pub struct RgbImage {
 
 impl RgbImage {
     pub fn new(width: u32, height: u32) -> Self {
-        RgbImage { width, height, pixels: vec![Vec3::ZERO; width as usize * height as usize] }
+        RgbImage {
+            width,
+            height,
+            pixels: vec![Vec3::ZERO; width as usize * height as usize],
+        }
     }
 
     pub fn mean(&self) -> Vec3 {
@@ -30,13 +34,19 @@ impl RgbImage {
             width: self.width,
             height: self.height,
             channels: 3,
-            pixels: self.pixels.iter().flat_map(|c| c.to_array()).map(encode).collect(),
+            pixels: self
+                .pixels
+                .iter()
+                .flat_map(|c| c.to_array())
+                .map(encode)
+                .collect(),
         }
     }
 }
 
 fn path_str(path: &Path) -> Result<&str> {
-    path.to_str().ok_or_else(|| anyhow!("path '{}' is not valid UTF-8", path.display()))
+    path.to_str()
+        .ok_or_else(|| anyhow!("path '{}' is not valid UTF-8", path.display()))
 }
 
 /// The sRGB transfer function (IEC 61966-2-1) of a linear value in [0, 1].
@@ -51,7 +61,12 @@ pub fn srgb_encode(linear: f32) -> f32 {
 
 /// Writes a linear EXR, as half or float.
 pub fn write_exr(path: &Path, image: &RgbImage, half: bool) -> Result<()> {
-    ffi::write_image(path_str(path)?, &image.to_data(|v| v), if half { "half" } else { "float" }).map_err(|e| anyhow!("{}", e.what()))
+    ffi::write_image(
+        path_str(path)?,
+        &image.to_data(|v| v),
+        if half { "half" } else { "float" },
+    )
+    .map_err(|e| anyhow!("{}", e.what()))
 }
 
 /// Writes an 8-bit PNG: `exposure`·value, clamped, sRGB-encoded here (OpenImageIO does not).
@@ -71,7 +86,17 @@ pub fn read_rgb(path: &Path) -> Result<RgbImage> {
     let pixels = data
         .pixels
         .chunks_exact(c)
-        .map(|p| if c >= 3 { Vec3::new(p[0], p[1], p[2]) } else { Vec3::splat(p[0]) })
+        .map(|p| {
+            if c >= 3 {
+                Vec3::new(p[0], p[1], p[2])
+            } else {
+                Vec3::splat(p[0])
+            }
+        })
         .collect();
-    Ok(RgbImage { width: data.width, height: data.height, pixels })
+    Ok(RgbImage {
+        width: data.width,
+        height: data.height,
+        pixels,
+    })
 }

@@ -9,6 +9,7 @@ use crate::sampling::{uniform_sphere, Distribution1D, UNIFORM_SPHERE_PDF};
 
 /// A lat-long environment map, y up, in Mitsuba 3's orientation: u = atan2(x, −z)/2π, v = θ/π with
 /// θ measured from +y. Texels are piecewise constant, and so is the sampling density.
+#[derive(Clone)]
 pub struct EnvMap {
     width: usize,
     height: usize,
@@ -28,23 +29,39 @@ impl EnvMap {
         let columns: Vec<Distribution1D> = (0..height)
             .map(|y| {
                 let sin_theta = (PI * (y as f32 + 0.5) / height as f32).sin();
-                let w: Vec<f32> = texels[y * width..(y + 1) * width].iter().map(|&c| luminance(c).max(0.0) * sin_theta).collect();
+                let w: Vec<f32> = texels[y * width..(y + 1) * width]
+                    .iter()
+                    .map(|&c| luminance(c).max(0.0) * sin_theta)
+                    .collect();
                 Distribution1D::new(&w)
             })
             .collect();
         let rows = Distribution1D::new(&columns.iter().map(|c| c.total).collect::<Vec<_>>());
-        EnvMap { width, height, texels, rows, columns }
+        EnvMap {
+            width,
+            height,
+            texels,
+            rows,
+            columns,
+        }
     }
 
     fn texel_of(&self, dir: Vec3) -> (usize, usize) {
         let u = (dir.x.atan2(-dir.z) / (2.0 * PI)).rem_euclid(1.0);
         let v = dir.y.clamp(-1.0, 1.0).acos() / PI;
-        (((u * self.width as f32) as usize).min(self.width - 1), ((v * self.height as f32) as usize).min(self.height - 1))
+        (
+            ((u * self.width as f32) as usize).min(self.width - 1),
+            ((v * self.height as f32) as usize).min(self.height - 1),
+        )
     }
 
     fn direction(u: f32, v: f32) -> Vec3 {
         let (phi, theta) = (2.0 * PI * u, PI * v);
-        Vec3::new(theta.sin() * phi.sin(), theta.cos(), -theta.sin() * phi.cos())
+        Vec3::new(
+            theta.sin() * phi.sin(),
+            theta.cos(),
+            -theta.sin() * phi.cos(),
+        )
     }
 
     pub fn eval(&self, dir: Vec3) -> Vec3 {
@@ -56,7 +73,9 @@ impl EnvMap {
     pub fn pdf(&self, dir: Vec3) -> f32 {
         let (x, y) = self.texel_of(dir);
         let sin_theta = (PI * (y as f32 + 0.5) / self.height as f32).sin();
-        let p_uv = self.rows.bin_probability(y) * self.columns[y].bin_probability(x) * (self.width * self.height) as f32;
+        let p_uv = self.rows.bin_probability(y)
+            * self.columns[y].bin_probability(x)
+            * (self.width * self.height) as f32;
         if sin_theta <= 0.0 {
             0.0
         } else {
@@ -67,12 +86,15 @@ impl EnvMap {
     pub fn sample(&self, u: [f32; 2]) -> Vec3 {
         let (y, dv) = self.rows.sample(u[0]);
         let (x, du) = self.columns[y].sample(u[1]);
-        Self::direction((x as f32 + du) / self.width as f32, (y as f32 + dv) / self.height as f32)
+        Self::direction(
+            (x as f32 + du) / self.width as f32,
+            (y as f32 + dv) / self.height as f32,
+        )
     }
 }
 
 /// Radiance arriving from infinitely far away in every direction.
-#[derive(Default)]
+#[derive(Default, Clone)]
 pub struct Environment {
     pub constant: Vec3,
     pub map: Option<EnvMap>,
@@ -127,7 +149,7 @@ pub struct DirectionalLight {
     pub irradiance: Vec3,
 }
 
-#[derive(Default)]
+#[derive(Default, Clone)]
 pub struct Lights {
     pub environment: Environment,
     pub directional: Vec<DirectionalLight>,
@@ -142,14 +164,17 @@ mod tests {
     #[test]
     fn envmap_pdf_matches_its_sampling_and_integrates_to_one() {
         let (w, h) = (16, 8);
-        let texels = (0..w * h).map(|i| Vec3::splat(((i * 7919) % 13) as f32 + if i == 37 { 200.0 } else { 0.5 })).collect();
+        let texels = (0..w * h)
+            .map(|i| Vec3::splat(((i * 7919) % 13) as f32 + if i == 37 { 200.0 } else { 0.5 }))
+            .collect();
         let map = EnvMap::new(w, h, texels);
         // ∫ pdf dω = 1, by stratified directions.
         let n = 400usize;
         let mut integral = 0.0f64;
         for i in 0..n {
             for j in 0..n {
-                let dir = uniform_sphere([(i as f32 + 0.5) / n as f32, (j as f32 + 0.5) / n as f32]);
+                let dir =
+                    uniform_sphere([(i as f32 + 0.5) / n as f32, (j as f32 + 0.5) / n as f32]);
                 integral += map.pdf(dir) as f64;
             }
         }
@@ -158,12 +183,24 @@ mod tests {
         // E[L/pdf] over samples = ∫ L dω, the same as uniform estimation.
         let mut rng = pixel_rng(3, 0, 0);
         let m = 200_000;
-        let importance: f64 = (0..m).map(|_| {
-            let d = map.sample([rng.gen(), rng.gen()]);
-            (luminance(map.eval(d)) / map.pdf(d)) as f64
-        }).sum::<f64>() / m as f64;
-        let uniform: f64 = (0..m).map(|_| (luminance(map.eval(uniform_sphere([rng.gen(), rng.gen()]))) / UNIFORM_SPHERE_PDF) as f64).sum::<f64>() / m as f64;
-        assert!((importance / uniform - 1.0).abs() < 0.02, "importance {importance} vs uniform {uniform}");
+        let importance: f64 = (0..m)
+            .map(|_| {
+                let d = map.sample([rng.gen(), rng.gen()]);
+                (luminance(map.eval(d)) / map.pdf(d)) as f64
+            })
+            .sum::<f64>()
+            / m as f64;
+        let uniform: f64 = (0..m)
+            .map(|_| {
+                (luminance(map.eval(uniform_sphere([rng.gen(), rng.gen()]))) / UNIFORM_SPHERE_PDF)
+                    as f64
+            })
+            .sum::<f64>()
+            / m as f64;
+        assert!(
+            (importance / uniform - 1.0).abs() < 0.02,
+            "importance {importance} vs uniform {uniform}"
+        );
     }
 
     #[test]

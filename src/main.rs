@@ -6,8 +6,15 @@ use std::process::ExitCode;
 use anyhow::{bail, Context, Result};
 use clap::{Args, Parser, Subcommand, ValueEnum};
 
+use glam::IVec3;
+use volgrad::adjoint::{AdjointOptions, Estimator, Suffix};
 use volgrad::brickmap::BRICK_VOXELS;
+use volgrad::fd::{self, FdOptions};
+use volgrad::grad::{derivative_image, gradient, GradOptions};
+use volgrad::gradcheck::{gradcheck, GradcheckOptions, Z_LIMIT};
+use volgrad::gradio::{self, Provenance};
 use volgrad::image_io;
+use volgrad::loss::Loss;
 use volgrad::majorant::MajorantMode;
 use volgrad::make_grid::{make_grid, GridKind, GridSpec};
 use volgrad::render::{render, RenderOptions, RenderStats};
@@ -15,7 +22,11 @@ use volgrad::scene::{MajorantName, Scene};
 use volgrad::vdb;
 
 #[derive(Parser)]
-#[command(name = "volgrad", version, about = "Differentiable volumetric path tracing of OpenVDB density grids")]
+#[command(
+    name = "volgrad",
+    version,
+    about = "Differentiable volumetric path tracing of OpenVDB density grids"
+)]
 struct Cli {
     #[command(subcommand)]
     command: Command,
@@ -32,6 +43,129 @@ enum Command {
     Render(RenderArgs),
     /// Write a small analytic grid (box, sphere, slab, single dense voxel) as a .vdb file.
     MakeGrid(MakeGridArgs),
+    /// Gradient of a loss with respect to every voxel, written as a VDB (plus pictures).
+    Grad(GradArgs),
+    /// Compare an estimator with finite differences (z-scores) before trusting its gradients.
+    Gradcheck(GradcheckArgs),
+    /// Combine gradient VDBs from runs with different seeds, weighted by their spp.
+    Merge {
+        /// Gradient VDBs written by `volgrad grad`.
+        #[arg(required = true)]
+        inputs: Vec<PathBuf>,
+        #[arg(short, long)]
+        output: PathBuf,
+        /// Overwrite an existing output.
+        #[arg(long)]
+        force: bool,
+    },
+}
+
+#[derive(Clone, Copy, PartialEq, Eq, ValueEnum)]
+enum EstimatorArg {
+    Joint,
+    Drt,
+    Naive,
+    /// Finite differences along the direction given by --fd.
+    Fd,
+}
+
+#[derive(Clone, Copy, PartialEq, Eq, ValueEnum)]
+enum DomainArg {
+    /// Every voxel a ray can reach inside the medium's bounds, empty ones included.
+    All,
+    /// Only the grid's active voxels.
+    Active,
+}
+
+/// Options shared by `grad` and `gradcheck`.
+#[derive(Args)]
+struct AdjointArgs {
+    /// Samples per pixel of the gradient pass (default: render.spp).
+    #[arg(long)]
+    spp: Option<u32>,
+    /// Random seed (default: render.seed).
+    #[arg(long)]
+    seed: Option<u64>,
+    /// Maximum scattering events per path (default: render.max_depth).
+    #[arg(long)]
+    max_depth: Option<u32>,
+    /// Where the indirect part of ĥ at a probe comes from.
+    #[arg(long, value_enum, default_value = "per-path")]
+    suffix: Suffix,
+    /// Which voxels are parameters.
+    #[arg(long, value_enum, default_value = "all")]
+    domain: DomainArg,
+    /// Worker threads (default: all cores).
+    #[arg(long)]
+    threads: Option<usize>,
+    /// No progress bar.
+    #[arg(long, short)]
+    quiet: bool,
+}
+
+#[derive(Args)]
+struct FdArgs {
+    /// Finite-difference step, in grid-value units (default: 0.15 × the grid's largest value).
+    #[arg(long)]
+    eps: Option<f32>,
+    /// Samples per pixel of each finite-difference render.
+    #[arg(long, default_value_t = 256)]
+    fd_spp: u32,
+    /// Independent finite-difference repetitions, for the standard error.
+    #[arg(long, default_value_t = 8)]
+    repeats: u32,
+}
+
+#[derive(Args)]
+struct GradArgs {
+    /// The scene file (TOML).
+    scene: PathBuf,
+    #[arg(long, value_enum, default_value = "joint")]
+    estimator: EstimatorArg,
+    #[arg(long, value_enum, default_value = "mean")]
+    loss: Loss,
+    /// Target image (EXR, PNG, ...) for l2, l1 and relative-l2.
+    #[arg(long, conflicts_with = "target_scene")]
+    target: Option<PathBuf>,
+    /// A scene whose render (at --target-spp) is the target.
+    #[arg(long)]
+    target_scene: Option<PathBuf>,
+    #[arg(long, default_value_t = 256)]
+    target_spp: u32,
+    /// Output gradient VDB (a picture of it goes beside it as .png). Default: <scene>.grad.vdb.
+    #[arg(short, long)]
+    output: Option<PathBuf>,
+    /// Also write d pixel / d ε for ε added to every voxel of an index box "x0,y0,z0,x1,y1,z1" (or
+    /// "all"), as <output>.dpixel.exr and .png.
+    #[arg(long)]
+    image_of: Option<String>,
+    /// With --estimator fd: "voxels:x,y,z;x,y,z", "box:x0,y0,z0,x1,y1,z1", "ones" or "random".
+    #[arg(long)]
+    fd: Option<String>,
+    #[command(flatten)]
+    fd_args: FdArgs,
+    #[command(flatten)]
+    adjoint: AdjointArgs,
+    /// Print wall time, ms per spp, paths/s and density lookups.
+    #[arg(long)]
+    stats: bool,
+    /// Overwrite existing outputs.
+    #[arg(long)]
+    force: bool,
+}
+
+#[derive(Args)]
+struct GradcheckArgs {
+    scene: PathBuf,
+    #[arg(long, value_enum, default_value = "joint")]
+    estimator: Estimator,
+    /// Number of random voxels to check.
+    #[arg(long, default_value_t = 4)]
+    voxels: usize,
+    #[command(flatten)]
+    fd_args: FdArgs,
+    #[command(flatten)]
+    adjoint: AdjointArgs,
 }
 
 #[derive(Clone, Copy, PartialEq, Eq, ValueEnum)]
@@ -102,7 +236,12 @@ struct MakeGridArgs {
     #[arg(long, value_delimiter = ',', num_args = 1..=3, default_value = "1")]
     voxel_size: Vec<f64>,
     /// Rotation in degrees about x, then y, then z.
-    #[arg(long, value_delimiter = ',', num_args = 3, allow_negative_numbers = true)]
+    #[arg(
+        long,
+        value_delimiter = ',',
+        num_args = 3,
+        allow_negative_numbers = true
+    )]
     rotate_deg: Option<Vec<f64>>,
     /// Grid name.
     #[arg(long, default_value = "density")]
@@ -121,6 +260,13 @@ fn main() -> ExitCode {
         Command::Info { file } => info(&file),
         Command::Render(args) => render_command(&args),
         Command::MakeGrid(args) => make_grid_command(&args),
+        Command::Grad(args) => grad_command(&args),
+        Command::Gradcheck(args) => gradcheck_command(&args),
+        Command::Merge {
+            inputs,
+            output,
+            force,
+        } => merge_command(&inputs, &output, force),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
@@ -133,10 +279,23 @@ fn main() -> ExitCode {
 
 fn info(file: &Path) -> Result<()> {
     let grids = vdb::list_grids(file)?;
-    println!("{}: {} grid{}", file.display(), grids.len(), if grids.len() == 1 { "" } else { "s" });
+    println!(
+        "{}: {} grid{}",
+        file.display(),
+        grids.len(),
+        if grids.len() == 1 { "" } else { "s" }
+    );
     for (i, g) in grids.iter().enumerate() {
         println!("\n[{i}] {}", g.name);
-        println!("  value type     {}{}", g.value_type, if g.saved_as_half { " (saved as half)" } else { "" });
+        println!(
+            "  value type     {}{}",
+            g.value_type,
+            if g.saved_as_half {
+                " (saved as half)"
+            } else {
+                ""
+            }
+        );
         println!("  class          {}", g.grid_class);
         let v = g.voxel_size;
         let kind = match (g.linear, g.axis_aligned) {
@@ -144,17 +303,35 @@ fn info(file: &Path) -> Result<()> {
             (true, true) => "scale + translation",
             (true, false) => "general affine (rotated or sheared)",
         };
-        println!("  voxel size     {} × {} × {}  ({kind})", v[0], v[1], v[2]);
+        println!(
+            "  voxel size     {:.6} × {:.6} × {:.6}  ({kind})",
+            v[0], v[1], v[2]
+        );
         let m = g.index_to_world;
         for r in 0..3 {
-            println!("  {}   [{:>10.5} {:>10.5} {:>10.5} | {:>10.5}]", if r == 0 { "index→world" } else { "           " }, m[4 * r], m[4 * r + 1], m[4 * r + 2], m[4 * r + 3]);
+            println!(
+                "  {}   [{:>10.5} {:>10.5} {:>10.5} | {:>10.5}]",
+                if r == 0 {
+                    "index→world"
+                } else {
+                    "           "
+                },
+                m[4 * r],
+                m[4 * r + 1],
+                m[4 * r + 2],
+                m[4 * r + 3]
+            );
         }
         println!("  active voxels  {}", g.active_voxels);
         println!("  leaves         {}", g.leaf_count);
         println!("  active tiles   {}", g.active_tiles);
         if g.index_min.iter().zip(&g.index_max).all(|(a, b)| a <= b) {
             println!("  index bbox     {:?} .. {:?}", g.index_min, g.index_max);
-            println!("  world bbox     {:?} .. {:?}", g.world_min.map(|x| (x * 1e4).round() / 1e4), g.world_max.map(|x| (x * 1e4).round() / 1e4));
+            println!(
+                "  world bbox     {:?} .. {:?}",
+                g.world_min.map(|x| (x * 1e4).round() / 1e4),
+                g.world_max.map(|x| (x * 1e4).round() / 1e4)
+            );
         } else {
             println!("  index bbox     (empty)");
         }
@@ -193,30 +370,48 @@ fn set_threads(threads: Option<usize>) -> Result<()> {
         if t == 0 {
             bail!("--threads must be at least 1");
         }
-        rayon::ThreadPoolBuilder::new().num_threads(t).build_global().context("cannot start the thread pool")?;
+        rayon::ThreadPoolBuilder::new()
+            .num_threads(t)
+            .build_global()
+            .context("cannot start the thread pool")?;
     }
     Ok(())
 }
 
 /// Applies the command-line overrides that change how the medium is tracked.
-fn load_scene(path: &Path, majorant: Option<MajorantArg>, majorant_cell: Option<u32>) -> Result<Scene> {
+fn load_scene(
+    path: &Path,
+    majorant: Option<MajorantArg>,
+    majorant_cell: Option<u32>,
+) -> Result<Scene> {
     let mut scene = Scene::load(path)?;
     if majorant.is_some() || majorant_cell.is_some() {
         let cell = majorant_cell.unwrap_or(scene.settings.majorant_cell);
         if cell == 0 || cell > 1024 {
             bail!("--majorant-cell must be between 1 and 1024 voxels (got {cell})");
         }
-        let global = majorant.map_or(scene.settings.majorant == MajorantName::Global, |m| m == MajorantArg::Global);
-        scene.set_majorant(if global { MajorantMode::Global } else { MajorantMode::Grid { cell_voxels: cell } });
+        let global = majorant.map_or(scene.settings.majorant == MajorantName::Global, |m| {
+            m == MajorantArg::Global
+        });
+        scene.set_majorant(if global {
+            MajorantMode::Global
+        } else {
+            MajorantMode::Grid { cell_voxels: cell }
+        });
     }
     Ok(scene)
 }
 
 fn render_command(args: &RenderArgs) -> Result<()> {
     set_threads(args.threads)?;
-    let exr = args.output.clone().unwrap_or_else(|| PathBuf::from(args.scene.file_stem().unwrap_or_default()).with_extension("exr"));
+    let exr = args.output.clone().unwrap_or_else(|| {
+        PathBuf::from(args.scene.file_stem().unwrap_or_default()).with_extension("exr")
+    });
     if exr.extension().and_then(|e| e.to_str()) != Some("exr") {
-        bail!("--output must end in .exr (got '{}'); the PNG is written beside it", exr.display());
+        bail!(
+            "--output must end in .exr (got '{}'); the PNG is written beside it",
+            exr.display()
+        );
     }
     let png = exr.with_extension("png");
     volgrad::refuse_overwrite(&exr, args.force)?;
@@ -250,9 +445,20 @@ fn print_stats(scene: &Scene, stats: &RenderStats) {
     println!("wall time            {:.3} s", stats.wall.as_secs_f64());
     println!("paths                {}", stats.paths);
     println!("paths/s              {:.0}", stats.paths_per_second());
-    println!("majorant             {majorant} ({} cells)", m.majorant.cell_count());
-    println!("lookups per path     {:.2} ({:.2} free-flight + {:.2} shadow)", stats.lookups_per_path(), t.lookups as f64 / stats.paths as f64, t.shadow_lookups as f64 / stats.paths as f64);
-    println!("tracking efficiency  {:.3} (real collisions / free-flight lookups)", stats.tracking_efficiency());
+    println!(
+        "majorant             {majorant} ({} cells)",
+        m.majorant.cell_count()
+    );
+    println!(
+        "lookups per path     {:.2} ({:.2} free-flight + {:.2} shadow)",
+        stats.lookups_per_path(),
+        t.lookups as f64 / stats.paths as f64,
+        t.shadow_lookups as f64 / stats.paths as f64
+    );
+    println!(
+        "tracking efficiency  {:.3} (real collisions / free-flight lookups)",
+        stats.tracking_efficiency()
+    );
     let leaf_bytes = m.grid.leaves().len() * BRICK_VOXELS * 4;
     println!(
         "memory               brick map {} = {:.3} × leaf values ({} leaves, {} tiles); majorant {}",
@@ -276,11 +482,372 @@ fn make_grid_command(args: &MakeGridArgs) -> Result<()> {
         Some(_) => bail!("--rotate-deg takes three angles (x,y,z)"),
     };
     if args.output.extension().and_then(|e| e.to_str()) != Some("vdb") {
-        bail!("--output must end in .vdb (got '{}')", args.output.display());
+        bail!(
+            "--output must end in .vdb (got '{}')",
+            args.output.display()
+        );
     }
-    let spec = GridSpec { kind: args.kind, size: args.size, thickness: args.thickness, value: args.value, voxel_size, rotate_deg, name: args.name.clone() };
+    let spec = GridSpec {
+        kind: args.kind,
+        size: args.size,
+        thickness: args.thickness,
+        value: args.value,
+        voxel_size,
+        rotate_deg,
+        name: args.name.clone(),
+    };
     let grid = make_grid(&spec)?;
     vdb::write_grids(&args.output, &[&grid], args.half, args.force)?;
-    eprintln!("wrote {} ({} active voxels)", args.output.display(), grid.bricks.active_voxel_count());
+    eprintln!(
+        "wrote {} ({} active voxels)",
+        args.output.display(),
+        grid.bricks.active_voxel_count()
+    );
+    Ok(())
+}
+
+fn parse_ivec3s(text: &str, what: &str) -> Result<Vec<i32>> {
+    text.split(',')
+        .map(|x| {
+            x.trim()
+                .parse::<i32>()
+                .with_context(|| format!("{what}: '{x}' is not an integer"))
+        })
+        .collect()
+}
+
+/// "x0,y0,z0,x1,y1,z1" or "all" (the whole domain).
+fn parse_box(text: &str, scene: &Scene) -> Result<(IVec3, IVec3)> {
+    if text == "all" {
+        return fd::domain_bounds(&scene.medium.grid).context("the grid is empty");
+    }
+    match parse_ivec3s(text, "--image-of")?.as_slice() {
+        [x0, y0, z0, x1, y1, z1] => Ok((IVec3::new(*x0, *y0, *z0), IVec3::new(*x1, *y1, *z1))),
+        _ => bail!("an index box is six integers x0,y0,z0,x1,y1,z1 (got '{text}')"),
+    }
+}
+
+fn adjoint_options(scene: &Scene, estimator: Estimator, args: &AdjointArgs) -> Result<GradOptions> {
+    let spp = args.spp.unwrap_or(scene.settings.spp);
+    if spp == 0 {
+        bail!("--spp must be at least 1");
+    }
+    Ok(GradOptions {
+        adjoint: AdjointOptions {
+            estimator,
+            suffix: args.suffix,
+            max_depth: args.max_depth.unwrap_or(scene.settings.max_depth),
+        },
+        spp,
+        seed: args.seed.unwrap_or(scene.settings.seed),
+        active_only: args.domain == DomainArg::Active,
+        progress: !args.quiet,
+    })
+}
+
+fn fd_options(
+    scene: &Scene,
+    loss: Loss,
+    args: &FdArgs,
+    seed: u64,
+    max_depth: u32,
+) -> Result<FdOptions> {
+    let eps = args
+        .eps
+        .unwrap_or(0.15 * scene.medium.grid.max_value().max(1e-3));
+    if !(eps > 0.0 && eps.is_finite()) {
+        bail!("--eps must be a positive number (got {eps})");
+    }
+    if args.fd_spp == 0 || args.repeats < 2 {
+        bail!("--fd-spp must be at least 1 and --repeats at least 2");
+    }
+    Ok(FdOptions {
+        loss,
+        eps,
+        spp: args.fd_spp,
+        repeats: args.repeats,
+        seed,
+        max_depth,
+    })
+}
+
+/// The target image of a loss, checked against the scene's resolution.
+fn load_target(args: &GradArgs, scene: &Scene) -> Result<Option<image_io::RgbImage>> {
+    let target = match (&args.target, &args.target_scene) {
+        (Some(path), _) => Some(
+            image_io::read_rgb(path).with_context(|| format!("--target '{}'", path.display()))?,
+        ),
+        (None, Some(path)) => {
+            let other = Scene::load(path)
+                .with_context(|| format!("--target-scene '{}'", path.display()))?;
+            let options = RenderOptions {
+                spp: args.target_spp.max(1),
+                seed: scene.settings.seed ^ 0x5eed,
+                max_depth: other.settings.max_depth,
+                progress: !args.adjoint.quiet,
+            };
+            Some(render(&other, &options).0)
+        }
+        (None, None) => None,
+    };
+    if args.loss.needs_target() && target.is_none() {
+        bail!(
+            "--loss {} needs --target IMAGE or --target-scene SCENE",
+            args.loss.name()
+        );
+    }
+    if let Some(t) = &target {
+        if (t.width, t.height) != (scene.camera.width, scene.camera.height) {
+            bail!(
+                "the target is {}×{} but the scene renders {}×{}",
+                t.width,
+                t.height,
+                scene.camera.width,
+                scene.camera.height
+            );
+        }
+        if t.pixels.iter().any(|c| !c.is_finite()) {
+            bail!("the target image has non-finite pixels");
+        }
+    }
+    Ok(target)
+}
+
+fn grad_command(args: &GradArgs) -> Result<()> {
+    set_threads(args.adjoint.threads)?;
+    let vdb_out = args.output.clone().unwrap_or_else(|| {
+        PathBuf::from(format!(
+            "{}.grad.vdb",
+            args.scene.file_stem().unwrap_or_default().to_string_lossy()
+        ))
+    });
+    if args.estimator != EstimatorArg::Fd {
+        if vdb_out.extension().and_then(|e| e.to_str()) != Some("vdb") {
+            bail!("--output must end in .vdb (got '{}')", vdb_out.display());
+        }
+        volgrad::refuse_overwrite(&vdb_out, args.force)?;
+        volgrad::refuse_overwrite(&vdb_out.with_extension("png"), args.force)?;
+    }
+    let scene = Scene::load(&args.scene)?;
+    let target = load_target(args, &scene)?;
+    let estimator = match args.estimator {
+        EstimatorArg::Joint => Estimator::Joint,
+        EstimatorArg::Drt => Estimator::Drt,
+        EstimatorArg::Naive => Estimator::Naive,
+        EstimatorArg::Fd => return fd_command(args, &scene, target.as_ref()),
+    };
+    let options = adjoint_options(&scene, estimator, &args.adjoint)?;
+    // The adjoint image: δ = ∂loss/∂pixel, from an independent primal render for losses that need one.
+    let adjoint = if args.loss.needs_target() {
+        let primal = render(
+            &scene,
+            &RenderOptions {
+                spp: options.spp,
+                seed: options.seed,
+                max_depth: options.adjoint.max_depth,
+                progress: options.progress,
+            },
+        )
+        .0;
+        eprintln!(
+            "loss ({}) = {:.6e}",
+            args.loss.name(),
+            args.loss.evaluate(&primal, target.as_ref())
+        );
+        args.loss.adjoint(&primal, target.as_ref())
+    } else {
+        let blank = image_io::RgbImage::new(scene.camera.width, scene.camera.height);
+        args.loss.adjoint(&blank, None)
+    };
+    let run = gradient(&scene, &adjoint, &options);
+    let provenance = Provenance {
+        estimator: format!("{estimator:?}").to_lowercase(),
+        spp: options.spp as u64,
+        seed: options.seed.to_string(),
+        loss: args.loss.name().into(),
+        scene: args.scene.display().to_string(),
+    };
+    let grid = gradio::gradient_grid(
+        &run.gradient,
+        &scene.grid_name,
+        scene.medium.transform,
+        &provenance,
+    );
+    vdb::write_grids(&vdb_out, &[&grid], false, args.force)?;
+    let png = vdb_out.with_extension("png");
+    let scale = gradio::write_projection_png(&png, &grid)?;
+    eprintln!(
+        "wrote {} (grid {}, {} voxels with gradient, ⟨g, 1⟩ = {:.6e}) and {} (sum along index z; full colour at ±{:.3e})",
+        vdb_out.display(),
+        grid.name,
+        grid.bricks.active_voxel_count(),
+        run.gradient.sum(),
+        png.display(),
+        scale.unwrap_or(0.0)
+    );
+    if let Some(spec) = &args.image_of {
+        let (lo, hi) = parse_box(spec, &scene)?;
+        let (image, _) = derivative_image(&scene, lo, hi, &options);
+        let stem = vdb_out.with_extension("");
+        let (exr, png) = (
+            stem.with_extension("dpixel.exr"),
+            stem.with_extension("dpixel.png"),
+        );
+        volgrad::refuse_overwrite(&exr, args.force)?;
+        image_io::write_exr(&exr, &image, false)?;
+        let luminance: Vec<f32> = image
+            .pixels
+            .iter()
+            .map(|&c| volgrad::lights::luminance(c))
+            .collect();
+        let scale =
+            volgrad::colormap::write_signed_png(&png, image.width, image.height, &luminance)?;
+        eprintln!(
+            "wrote {} and {} (d pixel / d ε for the box {lo}..{hi}; full colour at ±{scale:.3e})",
+            exr.display(),
+            png.display()
+        );
+    }
+    if args.stats {
+        let secs = run.stats.wall.as_secs_f64();
+        println!("estimator            {}", provenance.estimator);
+        println!("wall time            {secs:.3} s");
+        println!(
+            "ms per spp           {:.2}",
+            1e3 * secs / options.spp as f64
+        );
+        println!("paths/s              {:.0}", run.stats.paths_per_second());
+        println!("lookups per path     {:.2}", run.stats.lookups_per_path());
+        println!("gradient bricks      {}", run.gradient.brick_count());
+    }
+    Ok(())
+}
+
+fn parse_fd_direction(
+    spec: &str,
+    scene: &Scene,
+    active_only: bool,
+    seed: u64,
+) -> Result<Vec<(String, fd::Direction)>> {
+    let grid = &scene.medium.grid;
+    let (lo, hi) = fd::domain_bounds(grid).context("the grid is empty")?;
+    let domain = || fd::box_voxels(grid, lo, hi, active_only);
+    Ok(match spec.split_once(':') {
+        Some(("voxels", list)) => list
+            .split(';')
+            .map(|v| match parse_ivec3s(v, "--fd voxels")?.as_slice() {
+                [x, y, z] => Ok((
+                    format!("voxel [{x}, {y}, {z}]"),
+                    vec![(IVec3::new(*x, *y, *z), 1.0)],
+                )),
+                _ => bail!("--fd voxels: each voxel is x,y,z (got '{v}')"),
+            })
+            .collect::<Result<_>>()?,
+        Some(("box", b)) => {
+            let (a, c) = parse_box(b, scene)?;
+            vec![(
+                format!("box {a}..{c}"),
+                fd::ones(&fd::box_voxels(grid, a, c, active_only)),
+            )]
+        }
+        None if spec == "ones" => vec![("⟨g, 1⟩".into(), fd::ones(&domain()))],
+        None if spec == "random" => vec![(
+            format!("random ±1 (seed {seed})"),
+            fd::random_signs(&domain(), seed),
+        )],
+        _ => bail!(
+            "--fd takes voxels:x,y,z;x,y,z, box:x0,y0,z0,x1,y1,z1, ones or random (got '{spec}')"
+        ),
+    })
+}
+
+fn fd_command(args: &GradArgs, scene: &Scene, target: Option<&image_io::RgbImage>) -> Result<()> {
+    let spec = args
+        .fd
+        .as_deref()
+        .context("--estimator fd needs --fd (voxels:..., box:..., ones or random)")?;
+    let seed = args.adjoint.seed.unwrap_or(scene.settings.seed);
+    let max_depth = args.adjoint.max_depth.unwrap_or(scene.settings.max_depth);
+    let options = fd_options(scene, args.loss, &args.fd_args, seed, max_depth)?;
+    let directions =
+        parse_fd_direction(spec, scene, args.adjoint.domain == DomainArg::Active, seed)?;
+    println!(
+        "finite differences of {} (ε = {}, {} spp × {} repeats, common random numbers)",
+        args.loss.name(),
+        options.eps,
+        options.spp,
+        options.repeats
+    );
+    let bar = volgrad::progress::bar(!args.adjoint.quiet, directions.len() as u64, "fd");
+    for (name, direction) in directions {
+        let r = fd::directional_derivative(scene, target, &direction, &options);
+        bar.suspend(|| {
+            println!(
+                "{name:<32} {:>14.6e} ± {:.2e}{}",
+                r.value,
+                r.std_err,
+                if r.one_sided {
+                    "  (one-sided: empty voxels)"
+                } else {
+                    ""
+                }
+            )
+        });
+        bar.inc(1);
+    }
+    bar.finish_and_clear();
+    Ok(())
+}
+
+fn gradcheck_command(args: &GradcheckArgs) -> Result<()> {
+    set_threads(args.adjoint.threads)?;
+    let scene = Scene::load(&args.scene)?;
+    let mut grad = adjoint_options(&scene, args.estimator, &args.adjoint)?;
+    grad.progress = false;
+    let fd = fd_options(
+        &scene,
+        Loss::Mean,
+        &args.fd_args,
+        grad.seed,
+        grad.adjoint.max_depth,
+    )?;
+    let options = GradcheckOptions {
+        grad,
+        repeats: args.fd_args.repeats,
+        voxels: args.voxels,
+        fd,
+    };
+    eprintln!("checking {:?} ({} spp × {} runs) against finite differences (ε = {}, {} spp × {} repeats) on d(mean pixel)/dθ", args.estimator, grad.spp, options.repeats, fd.eps, fd.spp, fd.repeats);
+    let checks = gradcheck(&scene, &options);
+    println!(
+        "{:<40} {:>24} {:>24} {:>8}",
+        "check", "estimator", "finite differences", "z"
+    );
+    let mut failed = 0;
+    for c in &checks {
+        let verdict = if c.passed() { "" } else { "  FAIL" };
+        failed += usize::from(!c.passed());
+        println!(
+            "{:<40} {:>12.4e} ± {:<9.2e} {:>12.4e} ± {:<9.2e} {:>8.2}{verdict}",
+            c.name,
+            c.estimate,
+            c.estimate_se,
+            c.fd.value,
+            c.fd.std_err,
+            c.z()
+        );
+    }
+    if failed > 0 {
+        bail!("{failed} of {} checks beyond |z| = {Z_LIMIT}", checks.len());
+    }
+    println!("all {} checks within |z| < {Z_LIMIT}", checks.len());
+    Ok(())
+}
+
+fn merge_command(inputs: &[PathBuf], output: &Path, force: bool) -> Result<()> {
+    let paths: Vec<&Path> = inputs.iter().map(|p| p.as_path()).collect();
+    let grid = gradio::merge(&paths)?;
+    vdb::write_grids(output, &[&grid], false, force)?;
+    eprintln!("wrote {} ({} inputs)", output.display(), inputs.len());
     Ok(())
 }

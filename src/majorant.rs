@@ -18,6 +18,7 @@ pub enum MajorantMode {
     Global,
 }
 
+#[derive(Clone)]
 pub struct MajorantGrid {
     /// Continuous index coordinates of cell (0,0,0)'s low corner, and the cell edges.
     origin: Vec3,
@@ -38,7 +39,12 @@ pub struct MajorantSegment {
 
 impl MajorantGrid {
     /// `bounds` is the medium's continuous index box; values are multiplied by `density_scale`.
-    pub fn build(bricks: &BrickMap, bounds: (Vec3, Vec3), density_scale: f32, mode: MajorantMode) -> Self {
+    pub fn build(
+        bricks: &BrickMap,
+        bounds: (Vec3, Vec3),
+        density_scale: f32,
+        mode: MajorantMode,
+    ) -> Self {
         match mode {
             MajorantMode::Global => {
                 let extent = (bounds.1 - bounds.0).max(Vec3::splat(1e-6));
@@ -50,7 +56,9 @@ impl MajorantGrid {
                     sigma_max: vec![bricks.max_value().max(0.0) * density_scale],
                 }
             }
-            MajorantMode::Grid { cell_voxels } => Self::build_cells(bricks, bounds, density_scale, cell_voxels.max(1) as i32),
+            MajorantMode::Grid { cell_voxels } => {
+                Self::build_cells(bricks, bounds, density_scale, cell_voxels.max(1) as i32)
+            }
         }
     }
 
@@ -70,7 +78,11 @@ impl MajorantGrid {
         };
         // Voxel v lies in the apron-grown footprint of cells ceil((v − S)/S) ..= floor((v + 1)/S).
         let mut raise = |v_lo: IVec3, v_hi: IVec3, value: f32| {
-            let lo = ((v_lo - s).as_vec3() / s as f32).ceil().as_ivec3().max(c_lo) - c_lo;
+            let lo = ((v_lo - s).as_vec3() / s as f32)
+                .ceil()
+                .as_ivec3()
+                .max(c_lo)
+                - c_lo;
             let hi = (v_hi + 1).div_euclid(IVec3::splat(s)).min(c_hi) - c_lo;
             for x in lo.x..=hi.x {
                 for y in lo.y..=hi.y {
@@ -85,7 +97,8 @@ impl MajorantGrid {
             for o in 0..BRICK_VOXELS {
                 let value = leaf.values[o];
                 if value > 0.0 {
-                    let v = leaf.origin + IVec3::new((o >> 6) as i32, ((o >> 3) & 7) as i32, (o & 7) as i32);
+                    let v = leaf.origin
+                        + IVec3::new((o >> 6) as i32, ((o >> 3) & 7) as i32, (o & 7) as i32);
                     debug_assert_eq!(leaf_offset(v - leaf.origin), o);
                     raise(v, v, value);
                 }
@@ -93,7 +106,11 @@ impl MajorantGrid {
         }
         for tile in bricks.tiles() {
             if tile.value > 0.0 {
-                raise(tile.origin, tile.origin + IVec3::splat(tile.size as i32 - 1), tile.value);
+                raise(
+                    tile.origin,
+                    tile.origin + IVec3::splat(tile.size as i32 - 1),
+                    tile.value,
+                );
             }
         }
         grid
@@ -111,7 +128,7 @@ impl MajorantGrid {
     #[inline]
     pub fn walk(&self, o: Vec3, d: Vec3, t0: f32, t1: f32) -> DdaWalk<'_> {
         let p = (o + d * t0 - self.origin) * self.inv_cell_size;
-        let cell = p.floor().as_ivec3().clamp(IVec3::ZERO, self.dims - 1);
+        let cell = crate::brickmap::floor_ivec3(p).clamp(IVec3::ZERO, self.dims - 1);
         let mut next_t = Vec3::splat(f32::INFINITY);
         let mut delta_t = Vec3::splat(f32::INFINITY);
         let mut step = IVec3::ZERO;
@@ -161,14 +178,22 @@ impl Iterator for DdaWalk<'_> {
         let sigma_max = self.grid.sigma_max[((c.x * dims.y + c.y) * dims.z + c.z) as usize];
         // Step along the axis whose boundary comes first.
         let a = if self.next_t.x < self.next_t.y {
-            if self.next_t.x < self.next_t.z { 0 } else { 2 }
+            if self.next_t.x < self.next_t.z {
+                0
+            } else {
+                2
+            }
         } else if self.next_t.y < self.next_t.z {
             1
         } else {
             2
         };
         let t1 = self.next_t[a].min(self.t_end);
-        let segment = MajorantSegment { t0: self.t, t1, sigma_max };
+        let segment = MajorantSegment {
+            t0: self.t,
+            t1,
+            sigma_max,
+        };
         self.t = t1;
         self.cell[a] += self.step[a];
         self.next_t[a] += self.delta_t[a];
@@ -192,7 +217,15 @@ mod tests {
             for y in 0..24 {
                 for z in 0..24 {
                     let hot = (x, y, z) == (7, 8, 15) || (x, y, z) == (16, 3, 3);
-                    b.set(IVec3::new(x, y, z), if hot { 9.0 } else { 0.1 * ((x * 7 + y * 3 + z) % 5) as f32 }, true);
+                    b.set(
+                        IVec3::new(x, y, z),
+                        if hot {
+                            9.0
+                        } else {
+                            0.1 * ((x * 7 + y * 3 + z) % 5) as f32
+                        },
+                        true,
+                    );
                 }
             }
         }
@@ -203,12 +236,22 @@ mod tests {
         let mut state = 12345u64;
         for _ in 0..20000 {
             let mut r = || {
-                state = state.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+                state = state
+                    .wrapping_mul(6364136223846793005)
+                    .wrapping_add(1442695040888963407);
                 (state >> 40) as f32 / (1u64 << 24) as f32
             };
             let o = Vec3::new(r(), r(), r()) * 24.0 - 0.5;
             let d = (Vec3::new(r(), r(), r()) - 0.5).normalize();
-            let exit = (0..3).map(|a| if d[a] > 0.0 { (23.5 - o[a]) / d[a] } else { (-0.5 - o[a]) / d[a] }).fold(f32::INFINITY, f32::min);
+            let exit = (0..3)
+                .map(|a| {
+                    if d[a] > 0.0 {
+                        (23.5 - o[a]) / d[a]
+                    } else {
+                        (-0.5 - o[a]) / d[a]
+                    }
+                })
+                .fold(f32::INFINITY, f32::min);
             let mut covered = 0.0;
             for seg in grid.walk(o, d, 0.0, exit) {
                 assert!(seg.t1 >= seg.t0);
@@ -216,10 +259,18 @@ mod tests {
                 for k in 0..=4 {
                     let t = seg.t0 + (seg.t1 - seg.t0) * (k as f32 + 0.5) / 5.0;
                     let sigma = 2.0 * m.trilinear(o + d * t);
-                    assert!(sigma <= seg.sigma_max + 1e-5, "σ {sigma} > majorant {} at {}", seg.sigma_max, o + d * t);
+                    assert!(
+                        sigma <= seg.sigma_max + 1e-5,
+                        "σ {sigma} > majorant {} at {}",
+                        seg.sigma_max,
+                        o + d * t
+                    );
                 }
             }
-            assert!((covered - exit).abs() < 1e-3 * exit.max(1.0), "segments cover {covered} of {exit}");
+            assert!(
+                (covered - exit).abs() < 1e-3 * exit.max(1.0),
+                "segments cover {covered} of {exit}"
+            );
         }
     }
 
@@ -229,9 +280,23 @@ mod tests {
         b.set(IVec3::new(3, 4, 5), 7.0, true);
         b.set(IVec3::new(30, 4, 5), 1.0, true);
         let m = b.build();
-        let grid = MajorantGrid::build(&m, (Vec3::new(2.5, 3.5, 4.5), Vec3::new(30.5, 4.5, 5.5)), 0.5, MajorantMode::Global);
+        let grid = MajorantGrid::build(
+            &m,
+            (Vec3::new(2.5, 3.5, 4.5), Vec3::new(30.5, 4.5, 5.5)),
+            0.5,
+            MajorantMode::Global,
+        );
         assert_eq!(grid.cell_count(), 1);
-        let segs: Vec<_> = grid.walk(Vec3::new(2.5, 4.0, 5.0), Vec3::X, 0.0, 28.0).collect();
-        assert_eq!(segs, vec![MajorantSegment { t0: 0.0, t1: 28.0, sigma_max: 3.5 }]);
+        let segs: Vec<_> = grid
+            .walk(Vec3::new(2.5, 4.0, 5.0), Vec3::X, 0.0, 28.0)
+            .collect();
+        assert_eq!(
+            segs,
+            vec![MajorantSegment {
+                t0: 0.0,
+                t1: 28.0,
+                sigma_max: 3.5
+            }]
+        );
     }
 }

@@ -33,14 +33,25 @@ pub struct GridSpec {
 
 impl GridSpec {
     pub fn new(kind: GridKind, size: u32, value: f32) -> Self {
-        GridSpec { kind, size, thickness: 2, value, voxel_size: [1.0; 3], rotate_deg: [0.0; 3], name: "density".into() }
+        GridSpec {
+            kind,
+            size,
+            thickness: 2,
+            value,
+            voxel_size: [1.0; 3],
+            rotate_deg: [0.0; 3],
+            name: "density".into(),
+        }
     }
 }
 
 /// Builds the grid. Its centre maps to the world origin.
 pub fn make_grid(spec: &GridSpec) -> anyhow::Result<Grid> {
     if spec.size == 0 || spec.size > 1024 {
-        anyhow::bail!("--size must be between 1 and 1024 voxels (got {})", spec.size);
+        anyhow::bail!(
+            "--size must be between 1 and 1024 voxels (got {})",
+            spec.size
+        );
     }
     if !(spec.value.is_finite() && spec.value >= 0.0) {
         anyhow::bail!("--value must be a finite number ≥ 0 (got {})", spec.value);
@@ -75,14 +86,22 @@ pub fn make_grid(spec: &GridSpec) -> anyhow::Result<Grid> {
         }
     }
     let [rx, ry, rz] = spec.rotate_deg.map(f64::to_radians);
-    let linear = DMat3::from_rotation_z(rz) * DMat3::from_rotation_y(ry) * DMat3::from_rotation_x(rx) * DMat3::from_diagonal(DVec3::from(spec.voxel_size));
-    let transform = IndexTransform::new(DAffine3::from_mat3_translation(linear, -(linear * centre)))?;
+    let linear = DMat3::from_rotation_z(rz)
+        * DMat3::from_rotation_y(ry)
+        * DMat3::from_rotation_x(rx)
+        * DMat3::from_diagonal(DVec3::from(spec.voxel_size));
+    let transform =
+        IndexTransform::new(DAffine3::from_mat3_translation(linear, -(linear * centre)))?;
     Ok(Grid {
         name: spec.name.clone(),
         grid_class: "fog volume".into(),
         transform,
         bricks: b.build(),
         saved_as_half: false,
-        metadata: vec![meta("generator", "string", format!("volgrad make-grid {:?}", spec.kind).to_lowercase())],
+        metadata: vec![meta(
+            "generator",
+            "string",
+            format!("volgrad make-grid {:?}", spec.kind).to_lowercase(),
+        )],
     })
 }

@@ -28,6 +28,7 @@ impl IndexRay {
     }
 }
 
+#[derive(Clone)]
 pub struct Medium {
     pub grid: BrickMap,
     pub transform: IndexTransform,
@@ -41,7 +42,13 @@ pub struct Medium {
 }
 
 impl Medium {
-    pub fn new(grid: BrickMap, transform: IndexTransform, density_scale: f32, filter: Filter, majorant: MajorantMode) -> Self {
+    pub fn new(
+        grid: BrickMap,
+        transform: IndexTransform,
+        density_scale: f32,
+        filter: Filter,
+        majorant: MajorantMode,
+    ) -> Self {
         let bounds = match grid.active_bounds() {
             Some((lo, hi)) => (lo.as_vec3() - 0.5, hi.as_vec3() + 0.5),
             None => (Vec3::ZERO, Vec3::ZERO),
@@ -72,7 +79,10 @@ impl Medium {
     /// The world ray `o + t·ω` (unit ω) in index space.
     #[inline]
     pub fn to_index_ray(&self, o: Vec3, w: Vec3) -> IndexRay {
-        IndexRay { o: self.transform.point_to_index(o), d: self.transform.vector_to_index(w) }
+        IndexRay {
+            o: self.transform.point_to_index(o),
+            d: self.transform.vector_to_index(w),
+        }
     }
 
     /// The `[t0, t1]` (t ≥ 0) where the ray is inside the medium's box, if any.

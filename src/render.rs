@@ -27,7 +27,12 @@ pub struct RenderOptions {
 
 impl RenderOptions {
     pub fn from_scene(scene: &Scene) -> Self {
-        RenderOptions { spp: scene.settings.spp, seed: scene.settings.seed, max_depth: scene.settings.max_depth, progress: false }
+        RenderOptions {
+            spp: scene.settings.spp,
+            seed: scene.settings.seed,
+            max_depth: scene.settings.max_depth,
+            progress: false,
+        }
     }
 }
 
@@ -60,13 +65,102 @@ pub struct LightSample {
 
 impl LightSample {
     pub fn draw(rng: &mut impl Rng) -> Self {
-        LightSample { u: [rng.gen(), rng.gen(), rng.gen()] }
+        LightSample {
+            u: [rng.gen(), rng.gen(), rng.gen()],
+        }
     }
+}
+
+/// Where a path (or a suffix of one) stands before its next free flight.
+#[derive(Debug, Clone, Copy)]
+pub struct PathState {
+    pub p: Vec3,
+    pub dir: Vec3,
+    pub throughput: Vec3,
+    /// Density of the phase sample that produced `dir`; `None` for a camera ray (no MIS on escape).
+    pub phase_pdf: Option<f32>,
+    /// Scattering events so far.
+    pub depth: u32,
+}
+
+impl PathState {
+    pub fn camera(p: Vec3, dir: Vec3) -> Self {
+        PathState {
+            p,
+            dir,
+            throughput: Vec3::ONE,
+            phase_pdf: None,
+            depth: 0,
+        }
+    }
+
+    /// A suffix leaving scattering point `p` (reached along `dir` after `depth` events) in a
+    /// phase-sampled direction.
+    pub fn scattered(scene: &Scene, p: Vec3, dir: Vec3, depth: u32, rng: &mut impl Rng) -> Self {
+        let phase = HenyeyGreenstein {
+            g: scene.medium.phase_g,
+        };
+        let new_dir = phase.sample(dir, [rng.gen(), rng.gen()]);
+        PathState {
+            p,
+            dir: new_dir,
+            throughput: Vec3::ONE,
+            phase_pdf: Some(phase.eval(dir.dot(new_dir))),
+            depth,
+        }
+    }
+}
+
+/// One free flight of a path, as the adjoint pass replays it: from `origin` along `dir`, entering
+/// the medium's box at `t_enter` and leaving it at `t_exit`, ending in a real collision at
+/// `collision` or escaping.
+#[derive(Debug, Clone, Copy)]
+pub struct Segment {
+    pub origin: Vec3,
+    pub dir: Vec3,
+    pub t_enter: f32,
+    pub t_exit: f32,
+    pub collision: Option<f32>,
+    /// Path throughput entering the segment (β_{j−1}).
+    pub throughput: Vec3,
+    /// Index j of the segment (1 for the camera ray); a collision on it is scattering event j.
+    pub depth: u32,
+    /// At a collision that scattered: the light sample and the NEE radiance (before the albedo).
+    pub light_sample: Option<LightSample>,
+    pub nee: Vec3,
+    /// On escape: the environment radiance with its MIS weight.
+    pub escape: Vec3,
+    /// Russian roulette after this vertex: the 1/q factor, or 0 if the path ended here.
+    pub continuation_weight: f32,
+}
+
+/// Records a path's segments (and the NEE shadow rays' contributions) for the adjoint pass.
+#[derive(Default)]
+pub struct PathRecord {
+    pub segments: Vec<Segment>,
+    pub shadows: Vec<ShadowRay>,
+}
+
+/// A NEE shadow ray's share of the radiance (throughput · light · T̂), for the transmittance
+/// derivative of shadow rays.
+#[derive(Debug, Clone, Copy)]
+pub struct ShadowRay {
+    pub origin: Vec3,
+    pub dir: Vec3,
+    pub t_enter: f32,
+    pub t_exit: f32,
+    pub contribution: Vec3,
 }
 
 /// Transmittance from world point `p` along unit `dir` to the medium's boundary.
 #[inline]
-pub fn transmittance_to_boundary(scene: &Scene, p: Vec3, dir: Vec3, rng: &mut impl Rng, stats: &mut TrackingStats) -> f32 {
+pub fn transmittance_to_boundary(
+    scene: &Scene,
+    p: Vec3,
+    dir: Vec3,
+    rng: &mut impl Rng,
+    stats: &mut TrackingStats,
+) -> f32 {
     let ray = scene.medium.to_index_ray(p, dir);
     match scene.medium.intersect(&ray) {
         Some((t0, t1)) => transmittance(&scene.medium, &ray, t0, t1, rng, stats),
@@ -76,51 +170,120 @@ pub fn transmittance_to_boundary(scene: &Scene, p: Vec3, dir: Vec3, rng: &mut im
 
 /// Next-event estimation at a scattering point `p` reached along `dir`: the in-scattered radiance
 /// from all directional lights and one environment sample (MIS-weighted against phase sampling),
-/// before the albedo.
-pub fn direct_light(scene: &Scene, p: Vec3, dir: Vec3, sample: &LightSample, rng: &mut impl Rng, stats: &mut TrackingStats) -> Vec3 {
-    let phase = HenyeyGreenstein { g: scene.medium.phase_g };
-    let mut radiance = Vec3::ZERO;
-    for sun in &scene.lights.directional {
-        let contribution = sun.irradiance * phase.eval(dir.dot(sun.to_light));
-        if contribution.max_element() > 0.0 {
-            radiance += contribution * transmittance_to_boundary(scene, p, sun.to_light, rng, stats);
-        }
-    }
+/// before the albedo. With `shadows`, each shadow ray's contribution (times `throughput`) is kept.
+pub fn direct_light(
+    scene: &Scene,
+    p: Vec3,
+    dir: Vec3,
+    sample: &LightSample,
+    rng: &mut impl Rng,
+    stats: &mut TrackingStats,
+    mut shadows: Option<(&mut Vec<ShadowRay>, Vec3)>,
+) -> Vec3 {
+    let phase = HenyeyGreenstein {
+        g: scene.medium.phase_g,
+    };
     let env = &scene.lights.environment;
+    let mut radiance = Vec3::ZERO;
+    let mut shade = |unoccluded: Vec3, wi: Vec3, radiance: &mut Vec3| {
+        if unoccluded.max_element() <= 0.0 {
+            return;
+        }
+        let ray = scene.medium.to_index_ray(p, wi);
+        let Some((t0, t1)) = scene.medium.intersect(&ray) else {
+            *radiance += unoccluded;
+            return;
+        };
+        let tr = transmittance(&scene.medium, &ray, t0, t1, rng, stats);
+        *radiance += unoccluded * tr;
+        if let Some((list, throughput)) = shadows.as_mut() {
+            if tr > 0.0 {
+                list.push(ShadowRay {
+                    origin: p,
+                    dir: wi,
+                    t_enter: t0,
+                    t_exit: t1,
+                    contribution: *throughput * unoccluded * tr,
+                });
+            }
+        }
+    };
+    for sun in &scene.lights.directional {
+        shade(
+            sun.irradiance * phase.eval(dir.dot(sun.to_light)),
+            sun.to_light,
+            &mut radiance,
+        );
+    }
     if !env.is_black() {
         let wi = env.sample(sample.u);
         let light_pdf = env.pdf(wi);
         if light_pdf > 0.0 {
             let phase_pdf = phase.eval(dir.dot(wi));
-            let contribution = env.eval(wi) * (phase_pdf * power_heuristic(light_pdf, phase_pdf) / light_pdf);
-            if contribution.max_element() > 0.0 {
-                radiance += contribution * transmittance_to_boundary(scene, p, wi, rng, stats);
-            }
+            shade(
+                env.eval(wi) * (phase_pdf * power_heuristic(light_pdf, phase_pdf) / light_pdf),
+                wi,
+                &mut radiance,
+            );
         }
     }
     radiance
 }
 
-/// Radiance arriving at world point `origin` from direction `-dir`, by one path.
-pub fn trace_path(scene: &Scene, origin: Vec3, dir: Vec3, max_depth: u32, rng: &mut impl Rng, stats: &mut TrackingStats) -> Vec3 {
+/// Follows a path from `state` until it escapes, is absorbed by Russian roulette, or reaches
+/// `max_depth` scattering events; returns the radiance it carries back, relative to
+/// `state.throughput`'s starting point. With `record`, every segment is kept for the adjoint pass.
+pub fn trace(
+    scene: &Scene,
+    state: PathState,
+    max_depth: u32,
+    rng: &mut impl Rng,
+    stats: &mut TrackingStats,
+    mut record: Option<&mut PathRecord>,
+) -> Vec3 {
     let medium = &scene.medium;
     let env = &scene.lights.environment;
     let phase = HenyeyGreenstein { g: medium.phase_g };
+    let PathState {
+        mut p,
+        mut dir,
+        mut throughput,
+        mut phase_pdf,
+        mut depth,
+    } = state;
     let mut radiance = Vec3::ZERO;
-    let mut throughput = Vec3::ONE;
-    let (mut p, mut dir) = (origin, dir);
-    // Density of the phase sample that produced `dir`; None for the camera ray (no MIS).
-    let mut phase_pdf: Option<f32> = None;
-    let mut depth = 0;
     loop {
         let ray = medium.to_index_ray(p, dir);
-        let collision = medium.intersect(&ray).and_then(|(t0, t1)| sample_collision(medium, &ray, t0, t1, rng, stats));
+        let bounds = medium.intersect(&ray);
+        let collision =
+            bounds.and_then(|(t0, t1)| sample_collision(medium, &ray, t0, t1, rng, stats));
+        let (t_enter, t_exit) = bounds.unwrap_or((0.0, 0.0));
+        let mut segment = Segment {
+            origin: p,
+            dir,
+            t_enter,
+            t_exit,
+            collision,
+            throughput,
+            depth: depth + 1,
+            light_sample: None,
+            nee: Vec3::ZERO,
+            escape: Vec3::ZERO,
+            continuation_weight: 0.0,
+        };
         let Some(t) = collision else {
             let weight = phase_pdf.map_or(1.0, |pdf| power_heuristic(pdf, env.pdf(dir)));
-            radiance += throughput * env.eval(dir) * weight;
+            segment.escape = env.eval(dir) * weight;
+            radiance += throughput * segment.escape;
+            if let Some(r) = record.as_deref_mut() {
+                r.segments.push(segment);
+            }
             break;
         };
         if depth >= max_depth {
+            if let Some(r) = record.as_deref_mut() {
+                r.segments.push(segment);
+            }
             break;
         }
         depth += 1;
@@ -128,21 +291,52 @@ pub fn trace_path(scene: &Scene, origin: Vec3, dir: Vec3, max_depth: u32, rng: &
         // A real collision scatters with probability α; the albedo weights the throughput.
         throughput *= medium.albedo;
         let light_sample = LightSample::draw(rng);
-        radiance += throughput * direct_light(scene, p, dir, &light_sample, rng, stats);
+        let shadows = record.as_deref_mut().map(|r| (&mut r.shadows, throughput));
+        segment.nee = direct_light(scene, p, dir, &light_sample, rng, stats, shadows);
+        segment.light_sample = Some(light_sample);
+        radiance += throughput * segment.nee;
         let new_dir = phase.sample(dir, [rng.gen(), rng.gen()]);
         phase_pdf = Some(phase.eval(dir.dot(new_dir)));
         dir = new_dir;
+        segment.continuation_weight = 1.0;
         if depth >= RR_START_DEPTH {
             let survive = throughput.max_element();
             if survive < 1.0 {
-                if rng.gen::<f32>() >= survive {
-                    break;
-                }
-                throughput /= survive;
+                segment.continuation_weight = if rng.gen::<f32>() < survive {
+                    1.0 / survive
+                } else {
+                    0.0
+                };
+                throughput *= segment.continuation_weight;
             }
+        }
+        if let Some(r) = record.as_deref_mut() {
+            r.segments.push(segment);
+        }
+        if segment.continuation_weight == 0.0 {
+            break;
         }
     }
     radiance
+}
+
+/// Radiance arriving at world point `origin` from direction `-dir`, by one path.
+pub fn trace_path(
+    scene: &Scene,
+    origin: Vec3,
+    dir: Vec3,
+    max_depth: u32,
+    rng: &mut impl Rng,
+    stats: &mut TrackingStats,
+) -> Vec3 {
+    trace(
+        scene,
+        PathState::camera(origin, dir),
+        max_depth,
+        rng,
+        stats,
+        None,
+    )
 }
 
 /// Renders the scene's camera view. Each pixel has its own random stream (seed, pixel), so the
@@ -151,7 +345,9 @@ pub fn render(scene: &Scene, options: &RenderOptions) -> (RgbImage, RenderStats)
     let start = Instant::now();
     let camera = &scene.camera;
     let (w, h) = (camera.width, camera.height);
-    let tiles: Vec<(u32, u32)> = (0..h.div_ceil(TILE)).flat_map(|ty| (0..w.div_ceil(TILE)).map(move |tx| (tx * TILE, ty * TILE))).collect();
+    let tiles: Vec<(u32, u32)> = (0..h.div_ceil(TILE))
+        .flat_map(|ty| (0..w.div_ceil(TILE)).map(move |tx| (tx * TILE, ty * TILE)))
+        .collect();
     let progress = crate::progress::bar(options.progress, tiles.len() as u64, "rendering");
     let results: Vec<((u32, u32), Vec<Vec3>, TrackingStats)> = tiles
         .par_iter()
@@ -163,8 +359,16 @@ pub fn render(scene: &Scene, options: &RenderOptions) -> (RgbImage, RenderStats)
                     let mut rng = pixel_rng(options.seed, (y * w + x) as u64, 0);
                     let mut sum = Vec3::ZERO;
                     for _ in 0..options.spp {
-                        let dir = camera.direction(x as f32 + rng.gen::<f32>(), y as f32 + rng.gen::<f32>());
-                        sum += trace_path(scene, camera.position, dir, options.max_depth, &mut rng, &mut stats);
+                        let dir = camera
+                            .direction(x as f32 + rng.gen::<f32>(), y as f32 + rng.gen::<f32>());
+                        sum += trace_path(
+                            scene,
+                            camera.position,
+                            dir,
+                            options.max_depth,
+                            &mut rng,
+                            &mut stats,
+                        );
                     }
                     pixels.push(sum / options.spp as f32);
                 }
@@ -175,7 +379,10 @@ pub fn render(scene: &Scene, options: &RenderOptions) -> (RgbImage, RenderStats)
         .collect();
     progress.finish_and_clear();
     let mut image = RgbImage::new(w, h);
-    let mut stats = RenderStats { paths: w as u64 * h as u64 * options.spp as u64, ..Default::default() };
+    let mut stats = RenderStats {
+        paths: w as u64 * h as u64 * options.spp as u64,
+        ..Default::default()
+    };
     for ((x0, y0), pixels, tile_stats) in results {
         let tw = (x0 + TILE).min(w) - x0;
         for (i, c) in pixels.into_iter().enumerate() {

@@ -11,7 +11,9 @@ use rand::SeedableRng;
 /// the same seed gives the same image for any thread count.
 pub fn pixel_rng(seed: u64, pixel: u64, stream: u64) -> SmallRng {
     // SplitMix64-style mixing so nearby pixels get unrelated streams.
-    let mut z = seed ^ pixel.wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ stream.wrapping_mul(0xD1B5_4A32_D192_ED03);
+    let mut z = seed
+        ^ pixel.wrapping_mul(0x9E37_79B9_7F4A_7C15)
+        ^ stream.wrapping_mul(0xD1B5_4A32_D192_ED03);
     z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
     z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
     SmallRng::seed_from_u64(z ^ (z >> 31))
@@ -23,7 +25,10 @@ pub fn basis(n: Vec3) -> (Vec3, Vec3) {
     let sign = 1.0f32.copysign(n.z);
     let a = -1.0 / (sign + n.z);
     let b = n.x * n.y * a;
-    (Vec3::new(1.0 + sign * n.x * n.x * a, sign * b, -sign * n.x), Vec3::new(b, sign + n.y * n.y * a, -n.y))
+    (
+        Vec3::new(1.0 + sign * n.x * n.x * a, sign * b, -sign * n.x),
+        Vec3::new(b, sign + n.y * n.y * a, -n.y),
+    )
 }
 
 /// Henyey–Greenstein phase function. `cos_theta` is the cosine between the incoming ray direction
@@ -123,7 +128,11 @@ impl Distribution1D {
     pub fn sample(&self, u: f32) -> (usize, f32) {
         let i = self.cdf.partition_point(|&c| c <= u).clamp(1, self.len()) - 1;
         let p = self.bin_probability(i);
-        let du = if p > 0.0 { ((u - self.cdf[i]) / p).clamp(0.0, 0.99999994) } else { 0.5 };
+        let du = if p > 0.0 {
+            ((u - self.cdf[i]) / p).clamp(0.0, 0.99999994)
+        } else {
+            0.5
+        };
         (i, du)
     }
 }
@@ -139,13 +148,22 @@ mod tests {
             let hg = HenyeyGreenstein { g };
             // ∫ p dω = 2π ∫ p(μ) dμ.
             let n = 200_000;
-            let integral: f64 = (0..n).map(|i| hg.eval(-1.0 + 2.0 * (i as f32 + 0.5) / n as f32) as f64).sum::<f64>() * 2.0 / n as f64 * 2.0 * std::f64::consts::PI;
+            let integral: f64 = (0..n)
+                .map(|i| hg.eval(-1.0 + 2.0 * (i as f32 + 0.5) / n as f32) as f64)
+                .sum::<f64>()
+                * 2.0
+                / n as f64
+                * 2.0
+                * std::f64::consts::PI;
             assert!((integral - 1.0).abs() < 2e-3, "g={g}: ∫p = {integral}");
             // The mean cosine of HG is g.
             let mut rng = pixel_rng(7, 0, 0);
             let dir = Vec3::new(0.3, -0.8, 0.52).normalize();
             let m = 100_000;
-            let mean: f32 = (0..m).map(|_| hg.sample(dir, [rng.gen(), rng.gen()]).dot(dir)).sum::<f32>() / m as f32;
+            let mean: f32 = (0..m)
+                .map(|_| hg.sample(dir, [rng.gen(), rng.gen()]).dot(dir))
+                .sum::<f32>()
+                / m as f32;
             assert!((mean - g).abs() < 0.01, "g={g}: mean cosine {mean}");
         }
     }

@@ -146,7 +146,8 @@ fn default_max_depth() -> u32 {
 fn default_seed() -> u64 {
     1
 }
-pub const DEFAULT_MAJORANT_CELL: u32 = 8;
+/// 4³-voxel cells: on the Disney cloud, tracking efficiency 0.41 (8³: 0.29) at equal speed.
+pub const DEFAULT_MAJORANT_CELL: u32 = 4;
 fn default_majorant_cell() -> u32 {
     DEFAULT_MAJORANT_CELL
 }
@@ -165,6 +166,7 @@ impl Default for RenderFile {
 }
 
 /// A scene ready to render.
+#[derive(Clone)]
 pub struct Scene {
     pub path: PathBuf,
     pub camera: Camera,
@@ -178,11 +180,13 @@ pub struct Scene {
 
 impl SceneFile {
     pub fn parse(text: &str, origin: &Path) -> Result<Self> {
-        toml::from_str(text).map_err(|e| anyhow::anyhow!("{}: {}", origin.display(), e.to_string().trim_end()))
+        toml::from_str(text)
+            .map_err(|e| anyhow::anyhow!("{}: {}", origin.display(), e.to_string().trim_end()))
     }
 
     pub fn read(path: &Path) -> Result<Self> {
-        let text = std::fs::read_to_string(path).with_context(|| format!("cannot read scene file '{}'", path.display()))?;
+        let text = std::fs::read_to_string(path)
+            .with_context(|| format!("cannot read scene file '{}'", path.display()))?;
         Self::parse(&text, path)
     }
 
@@ -200,20 +204,34 @@ impl SceneFile {
             bail!("camera.up must not be zero or parallel to the view direction");
         }
         if !(c.fov_deg > 0.0 && c.fov_deg < 180.0) {
-            bail!("camera.fov_deg must be between 0 and 180 degrees (got {})", c.fov_deg);
+            bail!(
+                "camera.fov_deg must be between 0 and 180 degrees (got {})",
+                c.fov_deg
+            );
         }
         if c.width == 0 || c.height == 0 {
-            bail!("camera.width and camera.height must be at least 1 (got {}×{})", c.width, c.height);
+            bail!(
+                "camera.width and camera.height must be at least 1 (got {}×{})",
+                c.width,
+                c.height
+            );
         }
         if c.width as u64 * c.height as u64 > 1 << 28 {
-            bail!("camera.width × camera.height is too large ({}×{})", c.width, c.height);
+            bail!(
+                "camera.width × camera.height is too large ({}×{})",
+                c.width,
+                c.height
+            );
         }
         let m = &self.medium;
         if m.grid.is_some() && m.grid_index.is_some() {
             bail!("medium.grid and medium.grid_index are exclusive: give one");
         }
         if !(m.density_scale >= 0.0 && m.density_scale.is_finite()) {
-            bail!("medium.density_scale must be a finite number ≥ 0 (got {})", m.density_scale);
+            bail!(
+                "medium.density_scale must be a finite number ≥ 0 (got {})",
+                m.density_scale
+            );
         }
         let albedo = m.albedo.rgb();
         if !(albedo.cmpge(Vec3::ZERO).all() && albedo.cmple(Vec3::ONE).all()) {
@@ -225,14 +243,19 @@ impl SceneFile {
         let mut envmaps = 0;
         for (i, light) in self.light.iter().enumerate() {
             match light {
-                LightFile::Constant { radiance } => non_negative(&format!("light[{i}].radiance"), radiance.rgb())?,
+                LightFile::Constant { radiance } => {
+                    non_negative(&format!("light[{i}].radiance"), radiance.rgb())?
+                }
                 LightFile::Envmap { scale, .. } => {
                     envmaps += 1;
                     if !(*scale >= 0.0 && scale.is_finite()) {
                         bail!("light[{i}].scale must be a finite number ≥ 0 (got {scale})");
                     }
                 }
-                LightFile::Directional { direction, irradiance } => {
+                LightFile::Directional {
+                    direction,
+                    irradiance,
+                } => {
                     finite3(&format!("light[{i}].direction"), *direction)?;
                     if Vec3::from(*direction).length() == 0.0 {
                         bail!("light[{i}].direction must not be zero");
@@ -249,10 +272,16 @@ impl SceneFile {
             bail!("render.spp must be at least 1");
         }
         if !(r.exposure > 0.0 && r.exposure.is_finite()) {
-            bail!("render.exposure must be a finite number > 0 (got {})", r.exposure);
+            bail!(
+                "render.exposure must be a finite number > 0 (got {})",
+                r.exposure
+            );
         }
         if r.majorant_cell == 0 || r.majorant_cell > 1024 {
-            bail!("render.majorant_cell must be between 1 and 1024 voxels (got {})", r.majorant_cell);
+            bail!(
+                "render.majorant_cell must be between 1 and 1024 voxels (got {})",
+                r.majorant_cell
+            );
         }
         Ok(())
     }
@@ -283,11 +312,15 @@ impl Scene {
 
     /// Loads a parsed scene; `path` locates the files it names.
     pub fn from_file(file: SceneFile, path: &Path) -> Result<Scene> {
-        file.validate().with_context(|| format!("invalid scene '{}'", path.display()))?;
+        file.validate()
+            .with_context(|| format!("invalid scene '{}'", path.display()))?;
         let dir = path.parent().unwrap_or(Path::new("."));
         let vdb_path = dir.join(&file.medium.vdb);
         if !vdb_path.exists() {
-            bail!("medium.vdb: file '{}' does not exist (paths are relative to the scene file)", vdb_path.display());
+            bail!(
+                "medium.vdb: file '{}' does not exist (paths are relative to the scene file)",
+                vdb_path.display()
+            );
         }
         let selector = match (&file.medium.grid, file.medium.grid_index) {
             (Some(name), _) => GridSelector::Name(name.clone()),
@@ -296,14 +329,23 @@ impl Scene {
         };
         let grid = vdb::read_grid(&vdb_path, &selector)?;
         let c = &file.camera;
-        let camera = Camera::new(c.position.into(), c.target.into(), c.up.into(), c.fov_deg, c.width, c.height);
+        let camera = Camera::new(
+            c.position.into(),
+            c.target.into(),
+            c.up.into(),
+            c.fov_deg,
+            c.width,
+            c.height,
+        );
         let filter = match file.medium.filter {
             FilterName::Nearest => Filter::Nearest,
             FilterName::Trilinear => Filter::Trilinear,
         };
         let r = &file.render;
         let mode = match r.majorant {
-            MajorantName::Grid => MajorantMode::Grid { cell_voxels: r.majorant_cell },
+            MajorantName::Grid => MajorantMode::Grid {
+                cell_voxels: r.majorant_cell,
+            },
             MajorantName::Global => MajorantMode::Global,
         };
         if grid.bricks.min_value() < 0.0 {
@@ -314,7 +356,13 @@ impl Scene {
                 grid.bricks.min_value()
             );
         }
-        let mut medium = Medium::new(grid.bricks, grid.transform, file.medium.density_scale, filter, mode);
+        let mut medium = Medium::new(
+            grid.bricks,
+            grid.transform,
+            file.medium.density_scale,
+            filter,
+            mode,
+        );
         medium.albedo = file.medium.albedo.rgb();
         medium.phase_g = file.medium.phase_g;
         let lights = load_lights(&file.light, dir)?;
@@ -351,14 +399,29 @@ fn load_lights(files: &[LightFile], dir: &Path) -> Result<Lights> {
             LightFile::Constant { radiance } => environment.constant += radiance.rgb(),
             LightFile::Envmap { file, scale } => {
                 let path = dir.join(file);
-                let image = image_io::read_rgb(&path).with_context(|| format!("light[{i}].file"))?;
-                if image.pixels.iter().any(|c| !c.is_finite() || c.cmplt(Vec3::ZERO).any()) {
-                    bail!("light[{i}].file: '{}' has negative or non-finite pixels", path.display());
+                let image =
+                    image_io::read_rgb(&path).with_context(|| format!("light[{i}].file"))?;
+                if image
+                    .pixels
+                    .iter()
+                    .any(|c| !c.is_finite() || c.cmplt(Vec3::ZERO).any())
+                {
+                    bail!(
+                        "light[{i}].file: '{}' has negative or non-finite pixels",
+                        path.display()
+                    );
                 }
                 let texels = image.pixels.iter().map(|&c| c * *scale).collect();
-                environment.map = Some(EnvMap::new(image.width as usize, image.height as usize, texels));
+                environment.map = Some(EnvMap::new(
+                    image.width as usize,
+                    image.height as usize,
+                    texels,
+                ));
             }
-            LightFile::Directional { direction, irradiance } => lights.directional.push(DirectionalLight {
+            LightFile::Directional {
+                direction,
+                irradiance,
+            } => lights.directional.push(DirectionalLight {
                 to_light: -Vec3::from(*direction).normalize(),
                 irradiance: irradiance.rgb(),
             }),
@@ -408,15 +471,27 @@ vdb = "x.vdb"
         let cases = [
             ("[render]\nspp = 0\n", "render.spp"),
             ("[render]\nmajorant = \"fast\"\n", "majorant"),
-            ("[[light]]\ntype = \"constant\"\nradiance = -1\n", "light[0].radiance"),
-            ("[[light]]\ntype = \"constant\"\nradiance = 1\ncolour = 2\n", "colour"),
+            (
+                "[[light]]\ntype = \"constant\"\nradiance = -1\n",
+                "light[0].radiance",
+            ),
+            (
+                "[[light]]\ntype = \"constant\"\nradiance = 1\ncolour = 2\n",
+                "colour",
+            ),
             ("[[light]]\ntype = \"spot\"\n", "spot"),
-            ("[[light]]\ntype = \"directional\"\ndirection = [0, 0, 0]\nirradiance = 1\n", "light[0].direction"),
+            (
+                "[[light]]\ntype = \"directional\"\ndirection = [0, 0, 0]\nirradiance = 1\n",
+                "light[0].direction",
+            ),
             ("[render]\nsamples = 3\n", "samples"),
         ];
         for (extra, key) in cases {
             let err = format!("{:#}", parse(extra).unwrap_err());
-            assert!(err.contains(key), "error for {extra:?} does not name {key}: {err}");
+            assert!(
+                err.contains(key),
+                "error for {extra:?} does not name {key}: {err}"
+            );
         }
         let bad_medium = [
             ("density_scale = -1", "medium.density_scale"),
@@ -429,12 +504,23 @@ vdb = "x.vdb"
         ];
         for (line, key) in bad_medium {
             let text = MINIMAL.replace("vdb = \"x.vdb\"", &format!("vdb = \"x.vdb\"\n{line}"));
-            let err = SceneFile::parse(&text, Path::new("t.toml")).and_then(|f| f.validate().map(|_| f));
+            let err =
+                SceneFile::parse(&text, Path::new("t.toml")).and_then(|f| f.validate().map(|_| f));
             let err = format!("{:#}", err.unwrap_err());
-            assert!(err.contains(key), "error for {line:?} does not name {key}: {err}");
+            assert!(
+                err.contains(key),
+                "error for {line:?} does not name {key}: {err}"
+            );
         }
-        for (from, to, key) in [("width = 8", "width = 0", "camera.width"), ("fov_deg = 40", "fov_deg = 180", "camera.fov_deg"), ("target = [0, 0, 0]", "target = [0, 0, 10]", "camera.target")] {
-            let err = SceneFile::parse(&MINIMAL.replace(from, to), Path::new("t.toml")).unwrap().validate().unwrap_err();
+        for (from, to, key) in [
+            ("width = 8", "width = 0", "camera.width"),
+            ("fov_deg = 40", "fov_deg = 180", "camera.fov_deg"),
+            ("target = [0, 0, 0]", "target = [0, 0, 10]", "camera.target"),
+        ] {
+            let err = SceneFile::parse(&MINIMAL.replace(from, to), Path::new("t.toml"))
+                .unwrap()
+                .validate()
+                .unwrap_err();
             assert!(format!("{err}").contains(key), "{err}");
         }
     }

@@ -30,67 +30,140 @@ impl std::ops::AddAssign for TrackingStats {
     }
 }
 
-/// The next tentative collision after `t`: an exponential step with rate `sigma_max` (> 0). In
-/// absurdly dense media the step can fall below f32 resolution; always moving by at least one ulp
-/// keeps every walk finite.
+/// An optical-depth budget for the next tentative collision: Exp(1).
 #[inline]
-fn next_tentative(t: f32, rng: &mut impl Rng, sigma_max: f32) -> f32 {
-    (t - (1.0 - rng.gen::<f32>()).ln() / sigma_max).max(t.next_up())
+fn exponential(rng: &mut impl Rng) -> f32 {
+    -(1.0 - rng.gen::<f32>()).ln()
 }
 
-/// Delta tracking on `[t0, t1)`: the distance of the first real collision, sampled with pdf
-/// T(t)σt(t), or `None` when the ray leaves the interval (probability T(t1)).
-#[inline]
-pub fn sample_collision(medium: &Medium, ray: &IndexRay, t0: f32, t1: f32, rng: &mut impl Rng, stats: &mut TrackingStats) -> Option<f32> {
+/// Walks the tentative collisions on `[t0, t1)`: a Poisson process whose rate is each majorant
+/// cell's σ̄. One Exp(1) optical-depth budget is drawn per tentative collision and spent across
+/// cells (σ̄·Δt per cell), so crossing a cell costs a multiply, not a logarithm; cells with σ̄ = 0
+/// are crossed for free. `visit(t, σ̄, rng)` sees every tentative collision in order and returns
+/// true to stop the walk there (its t is returned).
+#[inline(always)]
+fn walk_tentative<R: Rng>(
+    medium: &Medium,
+    ray: &IndexRay,
+    t0: f32,
+    t1: f32,
+    rng: &mut R,
+    mut visit: impl FnMut(f32, f32, &mut R) -> bool,
+) -> Option<f32> {
+    let mut budget = exponential(rng);
     for seg in medium.majorant.walk(ray.o, ray.d, t0, t1) {
         if seg.sigma_max <= 0.0 {
             continue;
         }
         let mut t = seg.t0;
         loop {
-            t = next_tentative(t, rng, seg.sigma_max);
-            if t >= seg.t1 {
+            let reach = budget / seg.sigma_max;
+            if t + reach >= seg.t1 {
+                budget = (budget - (seg.t1 - t) * seg.sigma_max).max(0.0);
                 break;
             }
-            stats.lookups += 1;
-            let sigma = medium.sigma_t(ray.at(t));
-            if rng.gen::<f32>() * seg.sigma_max < sigma {
-                stats.collisions += 1;
+            // In absurdly dense media a step can fall below f32 resolution: moving by at least
+            // one ulp keeps every walk finite.
+            t = (t + reach).max(t.next_up());
+            if visit(t, seg.sigma_max, rng) {
                 return Some(t);
             }
+            budget = exponential(rng);
         }
     }
     None
+}
+
+/// Delta tracking on `[t0, t1)`: the distance of the first real collision, sampled with pdf
+/// T(t)σt(t), or `None` when the ray leaves the interval (probability T(t1)).
+#[inline]
+pub fn sample_collision(
+    medium: &Medium,
+    ray: &IndexRay,
+    t0: f32,
+    t1: f32,
+    rng: &mut impl Rng,
+    stats: &mut TrackingStats,
+) -> Option<f32> {
+    let hit = walk_tentative(medium, ray, t0, t1, rng, |t, sigma_max, rng| {
+        stats.lookups += 1;
+        rng.gen::<f32>() * sigma_max < medium.sigma_t(ray.at(t))
+    });
+    stats.collisions += hit.is_some() as u64;
+    hit
 }
 
 /// Below this, ratio tracking plays Russian roulette: survive with probability T/RR_BELOW and
 /// continue with T = RR_BELOW (unbiased, and it ends long walks through dense media early).
 const RR_BELOW: f32 = 0.1;
 
+/// One ratio-tracking update of T̂ at a tentative collision; false when the walk is over (T̂ = 0).
+#[inline]
+fn ratio_step(tr: &mut f32, sigma: f32, sigma_max: f32, rng: &mut impl Rng) -> bool {
+    *tr *= (1.0 - sigma / sigma_max).max(0.0);
+    if *tr < RR_BELOW {
+        if *tr <= 0.0 || rng.gen::<f32>() * RR_BELOW >= *tr {
+            *tr = 0.0;
+            return false;
+        }
+        *tr = RR_BELOW;
+    }
+    true
+}
+
 /// Ratio tracking on `[t0, t1)`: an unbiased estimate of T(t0 → t1).
 #[inline]
-pub fn transmittance(medium: &Medium, ray: &IndexRay, t0: f32, t1: f32, rng: &mut impl Rng, stats: &mut TrackingStats) -> f32 {
+pub fn transmittance(
+    medium: &Medium,
+    ray: &IndexRay,
+    t0: f32,
+    t1: f32,
+    rng: &mut impl Rng,
+    stats: &mut TrackingStats,
+) -> f32 {
     stats.shadow_rays += 1;
     let mut tr = 1.0f32;
-    for seg in medium.majorant.walk(ray.o, ray.d, t0, t1) {
-        if seg.sigma_max <= 0.0 {
-            continue;
-        }
-        let mut t = seg.t0;
-        loop {
-            t = next_tentative(t, rng, seg.sigma_max);
-            if t >= seg.t1 {
-                break;
-            }
-            stats.shadow_lookups += 1;
-            tr *= (1.0 - medium.sigma_t(ray.at(t)) / seg.sigma_max).max(0.0);
-            if tr < RR_BELOW {
-                if tr <= 0.0 || rng.gen::<f32>() * RR_BELOW >= tr {
-                    return 0.0;
-                }
-                tr = RR_BELOW;
-            }
-        }
-    }
+    walk_tentative(medium, ray, t0, t1, rng, |t, sigma_max, rng| {
+        stats.shadow_lookups += 1;
+        !ratio_step(&mut tr, medium.sigma_t(ray.at(t)), sigma_max, rng)
+    });
     tr
+}
+
+/// Samples a distance t′ ∝ T(t′) on `[t0, t1)` from one ratio-tracking walk (differential ratio
+/// tracking). Between tentative collisions the ratio-tracking estimate T̂ is constant and unbiased
+/// for T at every t, so ∫T ≈ W = Σ T̂·Δt; an interval is picked with probability ∝ T̂·Δt (weighted
+/// reservoir, no allocation) and t′ is uniform inside it. Returns `(t′, W)`, so that
+/// W·f(t′) estimates ∫ T(t) f(t) dt; `None` when W = 0.
+pub fn sample_transmittance_distance(
+    medium: &Medium,
+    ray: &IndexRay,
+    t0: f32,
+    t1: f32,
+    rng: &mut impl Rng,
+    stats: &mut TrackingStats,
+) -> Option<(f32, f32)> {
+    let mut tr = 1.0f32;
+    let mut total = 0.0f32;
+    let mut chosen = None;
+    let mut last = t0;
+    let mut add = |a: f32, b: f32, tr: f32, u: f32| {
+        let w = tr * (b - a);
+        if w > 0.0 {
+            total += w;
+            if u * total < w {
+                chosen = Some((a, b));
+            }
+        }
+    };
+    let stopped = walk_tentative(medium, ray, t0, t1, rng, |t, sigma_max, rng| {
+        add(last, t, tr, rng.gen());
+        last = t;
+        stats.shadow_lookups += 1;
+        !ratio_step(&mut tr, medium.sigma_t(ray.at(t)), sigma_max, rng)
+    });
+    if stopped.is_none() {
+        add(last, t1, tr, rng.gen());
+    }
+    chosen.map(|(a, b)| (a + rng.gen::<f32>() * (b - a), total))
 }

@@ -39,8 +39,11 @@ impl IndexTransform {
 
     /// Uniform voxels of edge `voxel_size`, voxel (0,0,0) centred at `origin`.
     pub fn uniform(voxel_size: f64, origin: DVec3) -> Self {
-        Self::new(DAffine3::from_mat3_translation(DMat3::from_diagonal(DVec3::splat(voxel_size)), origin))
-            .expect("a positive voxel size gives an invertible map")
+        Self::new(DAffine3::from_mat3_translation(
+            DMat3::from_diagonal(DVec3::splat(voxel_size)),
+            origin,
+        ))
+        .expect("a positive voxel size gives an invertible map")
     }
 
     /// Back to the bridge's 4×4 layout.
@@ -60,15 +63,21 @@ impl IndexTransform {
     }
 
     pub fn point_to_index(&self, world: Vec3) -> Vec3 {
-        self.world_to_index.transform_point3(world.as_dvec3()).as_vec3()
+        self.world_to_index
+            .transform_point3(world.as_dvec3())
+            .as_vec3()
     }
 
     pub fn vector_to_index(&self, world: Vec3) -> Vec3 {
-        self.world_to_index.transform_vector3(world.as_dvec3()).as_vec3()
+        self.world_to_index
+            .transform_vector3(world.as_dvec3())
+            .as_vec3()
     }
 
     pub fn point_to_world(&self, index: Vec3) -> Vec3 {
-        self.index_to_world.transform_point3(index.as_dvec3()).as_vec3()
+        self.index_to_world
+            .transform_point3(index.as_dvec3())
+            .as_vec3()
     }
 
     /// World lengths of the three index axes.
@@ -101,7 +110,9 @@ mod tests {
 
     #[test]
     fn rows_round_trip_and_invert() {
-        let rows = [0.0, -2.0, 0.0, 5.0, 1.0, 0.0, 0.0, -1.0, 0.0, 0.0, 0.5, 3.0, 0.0, 0.0, 0.0, 1.0];
+        let rows = [
+            0.0, -2.0, 0.0, 5.0, 1.0, 0.0, 0.0, -1.0, 0.0, 0.0, 0.5, 3.0, 0.0, 0.0, 0.0, 1.0,
+        ];
         let t = IndexTransform::from_rows(&rows).unwrap();
         assert_eq!(t.to_rows(), rows);
         let p = Vec3::new(1.0, 2.0, 3.0);

@@ -31,7 +31,8 @@ pub struct Grid {
 }
 
 fn path_str(path: &Path) -> Result<&str> {
-    path.to_str().ok_or_else(|| anyhow!("path '{}' is not valid UTF-8", path.display()))
+    path.to_str()
+        .ok_or_else(|| anyhow!("path '{}' is not valid UTF-8", path.display()))
 }
 
 pub fn list_grids(path: &Path) -> Result<Vec<GridSummary>> {
@@ -77,13 +78,17 @@ impl Grid {
         if d.leaf_values.len() != n * BRICK_VOXELS || d.leaf_active.len() != n * 8 {
             bail!("inconsistent leaf arrays from the bridge");
         }
-        if d.leaf_values.iter().any(|v| !v.is_finite()) || d.tile_values.iter().any(|v| !v.is_finite()) {
+        if d.leaf_values.iter().any(|v| !v.is_finite())
+            || d.tile_values.iter().any(|v| !v.is_finite())
+        {
             bail!("grid '{}' holds NaN or infinite values", d.name);
         }
         let leaves = (0..n)
             .map(|i| Leaf {
                 origin: IVec3::from_slice(&d.leaf_origins[3 * i..3 * i + 3]),
-                values: d.leaf_values[i * BRICK_VOXELS..(i + 1) * BRICK_VOXELS].try_into().unwrap(),
+                values: d.leaf_values[i * BRICK_VOXELS..(i + 1) * BRICK_VOXELS]
+                    .try_into()
+                    .unwrap(),
                 active: d.leaf_active[i * 8..(i + 1) * 8].try_into().unwrap(),
             })
             .collect();
@@ -125,5 +130,9 @@ impl Grid {
 }
 
 pub fn meta(name: &str, type_name: &str, value: impl ToString) -> MetaEntry {
-    MetaEntry { name: name.into(), type_name: type_name.into(), value: value.to_string() }
+    MetaEntry {
+        name: name.into(),
+        type_name: type_name.into(),
+        value: value.to_string(),
+    }
 }

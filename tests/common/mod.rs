@@ -46,18 +46,37 @@ impl SceneBuilder {
     /// A camera on +z looking at the origin.
     pub fn new(distance: f32, fov_deg: f32, pixels: u32) -> Self {
         SceneBuilder {
-            camera: Camera::new(Vec3::new(0.0, 0.0, distance), Vec3::ZERO, Vec3::Y, fov_deg, pixels, pixels),
+            camera: Camera::new(
+                Vec3::new(0.0, 0.0, distance),
+                Vec3::ZERO,
+                Vec3::Y,
+                fov_deg,
+                pixels,
+                pixels,
+            ),
             lights: Lights::default(),
             settings: RenderFile::default(),
         }
     }
 
     pub fn constant_light(mut self, radiance: Vec3) -> Self {
-        self.lights.environment = Environment { constant: radiance, map: None };
+        self.lights.environment = Environment {
+            constant: radiance,
+            map: None,
+        };
         self
     }
 
-    pub fn build(self, grid: BrickMap, transform: IndexTransform, density_scale: f32, albedo: Vec3, g: f32, filter: Filter, majorant: MajorantMode) -> Scene {
+    pub fn build(
+        self,
+        grid: BrickMap,
+        transform: IndexTransform,
+        density_scale: f32,
+        albedo: Vec3,
+        g: f32,
+        filter: Filter,
+        majorant: MajorantMode,
+    ) -> Scene {
         let mut medium = Medium::new(grid, transform, density_scale, filter, majorant);
         medium.albedo = albedo;
         medium.phase_g = g;

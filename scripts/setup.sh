@@ -1,0 +1,23 @@
+#!/usr/bin/env bash
+# Installs the system libraries volgrad builds against (Debian 12): OpenVDB, OpenImageIO, and the
+# headers OpenVDB needs but does not pull in (boost, TBB), and vdb_print. Does nothing when they are
+# present.
+set -euo pipefail
+
+packages=(libopenvdb-dev libopenimageio-dev libboost-dev libtbb-dev g++ libopenvdb-tools)
+missing=()
+for p in "${packages[@]}"; do
+  dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")
+done
+if [ ${#missing[@]} -eq 0 ]; then
+  exit 0
+fi
+echo "installing: ${missing[*]}" >&2
+sudo=""
+if [ "$(id -u)" -ne 0 ]; then
+  command -v sudo >/dev/null || { echo "need root (or sudo) to apt-get install ${missing[*]}" >&2; exit 1; }
+  sudo="sudo"
+fi
+export DEBIAN_FRONTEND=noninteractive
+$sudo apt-get update -qq
+$sudo apt-get install -y -qq --no-install-recommends "${missing[@]}" >/dev/null

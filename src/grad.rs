@@ -1,0 +1,225 @@
+//! Gradient passes over the image: per-voxel gradients of a loss (scattered into a sparse grid),
+//! and per-pixel derivative images d pixel / d ε for ε added to a box of voxels.
+
+use std::time::Instant;
+
+use glam::{IVec3, Vec3};
+use rand::Rng;
+use rayon::prelude::*;
+
+use crate::adjoint::{camera_path_gradient, AdjointOptions, GradientSink, Scratch};
+use crate::brickmap::BrickMap;
+use crate::gradgrid::GradientGrid;
+use crate::image_io::RgbImage;
+use crate::render::RenderStats;
+use crate::sampling::pixel_rng;
+use crate::scene::Scene;
+use crate::tracking::TrackingStats;
+
+/// Random stream of the adjoint pass: independent of the forward render's (stream 0), so a primal
+/// image rendered with the same seed does not correlate with the gradient samples.
+const ADJOINT_STREAM: u64 = 1;
+
+#[derive(Debug, Clone, Copy)]
+pub struct GradOptions {
+    pub adjoint: AdjointOptions,
+    pub spp: u32,
+    pub seed: u64,
+    /// Keep only the grid's active voxels (`--domain active`).
+    pub active_only: bool,
+    pub progress: bool,
+}
+
+pub struct GradientRun {
+    pub gradient: GradientGrid,
+    /// The radiance of the adjoint pass's own paths (a by-product, same spp).
+    pub image: RgbImage,
+    pub stats: RenderStats,
+}
+
+struct GridSink<'a> {
+    grid: &'a mut GradientGrid,
+    /// δ / spp for the current pixel.
+    weight: Vec3,
+    active: Option<&'a BrickMap>,
+}
+
+impl GradientSink for GridSink<'_> {
+    #[inline]
+    fn add(&mut self, voxel: IVec3, d_pixel: Vec3) {
+        if self.active.is_some_and(|m| !m.is_active(voxel)) {
+            return;
+        }
+        self.grid.add(voxel, self.weight.dot(d_pixel) as f64);
+    }
+}
+
+/// Sums the samples whose voxel lies in an inclusive box: d pixel / d ε for ε added to the box.
+struct BoxSink {
+    lo: IVec3,
+    hi: IVec3,
+    sum: Vec3,
+}
+
+impl GradientSink for BoxSink {
+    #[inline]
+    fn add(&mut self, voxel: IVec3, d_pixel: Vec3) {
+        if voxel.cmpge(self.lo).all() && voxel.cmple(self.hi).all() {
+            self.sum += d_pixel;
+        }
+    }
+}
+
+/// Runs `per_pixel(x, y, rng, stats, scratch)` for every pixel in parallel over row bands, each
+/// pixel with its own random stream. Returns the per-band results in order and the summed stats.
+fn over_pixels<T: Send>(
+    scene: &Scene,
+    seed: u64,
+    progress: bool,
+    what: &str,
+    init: impl Fn() -> T + Sync + Send,
+    per_pixel: impl Fn(&mut T, u32, u32, &mut rand::rngs::SmallRng, &mut TrackingStats, &mut Scratch)
+        + Sync
+        + Send,
+) -> (Vec<T>, TrackingStats) {
+    let (w, h) = (scene.camera.width, scene.camera.height);
+    let bar = crate::progress::bar(progress, h as u64, what);
+    let results: Vec<(T, TrackingStats)> = (0..h)
+        .into_par_iter()
+        .fold(
+            || (init(), TrackingStats::default(), Scratch::default()),
+            |(mut acc, mut stats, mut scratch), y| {
+                for x in 0..w {
+                    let mut rng = pixel_rng(seed, (y * w + x) as u64, ADJOINT_STREAM);
+                    per_pixel(&mut acc, x, y, &mut rng, &mut stats, &mut scratch);
+                }
+                bar.inc(1);
+                (acc, stats, scratch)
+            },
+        )
+        .map(|(acc, stats, _)| (acc, stats))
+        .collect();
+    bar.finish_and_clear();
+    let mut stats = TrackingStats::default();
+    let values = results
+        .into_iter()
+        .map(|(v, s)| {
+            stats += s;
+            v
+        })
+        .collect();
+    (values, stats)
+}
+
+/// The gradient of a loss whose adjoint image is `adjoint` (∂loss/∂pixel), per voxel.
+pub fn gradient(scene: &Scene, adjoint: &[Vec3], options: &GradOptions) -> GradientRun {
+    let start = Instant::now();
+    let camera = &scene.camera;
+    let w = camera.width;
+    let template = GradientGrid::for_grid(&scene.medium.grid);
+    let active = options.active_only.then_some(&scene.medium.grid);
+    let spp = options.spp;
+    let (parts, tracking) = over_pixels(
+        scene,
+        options.seed,
+        options.progress,
+        "gradient",
+        || (template.empty_like(), Vec::<(u32, Vec3)>::new()),
+        |(grid, pixels), x, y, rng, stats, scratch| {
+            let index = y * w + x;
+            let mut sink = GridSink {
+                grid,
+                weight: adjoint[index as usize] / spp as f32,
+                active,
+            };
+            let mut sum = Vec3::ZERO;
+            for _ in 0..spp {
+                let dir =
+                    camera.direction(x as f32 + rng.gen::<f32>(), y as f32 + rng.gen::<f32>());
+                sum += camera_path_gradient(
+                    scene,
+                    &options.adjoint,
+                    camera.position,
+                    dir,
+                    rng,
+                    stats,
+                    scratch,
+                    &mut sink,
+                );
+            }
+            pixels.push((index, sum / spp as f32));
+        },
+    );
+    let mut gradient = template;
+    let mut image = RgbImage::new(camera.width, camera.height);
+    for (grid, pixels) in parts {
+        gradient.merge(&grid, 1.0);
+        for (i, c) in pixels {
+            image.pixels[i as usize] = c;
+        }
+    }
+    let stats = RenderStats {
+        paths: camera.width as u64 * camera.height as u64 * spp as u64,
+        wall: start.elapsed(),
+        tracking,
+    };
+    GradientRun {
+        gradient,
+        image,
+        stats,
+    }
+}
+
+/// d pixel / d ε for ε added to every voxel in the inclusive index box `[lo, hi]`.
+pub fn derivative_image(
+    scene: &Scene,
+    lo: IVec3,
+    hi: IVec3,
+    options: &GradOptions,
+) -> (RgbImage, RenderStats) {
+    let start = Instant::now();
+    let camera = &scene.camera;
+    let w = camera.width;
+    let spp = options.spp;
+    let (parts, tracking) = over_pixels(
+        scene,
+        options.seed,
+        options.progress,
+        "d pixel",
+        Vec::<(u32, Vec3)>::new,
+        |pixels, x, y, rng, stats, scratch| {
+            let mut sink = BoxSink {
+                lo,
+                hi,
+                sum: Vec3::ZERO,
+            };
+            for _ in 0..spp {
+                let dir =
+                    camera.direction(x as f32 + rng.gen::<f32>(), y as f32 + rng.gen::<f32>());
+                camera_path_gradient(
+                    scene,
+                    &options.adjoint,
+                    camera.position,
+                    dir,
+                    rng,
+                    stats,
+                    scratch,
+                    &mut sink,
+                );
+            }
+            pixels.push((y * w + x, sink.sum / spp as f32));
+        },
+    );
+    let mut image = RgbImage::new(camera.width, camera.height);
+    for (i, c) in parts.into_iter().flatten() {
+        image.pixels[i as usize] = c;
+    }
+    (
+        image,
+        RenderStats {
+            paths: camera.width as u64 * camera.height as u64 * spp as u64,
+            wall: start.elapsed(),
+            tracking,
+        },
+    )
+}

@@ -1,0 +1,120 @@
+//! `volgrad gradcheck`: an estimator against finite differences on k random voxels, on an index box
+//! that contains empty voxels, and on ⟨g, 1⟩, each as a z-score. The gradient is that of the mean
+//! pixel value; other losses only change the per-pixel weights.
+
+use glam::{IVec3, Vec3};
+use rand::seq::SliceRandom;
+
+use crate::fd::{self, Direction, FdOptions, FdResult};
+use crate::grad::{gradient, GradOptions};
+use crate::gradgrid::GradientGrid;
+use crate::sampling::pixel_rng;
+use crate::scene::Scene;
+
+/// z above which a check fails.
+pub const Z_LIMIT: f64 = 4.0;
+
+#[derive(Debug, Clone)]
+pub struct Check {
+    pub name: String,
+    pub estimate: f64,
+    pub estimate_se: f64,
+    pub fd: FdResult,
+}
+
+impl Check {
+    pub fn z(&self) -> f64 {
+        let se = (self.estimate_se.powi(2) + self.fd.std_err.powi(2)).sqrt();
+        if se > 0.0 {
+            (self.estimate - self.fd.value) / se
+        } else if self.estimate == self.fd.value {
+            0.0
+        } else {
+            f64::INFINITY
+        }
+    }
+
+    pub fn passed(&self) -> bool {
+        self.z().abs() < Z_LIMIT
+    }
+}
+
+#[derive(Debug, Clone, Copy)]
+pub struct GradcheckOptions {
+    pub grad: GradOptions,
+    /// Independent estimator runs (seed, seed+1, ...) for standard errors.
+    pub repeats: u32,
+    pub voxels: usize,
+    pub fd: FdOptions,
+}
+
+fn mean_se(runs: &[GradientGrid], f: impl Fn(&GradientGrid) -> f64) -> (f64, f64) {
+    let values: Vec<f64> = runs.iter().map(f).collect();
+    let n = values.len() as f64;
+    let mean = values.iter().sum::<f64>() / n;
+    let var = values.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / (n - 1.0).max(1.0);
+    (mean, (var / n).sqrt())
+}
+
+pub fn gradcheck(scene: &Scene, options: &GradcheckOptions) -> Vec<Check> {
+    let grid = &scene.medium.grid;
+    let Some((lo, hi)) = fd::domain_bounds(grid) else {
+        return Vec::new();
+    };
+    let adjoint = vec![
+        Vec3::ONE / (3.0 * (scene.camera.width * scene.camera.height) as f32);
+        (scene.camera.width * scene.camera.height) as usize
+    ];
+    let runs: Vec<GradientGrid> = (0..options.repeats.max(2))
+        .map(|r| {
+            let mut o = options.grad;
+            o.seed = o.seed.wrapping_add(r as u64);
+            gradient(scene, &adjoint, &o).gradient
+        })
+        .collect();
+    let domain = fd::box_voxels(grid, lo, hi, options.grad.active_only);
+    let mut checks = Vec::new();
+    let mut check = |name: String, direction: Direction| {
+        let (estimate, estimate_se) = mean_se(&runs, |g| {
+            direction.iter().map(|&(v, d)| d as f64 * g.get(v)).sum()
+        });
+        let fd = fd::directional_derivative(scene, None, &direction, &options.fd);
+        checks.push(Check {
+            name,
+            estimate,
+            estimate_se,
+            fd,
+        });
+    };
+    // k random voxels among those the estimator reached.
+    let mut reached: Vec<IVec3> = runs[0]
+        .voxels()
+        .filter(|(_, g)| *g != 0.0)
+        .map(|(v, _)| v)
+        .collect();
+    reached.sort_by_key(|v| (v.x, v.y, v.z));
+    let mut rng = pixel_rng(options.grad.seed, u64::MAX - 1, 3);
+    for &v in reached.choose_multiple(&mut rng, options.voxels) {
+        check(format!("voxel {v}"), vec![(v, 1.0)]);
+    }
+    // A 3³ box around an empty voxel (inside the active box if there is one, else the apron).
+    let empty = domain
+        .iter()
+        .copied()
+        .filter(|&v| grid.voxel(v) == 0.0)
+        .min_by_key(|v| {
+            let inside = grid
+                .active_bounds()
+                .is_some_and(|(a, b)| v.cmpge(a).all() && v.cmple(b).all());
+            (!inside, (*v - (lo + hi) / 2).length_squared())
+        });
+    if let Some(e) = empty {
+        let voxels = fd::box_voxels(grid, e - 1, e + 1, options.grad.active_only);
+        check(
+            format!("box {}..{} (empty voxels)", e - 1, e + 1),
+            fd::ones(&voxels),
+        );
+    }
+    check("⟨g, 1⟩ over the domain".into(), fd::ones(&domain));
+    checks
+}

@@ -1,0 +1,161 @@
+//! Gradient files: the gradient grid as a VDB (`grad_<grid>`, the input's transform, fog class,
+//! provenance metadata), its picture, and merging runs made with different seeds.
+
+use std::collections::HashMap;
+use std::path::Path;
+
+use anyhow::{bail, Context, Result};
+use glam::IVec3;
+
+use crate::brickmap::BrickMapBuilder;
+use crate::bridge::MetaEntry;
+use crate::colormap::write_signed_png;
+use crate::gradgrid::GradientGrid;
+use crate::transform::IndexTransform;
+use crate::vdb::{self, meta, Grid, GridSelector};
+
+/// Provenance stored with a gradient grid.
+#[derive(Debug, Clone)]
+pub struct Provenance {
+    pub estimator: String,
+    pub spp: u64,
+    pub seed: String,
+    pub loss: String,
+    pub scene: String,
+}
+
+impl Provenance {
+    fn metadata(&self) -> Vec<MetaEntry> {
+        vec![
+            meta("volgrad_estimator", "string", &self.estimator),
+            meta("volgrad_spp", "int64", self.spp),
+            meta("volgrad_seed", "string", &self.seed),
+            meta("volgrad_loss", "string", &self.loss),
+            meta("volgrad_scene", "string", &self.scene),
+        ]
+    }
+
+    fn from_metadata(entries: &[MetaEntry], file: &Path) -> Result<Self> {
+        let get = |name: &str| {
+            entries
+                .iter()
+                .find(|e| e.name == name)
+                .map(|e| e.value.clone())
+        };
+        let spp = get("volgrad_spp")
+            .and_then(|s| s.parse().ok())
+            .with_context(|| {
+                format!(
+                    "'{}' has no volgrad_spp metadata: not a volgrad gradient",
+                    file.display()
+                )
+            })?;
+        Ok(Provenance {
+            estimator: get("volgrad_estimator").unwrap_or_default(),
+            spp,
+            seed: get("volgrad_seed").unwrap_or_default(),
+            loss: get("volgrad_loss").unwrap_or_default(),
+            scene: get("volgrad_scene").unwrap_or_default(),
+        })
+    }
+}
+
+/// The gradient as a float grid named `grad_<grid_name>`.
+pub fn gradient_grid(
+    gradient: &GradientGrid,
+    grid_name: &str,
+    transform: IndexTransform,
+    provenance: &Provenance,
+) -> Grid {
+    Grid {
+        name: format!("grad_{grid_name}"),
+        grid_class: "fog volume".into(),
+        transform,
+        bricks: gradient.to_brickmap(),
+        saved_as_half: false,
+        metadata: provenance.metadata(),
+    }
+}
+
+/// Sum of a grid's values along index z over its active box: a picture of where the gradient is.
+pub fn projection(grid: &Grid) -> Option<(u32, u32, Vec<f32>)> {
+    let (lo, hi) = grid.bricks.active_bounds()?;
+    let (w, h) = ((hi.x - lo.x + 1) as u32, (hi.y - lo.y + 1) as u32);
+    let mut values = vec![0.0f32; (w * h) as usize];
+    for leaf in grid.bricks.leaves() {
+        for (o, &v) in leaf.values.iter().enumerate() {
+            let p =
+                leaf.origin + IVec3::new((o >> 6) as i32, ((o >> 3) & 7) as i32, (o & 7) as i32);
+            if p.cmpge(lo).all() && p.cmple(hi).all() {
+                // Image rows run top to bottom, index y bottom to top.
+                values[((hi.y - p.y) as u32 * w + (p.x - lo.x) as u32) as usize] += v;
+            }
+        }
+    }
+    Some((w, h, values))
+}
+
+/// Writes the projection picture; returns the colour scale, or None for an empty grid.
+pub fn write_projection_png(path: &Path, grid: &Grid) -> Result<Option<f32>> {
+    match projection(grid) {
+        Some((w, h, values)) => Ok(Some(write_signed_png(path, w, h, &values)?)),
+        None => Ok(None),
+    }
+}
+
+/// Combines gradient VDBs from runs with different seeds, weighted by their spp.
+pub fn merge(inputs: &[&Path]) -> Result<Grid> {
+    if inputs.is_empty() {
+        bail!("merge needs at least one input");
+    }
+    let mut sums: HashMap<IVec3, f64> = HashMap::new();
+    let mut first: Option<(Grid, Provenance)> = None;
+    let mut total_spp = 0u64;
+    let mut seeds = Vec::new();
+    for &path in inputs {
+        let summaries = vdb::list_grids(path)?;
+        let index = summaries
+            .iter()
+            .position(|g| g.name.starts_with("grad_"))
+            .with_context(|| format!("'{}' has no grad_* grid", path.display()))?;
+        let grid = vdb::read_grid(path, &GridSelector::Index(index))?;
+        let provenance = Provenance::from_metadata(&grid.metadata, path)?;
+        if let Some((f, p)) = &first {
+            if f.name != grid.name || f.transform != grid.transform {
+                bail!(
+                    "'{}' holds {} with another transform or name than {}: not the same scene",
+                    path.display(),
+                    grid.name,
+                    f.name
+                );
+            }
+            if p.loss != provenance.loss || p.scene != provenance.scene {
+                bail!("'{}' was made with another loss or scene ({}, {}) than the first input ({}, {})", path.display(), provenance.loss, provenance.scene, p.loss, p.scene);
+            }
+        }
+        for leaf in grid.bricks.leaves() {
+            for (o, &v) in leaf.values.iter().enumerate() {
+                if v != 0.0 {
+                    let p = leaf.origin
+                        + IVec3::new((o >> 6) as i32, ((o >> 3) & 7) as i32, (o & 7) as i32);
+                    *sums.entry(p).or_insert(0.0) += v as f64 * provenance.spp as f64;
+                }
+            }
+        }
+        total_spp += provenance.spp;
+        seeds.push(provenance.seed.clone());
+        if first.is_none() {
+            first = Some((grid, provenance));
+        }
+    }
+    let (mut grid, mut provenance) = first.expect("at least one input");
+    let mut b = BrickMapBuilder::new();
+    for (v, s) in sums {
+        b.set(v, (s / total_spp as f64) as f32, true);
+    }
+    grid.bricks = b.build();
+    provenance.spp = total_spp;
+    provenance.seed = seeds.join(",");
+    grid.metadata = provenance.metadata();
+    Ok(grid)
+}

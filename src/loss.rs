@@ -1,0 +1,122 @@
+//! Objectives on images and their adjoints δ = ∂loss/∂pixel. Every loss is a mean over pixels and
+//! channels, so its size does not depend on the resolution.
+
+use glam::Vec3;
+
+use crate::image_io::RgbImage;
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum Loss {
+    /// mean (I − T)²
+    L2,
+    /// mean |I − T|
+    L1,
+    /// mean (I − T)² / (T² + 0.01)
+    #[value(name = "relative-l2")]
+    RelativeL2,
+    /// mean I (no target)
+    Mean,
+}
+
+const RELATIVE_EPSILON: f32 = 0.01;
+
+impl Loss {
+    pub fn needs_target(self) -> bool {
+        self != Loss::Mean
+    }
+
+    pub fn name(self) -> &'static str {
+        match self {
+            Loss::L2 => "l2",
+            Loss::L1 => "l1",
+            Loss::RelativeL2 => "relative-l2",
+            Loss::Mean => "mean",
+        }
+    }
+
+    /// The loss of `image` against `target` (ignored by `Mean`).
+    pub fn evaluate(self, image: &RgbImage, target: Option<&RgbImage>) -> f64 {
+        let n = (image.pixels.len() * 3) as f64;
+        let per_pixel = |i: usize, c: Vec3| -> f64 {
+            let t = target.map_or(Vec3::ZERO, |t| t.pixels[i]);
+            let d = c - t;
+            let v = match self {
+                Loss::L2 => d * d,
+                Loss::L1 => d.abs(),
+                Loss::RelativeL2 => d * d / (t * t + RELATIVE_EPSILON),
+                Loss::Mean => c,
+            };
+            (v.x + v.y + v.z) as f64
+        };
+        image
+            .pixels
+            .iter()
+            .enumerate()
+            .map(|(i, &c)| per_pixel(i, c))
+            .sum::<f64>()
+            / n
+    }
+
+    /// ∂loss/∂pixel for every pixel.
+    pub fn adjoint(self, image: &RgbImage, target: Option<&RgbImage>) -> Vec<Vec3> {
+        let n = (image.pixels.len() * 3) as f32;
+        image
+            .pixels
+            .iter()
+            .enumerate()
+            .map(|(i, &c)| {
+                let t = target.map_or(Vec3::ZERO, |t| t.pixels[i]);
+                let d = c - t;
+                let g = match self {
+                    Loss::L2 => 2.0 * d,
+                    Loss::L1 => d.map(|x| if x == 0.0 { 0.0 } else { x.signum() }),
+                    Loss::RelativeL2 => 2.0 * d / (t * t + RELATIVE_EPSILON),
+                    Loss::Mean => Vec3::ONE,
+                };
+                g / n
+            })
+            .collect()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn adjoints_are_the_derivatives_of_the_losses() {
+        let image = RgbImage {
+            width: 2,
+            height: 1,
+            pixels: vec![Vec3::new(0.5, 1.0, 0.2), Vec3::new(2.0, 0.1, 0.0)],
+        };
+        let target = RgbImage {
+            width: 2,
+            height: 1,
+            pixels: vec![Vec3::new(0.4, 1.2, 0.2), Vec3::new(1.0, 0.3, 0.5)],
+        };
+        for loss in [Loss::L2, Loss::L1, Loss::RelativeL2, Loss::Mean] {
+            let adjoint = loss.adjoint(&image, Some(&target));
+            for i in 0..2 {
+                for c in 0..3 {
+                    if loss == Loss::L1 && image.pixels[i][c] == target.pixels[i][c] {
+                        continue; // not differentiable there
+                    }
+                    let h = 1e-3;
+                    let mut plus = image.clone();
+                    plus.pixels[i][c] += h;
+                    let mut minus = image.clone();
+                    minus.pixels[i][c] -= h;
+                    let fd = (loss.evaluate(&plus, Some(&target))
+                        - loss.evaluate(&minus, Some(&target)))
+                        / (2.0 * h as f64);
+                    assert!(
+                        (fd - adjoint[i][c] as f64).abs() < 1e-4,
+                        "{loss:?} pixel {i} channel {c}: {fd} vs {}",
+                        adjoint[i][c]
+                    );
+                }
+            }
+        }
+    }
+}

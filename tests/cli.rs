@@ -1,0 +1,486 @@
+//! The `volgrad` binary end to end: info, make-grid, render, and every bad input giving a clear
+//! error and a non-zero exit (never a panic or an abort).
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+fn volgrad(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_volgrad"))
+        .args(args)
+        .output()
+        .expect("runs volgrad")
+}
+
+fn assets() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/assets")
+}
+
+fn asset(name: &str) -> String {
+    assets().join(name).to_str().unwrap().to_string()
+}
+
+fn stdout(o: &Output) -> String {
+    String::from_utf8_lossy(&o.stdout).into_owned()
+}
+
+fn stderr(o: &Output) -> String {
+    String::from_utf8_lossy(&o.stderr).into_owned()
+}
+
+/// Fails unless the command failed cleanly with a message containing every `needle`.
+fn assert_clean_error(o: &Output, needles: &[&str]) {
+    let err = stderr(o);
+    assert!(
+        !o.status.success(),
+        "expected failure, got success; stderr: {err}"
+    );
+    assert_eq!(
+        o.status.code(),
+        Some(1),
+        "exit code (an abort or a signal is not a clean error): {err}"
+    );
+    assert!(!err.contains("panicked"), "panic: {err}");
+    assert!(err.starts_with("error: "), "stderr: {err}");
+    for n in needles {
+        assert!(err.contains(n), "error does not mention {n:?}: {err}");
+    }
+}
+
+/// A small scene around a `make-grid` grid, written into `dir`.
+fn tiny_scene(dir: &Path, extra_medium: &str, extra: &str) -> PathBuf {
+    let vdb = dir.join("sphere.vdb");
+    if !vdb.exists() {
+        let o = volgrad(&[
+            "make-grid",
+            "sphere",
+            "--size",
+            "12",
+            "--value",
+            "1",
+            "--voxel-size",
+            "0.5",
+            "-o",
+            vdb.to_str().unwrap(),
+        ]);
+        assert!(o.status.success(), "{}", stderr(&o));
+    }
+    let scene = dir.join("tiny.toml");
+    std::fs::write(
+        &scene,
+        format!(
+            "[camera]\nposition = [0, 1, 12]\ntarget = [0, 0, 0]\nfov_deg = 40\nwidth = 24\nheight = 16\n\
+             [medium]\nvdb = \"sphere.vdb\"\ndensity_scale = 2.0\nalbedo = [0.9, 0.8, 0.7]\nphase_g = 0.3\n{extra_medium}\n\
+             [[light]]\ntype = \"constant\"\nradiance = 0.5\n\
+             [[light]]\ntype = \"directional\"\ndirection = [0, -1, -1]\nirradiance = 2\n\
+             [render]\nspp = 4\n{extra}"
+        ),
+    )
+    .unwrap();
+    scene
+}
+
+#[test]
+fn info_lists_every_grid_with_its_facts() {
+    let o = volgrad(&["info", &asset("wdas_cloud_sixteenth.vdb")]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let out = stdout(&o);
+    for fact in [
+        "density",
+        "415642",
+        "active tiles   130",
+        "[-66, -21, -90] .. [59, 64, 63]",
+        "fog volume",
+        "scale + translation",
+        "brick map",
+    ] {
+        assert!(out.contains(fact), "info lacks {fact:?}:\n{out}");
+    }
+    let o = volgrad(&["info", &asset("grids.vdb")]);
+    let out = stdout(&o);
+    assert!(
+        out.contains("3 grids") && out.contains("[2] density"),
+        "{out}"
+    );
+    let o = volgrad(&["info", &asset("dragon_with_xform.vdb")]);
+    assert!(stdout(&o).contains("general affine"), "{}", stdout(&o));
+    let o = volgrad(&["info", &asset("smoke.vdb")]);
+    assert!(stdout(&o).contains("saved as half"), "{}", stdout(&o));
+    // A point grid is listed (with its type), not rejected: info describes any VDB.
+    let o = volgrad(&["info", &asset("points.vdb")]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(stdout(&o).contains("points"), "{}", stdout(&o));
+}
+
+#[test]
+fn render_writes_exr_and_srgb_png_that_independent_decoders_read() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = tiny_scene(dir.path(), "", "");
+    let exr = dir.path().join("out.exr");
+    let o = volgrad(&[
+        "render",
+        scene.to_str().unwrap(),
+        "-o",
+        exr.to_str().unwrap(),
+        "--stats",
+        "--quiet",
+        "--threads",
+        "2",
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    for key in [
+        "paths/s",
+        "lookups per path",
+        "tracking efficiency",
+        "brick map",
+    ] {
+        assert!(stdout(&o).contains(key), "stats lack {key}: {}", stdout(&o));
+    }
+    // The EXR through the pure-Rust decoder.
+    let image = exr::prelude::read_first_rgba_layer_from_file(
+        &exr,
+        |res, _| vec![[0f32; 3]; res.width() * res.height()],
+        |px: &mut Vec<[f32; 3]>, pos, (r, g, b, _a): (f32, f32, f32, f32)| {
+            px[pos.y() * 24 + pos.x()] = [r, g, b]
+        },
+    )
+    .unwrap();
+    let linear = image.layer_data.channel_data.pixels;
+    assert_eq!(linear.len(), 24 * 16);
+    assert!(linear.iter().flatten().all(|v| v.is_finite() && *v >= 0.0));
+    let centre = linear[8 * 24 + 12];
+    let corner = linear[0];
+    assert!(
+        centre[0] != corner[0],
+        "the sphere must show against the sky"
+    );
+    // The PNG is the sRGB encoding of the same values (exposure 1).
+    let png = image::open(dir.path().join("out.png")).unwrap().to_rgb8();
+    assert_eq!(png.dimensions(), (24, 16));
+    for (i, lin) in linear.iter().enumerate() {
+        let px = png.get_pixel(i as u32 % 24, i as u32 / 24);
+        for c in 0..3 {
+            let expected = volgrad::image_io::srgb_encode(lin[c]) * 255.0;
+            assert!(
+                (px[c] as f32 - expected).abs() <= 1.0,
+                "pixel {i} channel {c}: {} vs {expected}",
+                px[c]
+            );
+        }
+    }
+    // Nothing is overwritten without --force.
+    let again = volgrad(&[
+        "render",
+        scene.to_str().unwrap(),
+        "-o",
+        exr.to_str().unwrap(),
+        "--quiet",
+    ]);
+    assert_clean_error(&again, &["already exists", "--force"]);
+    let forced = volgrad(&[
+        "render",
+        scene.to_str().unwrap(),
+        "-o",
+        exr.to_str().unwrap(),
+        "--quiet",
+        "--force",
+        "--majorant",
+        "global",
+    ]);
+    assert!(forced.status.success(), "{}", stderr(&forced));
+}
+
+#[test]
+fn the_same_seed_renders_the_same_file_for_any_thread_count() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = tiny_scene(dir.path(), "", "");
+    let mut files = Vec::new();
+    for threads in ["1", "2"] {
+        let exr = dir.path().join(format!("t{threads}.exr"));
+        let o = volgrad(&[
+            "render",
+            scene.to_str().unwrap(),
+            "-o",
+            exr.to_str().unwrap(),
+            "--quiet",
+            "--threads",
+            threads,
+            "--seed",
+            "11",
+        ]);
+        assert!(o.status.success(), "{}", stderr(&o));
+        files.push(volgrad::image_io::read_rgb(&exr).unwrap());
+    }
+    assert_eq!(files[0], files[1]);
+}
+
+#[test]
+fn every_sample_asset_renders() {
+    let dir = tempfile::tempdir().unwrap();
+    for (vdb, grid) in [
+        ("smoke.vdb", "grid = \"density\""),
+        ("torus01.vdb", "grid = \"voxel_fog_density\""),
+        ("dragon_with_xform.vdb", ""),
+        ("grids.vdb", "grid_index = 1"),
+        ("tiny_sphere.vdb", ""),
+    ] {
+        let (lo, hi) = world_box(&asset(vdb));
+        let centre = [
+            (lo[0] + hi[0]) / 2.0,
+            (lo[1] + hi[1]) / 2.0,
+            (lo[2] + hi[2]) / 2.0,
+        ];
+        let extent = (0..3).map(|a| hi[a] - lo[a]).fold(0.0, f64::max);
+        let scene = dir.path().join(format!("{vdb}.toml"));
+        std::fs::write(
+            &scene,
+            format!(
+                "[camera]\nposition = [{}, {}, {}]\ntarget = {centre:?}\nfov_deg = 45\nwidth = 16\nheight = 16\n\
+                 [medium]\nvdb = \"{}\"\n{grid}\ndensity_scale = {}\n[[light]]\ntype = \"constant\"\nradiance = 1\n[render]\nspp = 2\n",
+                centre[0],
+                centre[1],
+                centre[2] + 2.0 * extent,
+                asset(vdb),
+                5.0 / extent
+            ),
+        )
+        .unwrap();
+        let out = dir.path().join(format!("{vdb}.exr"));
+        let o = volgrad(&[
+            "render",
+            scene.to_str().unwrap(),
+            "-o",
+            out.to_str().unwrap(),
+            "--quiet",
+        ]);
+        assert!(o.status.success(), "{vdb}: {}", stderr(&o));
+        let image = volgrad::image_io::read_rgb(&out).unwrap();
+        let min = image
+            .pixels
+            .iter()
+            .map(|c| c.x)
+            .fold(f32::INFINITY, f32::min);
+        assert!(
+            min < 0.95,
+            "{vdb}: the medium must absorb some light (darkest pixel {min})"
+        );
+    }
+}
+
+/// World bounding box as `info` prints it.
+fn world_box(vdb: &str) -> ([f64; 3], [f64; 3]) {
+    let s = volgrad::vdb::list_grids(Path::new(vdb)).unwrap();
+    (s[0].world_min, s[0].world_max)
+}
+
+#[test]
+fn make_grid_writes_every_kind_and_refuses_to_overwrite() {
+    let dir = tempfile::tempdir().unwrap();
+    for (kind, active) in [
+        ("box", 8 * 8 * 8),
+        ("slab", 8 * 8 * 2),
+        ("single-voxel", 8 * 8 * 8),
+    ] {
+        let path = dir.path().join(format!("{kind}.vdb"));
+        let o = volgrad(&[
+            "make-grid",
+            kind,
+            "--size",
+            "8",
+            "-o",
+            path.to_str().unwrap(),
+            "--value",
+            "3",
+        ]);
+        assert!(o.status.success(), "{kind}: {}", stderr(&o));
+        let g = volgrad::vdb::list_grids(&path).unwrap();
+        assert_eq!(g[0].active_voxels, active, "{kind}");
+        assert_eq!(g[0].name, "density");
+    }
+    let path = dir.path().join("sphere.vdb");
+    let o = volgrad(&[
+        "make-grid",
+        "sphere",
+        "--size",
+        "10",
+        "--rotate-deg",
+        "30,-20,10",
+        "--voxel-size",
+        "1,2,0.5",
+        "-o",
+        path.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let g = &volgrad::vdb::list_grids(&path).unwrap()[0];
+    assert!(!g.axis_aligned);
+    assert!((g.voxel_size[1] - 2.0).abs() < 1e-9);
+    assert_clean_error(
+        &volgrad(&["make-grid", "box", "-o", path.to_str().unwrap()]),
+        &["already exists"],
+    );
+    assert_clean_error(
+        &volgrad(&[
+            "make-grid",
+            "box",
+            "--value",
+            "-1",
+            "-o",
+            dir.path().join("n.vdb").to_str().unwrap(),
+        ]),
+        &["--value"],
+    );
+}
+
+#[test]
+fn bad_inputs_give_clear_errors_and_a_nonzero_exit() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    // Missing and corrupt files.
+    assert_clean_error(
+        &volgrad(&["info", "/no/such/file.vdb"]),
+        &["/no/such/file.vdb"],
+    );
+    let truncated = d.join("truncated.vdb");
+    let bytes = std::fs::read(assets().join("tiny_sphere.vdb")).unwrap();
+    std::fs::write(&truncated, &bytes[..bytes.len() / 2]).unwrap();
+    assert_clean_error(
+        &volgrad(&["info", truncated.to_str().unwrap()]),
+        &["truncated.vdb"],
+    );
+    let garbage = d.join("garbage.vdb");
+    std::fs::write(&garbage, b"this is not a vdb file at all, just text").unwrap();
+    assert_clean_error(
+        &volgrad(&["info", garbage.to_str().unwrap()]),
+        &["garbage.vdb"],
+    );
+
+    // Scenes: each broken in one way.
+    let write_scene = |name: &str, medium: &str, extra: &str| {
+        let p = d.join(name);
+        std::fs::write(&p, format!("[camera]\nposition = [0, 0, 30]\ntarget = [0, 0, 0]\nfov_deg = 40\nwidth = 8\nheight = 8\n[medium]\n{medium}\n{extra}")).unwrap();
+        p
+    };
+    let out = d.join("o.exr");
+    let render = |scene: &Path| {
+        volgrad(&[
+            "render",
+            scene.to_str().unwrap(),
+            "-o",
+            out.to_str().unwrap(),
+            "--quiet",
+        ])
+    };
+    let tiny = asset("tiny_sphere.vdb");
+    let cases: Vec<(PathBuf, Vec<&str>)> = vec![
+        (
+            write_scene("missing_vdb.toml", "vdb = \"nope.vdb\"", ""),
+            vec!["medium.vdb", "nope.vdb"],
+        ),
+        (
+            write_scene(
+                "corrupt.toml",
+                &format!("vdb = {:?}", truncated.to_str().unwrap()),
+                "",
+            ),
+            vec!["truncated.vdb"],
+        ),
+        (
+            write_scene(
+                "points.toml",
+                &format!("vdb = {:?}", asset("points.vdb")),
+                "",
+            ),
+            vec!["points.vdb", "not float"],
+        ),
+        (
+            write_scene(
+                "unknown_grid.toml",
+                &format!("vdb = {tiny:?}\ngrid = \"temperature\""),
+                "",
+            ),
+            vec!["temperature", "density"],
+        ),
+        (
+            write_scene(
+                "index.toml",
+                &format!("vdb = {:?}\ngrid_index = 7", asset("grids.vdb")),
+                "",
+            ),
+            vec!["7"],
+        ),
+        (
+            write_scene(
+                "negative.toml",
+                &format!("vdb = {tiny:?}\ndensity_scale = -2"),
+                "",
+            ),
+            vec!["medium.density_scale"],
+        ),
+        (
+            write_scene("g.toml", &format!("vdb = {tiny:?}\nphase_g = -1"), ""),
+            vec!["medium.phase_g"],
+        ),
+        (
+            write_scene(
+                "unknown_key.toml",
+                &format!("vdb = {tiny:?}\ndensty_scale = 2"),
+                "",
+            ),
+            vec!["densty_scale"],
+        ),
+        (
+            write_scene(
+                "envmap.toml",
+                &format!("vdb = {tiny:?}"),
+                "[[light]]\ntype = \"envmap\"\nfile = \"sky.exr\"\n",
+            ),
+            vec!["light[0].file", "sky.exr"],
+        ),
+        (
+            write_scene(
+                "syntax.toml",
+                &format!("vdb = {tiny:?}\nalbedo = [0.5, 0.5"),
+                "",
+            ),
+            vec!["syntax.toml"],
+        ),
+    ];
+    for (scene, needles) in &cases {
+        assert_clean_error(&render(scene), needles);
+    }
+    let zero = write_scene("zero.toml", &format!("vdb = {tiny:?}"), "");
+    std::fs::write(
+        &zero,
+        std::fs::read_to_string(&zero)
+            .unwrap()
+            .replace("width = 8", "width = 0"),
+    )
+    .unwrap();
+    assert_clean_error(&render(&zero), &["camera.width"]);
+    assert_clean_error(
+        &volgrad(&["render", d.join("absent.toml").to_str().unwrap()]),
+        &["absent.toml"],
+    );
+
+    // Unwritable output.
+    let ok_scene = tiny_scene(d, "", "");
+    let o = volgrad(&[
+        "render",
+        ok_scene.to_str().unwrap(),
+        "-o",
+        "/no/such/dir/out.exr",
+        "--quiet",
+    ]);
+    assert_clean_error(&o, &["/no/such/dir/out"]);
+    assert_clean_error(
+        &volgrad(&[
+            "render",
+            ok_scene.to_str().unwrap(),
+            "--spp",
+            "0",
+            "-o",
+            out.to_str().unwrap(),
+        ]),
+        &["spp"],
+    );
+    assert!(!out.exists(), "a failed render must not leave files behind");
+}

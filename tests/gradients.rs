@@ -1,0 +1,348 @@
+//! Gradient estimators against finite differences and closed forms, on small grids.
+//!
+//! Each estimator runs with several seeds; a check compares the mean with the finite-difference
+//! value through z = (est − fd) / √(se_est² + se_fd²). A correct estimator stays within |z| < 4.5;
+//! the margins were chosen so that a dropped term (the escape term, the scattering part, the shadow
+//! rays' derivative) or a missing factor moves z far beyond that.
+
+mod common;
+
+use common::*;
+use glam::{IVec3, Vec3};
+use volgrad::adjoint::{AdjointOptions, Estimator, Suffix};
+use volgrad::fd::{self, FdOptions};
+use volgrad::grad::{derivative_image, gradient, GradOptions};
+use volgrad::gradgrid::GradientGrid;
+use volgrad::lights::DirectionalLight;
+use volgrad::loss::Loss;
+use volgrad::majorant::MajorantMode;
+use volgrad::medium::Filter;
+use volgrad::scene::Scene;
+
+const N: i32 = 6;
+
+/// A lumpy 6³ block with empty voxels inside it, a sky and a sun.
+fn scene(filter: Filter, empty_voxels: bool, albedo: f32) -> Scene {
+    let value = move |v: IVec3| {
+        if empty_voxels && (v.x + 2 * v.y + v.z) % 4 == 0 {
+            0.0
+        } else {
+            0.6 + 0.4 * ((v.x as f32 * 1.3).sin() * (v.y as f32 * 0.8 + v.z as f32).cos())
+        }
+    };
+    let mut s = SceneBuilder::new(14.0, 35.0, 8)
+        .constant_light(Vec3::new(0.8, 0.9, 1.0))
+        .build(
+            grid(N, value),
+            centred(N, 1.0),
+            0.5,
+            Vec3::splat(albedo),
+            0.3,
+            filter,
+            MajorantMode::Grid { cell_voxels: 4 },
+        );
+    s.lights.directional.push(DirectionalLight {
+        to_light: Vec3::new(0.4, 1.0, 0.3).normalize(),
+        irradiance: Vec3::splat(2.0),
+    });
+    s
+}
+
+fn options(estimator: Estimator, spp: u32, seed: u64) -> GradOptions {
+    GradOptions {
+        adjoint: AdjointOptions {
+            estimator,
+            suffix: Suffix::PerPath,
+            max_depth: 16,
+        },
+        spp,
+        seed,
+        active_only: false,
+        progress: false,
+    }
+}
+
+/// Gradients of the mean pixel value from `repeats` seeds.
+fn runs(scene: &Scene, estimator: Estimator, spp: u32, repeats: u64) -> Vec<GradientGrid> {
+    let adjoint = Loss::Mean.adjoint(
+        &volgrad::image_io::RgbImage::new(scene.camera.width, scene.camera.height),
+        None,
+    );
+    (0..repeats)
+        .map(|r| gradient(scene, &adjoint, &options(estimator, spp, 100 + r)).gradient)
+        .collect()
+}
+
+/// Mean and standard error of a linear functional over the runs.
+fn mean_se(runs: &[GradientGrid], f: impl Fn(&GradientGrid) -> f64) -> (f64, f64) {
+    let values: Vec<f64> = runs.iter().map(f).collect();
+    let n = values.len() as f64;
+    let mean = values.iter().sum::<f64>() / n;
+    let var = values.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / (n - 1.0);
+    (mean, (var / n).sqrt())
+}
+
+fn fd_along(scene: &Scene, direction: &fd::Direction) -> fd::FdResult {
+    // A larger step makes fewer tentative-collision decisions flip per unit of derivative: with
+    // central differences its O(ε²) bias stays far below the noise.
+    let options = FdOptions {
+        loss: Loss::Mean,
+        eps: 0.15,
+        spp: 4096,
+        repeats: 8,
+        seed: 1,
+        max_depth: 16,
+    };
+    fd::directional_derivative(scene, None, direction, &options)
+}
+
+fn z(est: (f64, f64), fd: &fd::FdResult) -> f64 {
+    (est.0 - fd.value) / (est.1 * est.1 + fd.std_err * fd.std_err).sqrt()
+}
+
+fn all_voxels(scene: &Scene) -> Vec<IVec3> {
+    let (lo, hi) = fd::domain_bounds(&scene.medium.grid).unwrap();
+    fd::box_voxels(&scene.medium.grid, lo, hi, false)
+}
+
+#[test]
+fn joint_and_drt_agree_with_finite_differences() {
+    let scene = scene(Filter::Trilinear, true, 0.8);
+    let probes = [
+        IVec3::new(2, 3, 2),
+        IVec3::new(5, 1, 4),
+        IVec3::new(0, 0, 0),
+        IVec3::new(3, 3, 5),
+    ];
+    assert_eq!(
+        scene.medium.grid.voxel(IVec3::new(0, 0, 0)),
+        0.0,
+        "one probe is an empty voxel"
+    );
+    let empty_box = (IVec3::new(-1, -1, 3), IVec3::new(2, 2, 6));
+    let fd_voxels: Vec<_> = probes
+        .iter()
+        .map(|&v| fd_along(&scene, &vec![(v, 1.0)]))
+        .collect();
+    let fd_box = fd_along(
+        &scene,
+        &fd::ones(&fd::box_voxels(
+            &scene.medium.grid,
+            empty_box.0,
+            empty_box.1,
+            false,
+        )),
+    );
+    let fd_all = fd_along(&scene, &fd::ones(&all_voxels(&scene)));
+    for estimator in [Estimator::Joint, Estimator::Drt] {
+        let grads = runs(&scene, estimator, 64, 8);
+        for (v, fd) in probes.iter().zip(&fd_voxels) {
+            let est = mean_se(&grads, |g| g.get(*v));
+            let z = z(est, fd);
+            assert!(
+                z.abs() < 4.5,
+                "{estimator:?} voxel {v}: {:.5} ± {:.5} vs fd {:.5} ± {:.5} (z = {z:.2})",
+                est.0,
+                est.1,
+                fd.value,
+                fd.std_err
+            );
+        }
+        let est = mean_se(&grads, |g| g.sum_in_box(empty_box.0, empty_box.1));
+        assert!(
+            z(est, &fd_box).abs() < 4.5,
+            "{estimator:?} box: {est:?} vs {fd_box:?}"
+        );
+        let est = mean_se(&grads, |g| g.sum());
+        assert!(
+            z(est, &fd_all).abs() < 4.5,
+            "{estimator:?} ⟨g, 1⟩: {est:?} vs {fd_all:?}"
+        );
+        // The check has teeth: half the gradient would be far outside the error bars.
+        assert!(
+            ((est.0 * 0.5 - fd_all.value)
+                / (est.1 * est.1 + fd_all.std_err * fd_all.std_err).sqrt())
+            .abs()
+                > 8.0,
+            "{estimator:?}: ⟨g, 1⟩ too noisy to test"
+        );
+    }
+}
+
+#[test]
+fn per_segment_suffixes_agree_with_per_path_ones() {
+    let scene = scene(Filter::Trilinear, true, 0.9);
+    let fd_all = fd_along(&scene, &fd::ones(&all_voxels(&scene)));
+    let adjoint = Loss::Mean.adjoint(&volgrad::image_io::RgbImage::new(8, 8), None);
+    let grads: Vec<_> = (0..8)
+        .map(|r| {
+            let mut o = options(Estimator::Joint, 32, 300 + r);
+            o.adjoint.suffix = Suffix::PerSegment;
+            gradient(&scene, &adjoint, &o).gradient
+        })
+        .collect();
+    let est = mean_se(&grads, |g| g.sum());
+    assert!(
+        z(est, &fd_all).abs() < 4.5,
+        "per-segment joint ⟨g, 1⟩: {est:?} vs {fd_all:?}"
+    );
+}
+
+#[test]
+fn homogeneous_absorber_matches_the_closed_form() {
+    // Albedo 0, constant sky L, nearly parallel rays crossing n voxels of σ = s·θ:
+    // pixel = L e^{−sθn}, so d(mean pixel)/dθ (θ the same in every voxel) = −L s n e^{−sθn}.
+    let n = 8;
+    let (s, theta, l) = (0.1f32, 1.0f32, 1.0f32);
+    let scene = SceneBuilder::new(300.0, 1.0, 4)
+        .constant_light(Vec3::splat(l))
+        .build(
+            grid(n, |_| theta),
+            centred(n, 1.0),
+            s,
+            Vec3::ZERO,
+            0.0,
+            Filter::Nearest,
+            MajorantMode::Grid { cell_voxels: 4 },
+        );
+    let expected = -(l * s * n as f32 * (-s * theta * n as f32).exp()) as f64;
+    for estimator in [Estimator::Joint, Estimator::Drt, Estimator::Naive] {
+        let grads = runs(&scene, estimator, 256, 6);
+        let (mean, se) = mean_se(&grads, |g| g.sum());
+        assert!(
+            (mean - expected).abs() < 4.5 * se + 0.002 * expected.abs(),
+            "{estimator:?}: {mean} ± {se} vs {expected}"
+        );
+        assert!(
+            se < 0.05 * expected.abs(),
+            "{estimator:?}: standard error {se} too large to test"
+        );
+    }
+}
+
+#[test]
+fn naive_is_biased_in_empty_voxels_and_agrees_without_them() {
+    // An empty box between lumps: the true gradient there has a scattering part that free-flight
+    // sampling can never see (it only collides where σt > 0).
+    let scene_empty = scene(Filter::Nearest, true, 0.9);
+    let empties: Vec<IVec3> = all_voxels(&scene_empty)
+        .into_iter()
+        .filter(|&v| {
+            scene_empty.medium.grid.voxel(v) == 0.0 && scene_empty.medium.grid.is_active(v)
+        })
+        .collect();
+    assert!(empties.len() > 20);
+    let fd_empty = fd_along(&scene_empty, &fd::ones(&empties));
+    let naive = runs(&scene_empty, Estimator::Naive, 64, 8);
+    let est = mean_se(&naive, |g| empties.iter().map(|&v| g.get(v)).sum());
+    let z_naive = z(est, &fd_empty);
+    assert!(
+        z_naive < -6.0,
+        "naive must be biased low in empty voxels: {est:?} vs {fd_empty:?} (z = {z_naive:.1})"
+    );
+    let joint = runs(&scene_empty, Estimator::Joint, 64, 8);
+    let est = mean_se(&joint, |g| empties.iter().map(|&v| g.get(v)).sum());
+    assert!(
+        z(est, &fd_empty).abs() < 4.5,
+        "joint in empty voxels: {est:?} vs {fd_empty:?}"
+    );
+
+    let scene_full = scene(Filter::Nearest, false, 0.9);
+    let fd_all = fd_along(&scene_full, &fd::ones(&all_voxels(&scene_full)));
+    let naive = runs(&scene_full, Estimator::Naive, 64, 8);
+    let est = mean_se(&naive, |g| g.sum());
+    assert!(
+        z(est, &fd_all).abs() < 4.5,
+        "naive without empty voxels: {est:?} vs {fd_all:?}"
+    );
+}
+
+#[test]
+fn gradients_stay_finite_in_extreme_media() {
+    let dense = SceneBuilder::new(14.0, 35.0, 6)
+        .constant_light(Vec3::ONE)
+        .build(
+            grid(N, |_| 1.0),
+            centred(N, 1.0),
+            1e4,
+            Vec3::splat(0.9),
+            0.5,
+            Filter::Trilinear,
+            MajorantMode::Grid { cell_voxels: 4 },
+        );
+    let vacuum = SceneBuilder::new(14.0, 35.0, 6)
+        .constant_light(Vec3::ONE)
+        .build(
+            grid(N, |_| 0.0),
+            centred(N, 1.0),
+            1.0,
+            Vec3::splat(0.9),
+            0.5,
+            Filter::Trilinear,
+            MajorantMode::Grid { cell_voxels: 4 },
+        );
+    let hot = SceneBuilder::new(14.0, 35.0, 6)
+        .constant_light(Vec3::ONE)
+        .build(
+            grid(N, |v| if v == IVec3::splat(3) { 1e3 } else { 0.0 }),
+            centred(N, 1.0),
+            1.0,
+            Vec3::splat(0.9),
+            0.5,
+            Filter::Nearest,
+            MajorantMode::Grid { cell_voxels: 4 },
+        );
+    for (name, scene) in [
+        ("τ ≫ 87", &dense),
+        ("σ = 0", &vacuum),
+        ("one dense voxel", &hot),
+    ] {
+        for estimator in [Estimator::Joint, Estimator::Drt, Estimator::Naive] {
+            let g = &runs(scene, estimator, 16, 1)[0];
+            assert!(
+                g.voxels().all(|(_, x)| x.is_finite()),
+                "{name} {estimator:?}: non-finite gradient"
+            );
+        }
+    }
+    // In vacuum the gradient is the pure transmittance derivative: negative and non-zero.
+    let g = &runs(&vacuum, Estimator::Joint, 16, 1)[0];
+    assert!(g.sum() < 0.0);
+}
+
+#[test]
+fn probes_stay_inside_the_medium_bounds() {
+    // Gradient samples may only land on voxels that a lookup inside the box can weight.
+    let scene = scene(Filter::Trilinear, true, 0.8);
+    let (lo, hi) = fd::domain_bounds(&scene.medium.grid).unwrap();
+    for estimator in [Estimator::Joint, Estimator::Drt, Estimator::Naive] {
+        let wide = (lo - 4, hi + 4);
+        let (image, _) = derivative_image(&scene, wide.0, wide.1, &options(estimator, 16, 5));
+        let (inside, _) = derivative_image(&scene, lo, hi, &options(estimator, 16, 5));
+        assert_eq!(
+            image, inside,
+            "{estimator:?}: gradient samples outside the domain"
+        );
+        // Voxels just outside the trilinear apron receive nothing.
+        let (outer, _) = derivative_image(&scene, hi + 1, hi + 4, &options(estimator, 16, 5));
+        assert!(outer.pixels.iter().all(|c| *c == Vec3::ZERO));
+    }
+}
+
+#[test]
+fn derivative_image_sums_to_the_gradient_of_the_mean() {
+    let scene = scene(Filter::Trilinear, true, 0.8);
+    let (lo, hi) = (IVec3::new(1, 1, 1), IVec3::new(3, 4, 2));
+    let (image, _) = derivative_image(&scene, lo, hi, &options(Estimator::Joint, 512, 9));
+    let fd = fd_along(
+        &scene,
+        &fd::ones(&fd::box_voxels(&scene.medium.grid, lo, hi, false)),
+    );
+    // mean over pixels and channels of d pixel / d ε = d mean / d ε.
+    let mean = image.mean();
+    let value = ((mean.x + mean.y + mean.z) / 3.0) as f64;
+    assert!(
+        (value - fd.value).abs() < 0.1 * fd.value.abs() + 4.0 * fd.std_err,
+        "{value} vs {fd:?}"
+    );
+}
