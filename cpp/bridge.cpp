@@ -14,7 +14,12 @@
 //    bridge promises file order; the subclass sees the descriptors in the order they are stored.
 //  * It validates every grid's byte range against the file size before reading anything, and sets
 //    the stream to throw on a short read, so a truncated file raises instead of being read from
-//    uninitialised lengths (OpenVDB does not check its istream after every read).
+//    uninitialised lengths (OpenVDB does not check its istream after every read). The length
+//    fields of the file and grid metadata and of the descriptors are checked before OpenVDB
+//    allocates strings of those sizes (garbage lengths otherwise cost multi-GB allocations).
+//    Known limit: a file whose compressed voxel payload is corrupted in place (not truncated) can
+//    still crash inside OpenVDB 10 (io::bloscFromStream reads an uncompressed chunk into its buffer
+//    before checking the chunk's length); nothing outside OpenVDB can check that cheaply.
 //  * Writing goes through the same class to an std::ofstream we own, so a failed write (disk full)
 //    is detected: io::File::write never checks the stream.
 
@@ -831,7 +836,7 @@ void write_float_grids(rust::Str path_str, rust::Slice<const FloatGridData> grid
         openvdb::FloatGrid::Ptr g;
         try {
             g = build_grid(d);
-        } catch (const BridgeError& e) {
+        } catch (const std::exception& e) {  // BridgeError or an OpenVDB exception
             fail(ctx + ": " + e.what());
         }
         with_context(ctx, [&] { g->setSaveFloatAsHalf(save_half); });

@@ -7,8 +7,9 @@
 #[cxx::bridge(namespace = "volgrad")]
 pub mod ffi {
     /// One metadata entry. `type_name` is OpenVDB's type name ("string", "float", "int32", "int64",
-    /// "double", "bool", "vec3i", ...); `value` is its text form. For writing, the kinds "string",
-    /// "float" and "int" (int32) are accepted.
+    /// "double", "bool", "vec3i", ...); `value` is its text form (floats in the shortest form that
+    /// reads back exactly, vectors as "[x, y, z]"). Writing accepts string, float, int/int32, int64,
+    /// double, bool and vec3i/vec3s/vec3d.
     #[derive(Debug, Clone, PartialEq)]
     pub struct MetaEntry {
         pub name: String,
@@ -25,7 +26,7 @@ pub mod ffi {
         /// "fog volume", "level set", "staggered", "unknown".
         pub grid_class: String,
         /// Index-to-world affine map, column-vector convention, row-major:
-        /// world[i] = sum_j m[4*i + j] * index[j] + m[4*i + 3].
+        /// world[i] = sum_j m[4*i + j] * index[j] + m[4*i + 3]. NaN for non-linear maps.
         pub index_to_world: [f64; 16],
         pub voxel_size: [f64; 3],
         /// True when the map is a pure scale + translation (axis-aligned voxels).
@@ -35,7 +36,8 @@ pub mod ffi {
         pub active_voxels: u64,
         pub leaf_count: u64,
         pub active_tiles: u64,
-        /// Inclusive active index bounding box; min > max when the grid is empty.
+        /// Inclusive active index bounding box; min > max when the grid is empty (and then the
+        /// world box is +inf..−inf).
         pub index_min: [i32; 3],
         pub index_max: [i32; 3],
         /// World-space box of the index box grown by half a voxel, through the transform.
@@ -62,7 +64,7 @@ pub mod ffi {
         pub leaf_active: Vec<u64>,
         /// 3 per active tile: its minimum index corner.
         pub tile_origins: Vec<i32>,
-        /// 1 per active tile: its edge length in voxels (16·8 = 128, 32·128 = 4096, ...).
+        /// 1 per active tile: its edge length in voxels (8, 128 or 4096 for the standard tree).
         pub tile_sizes: Vec<u32>,
         pub tile_values: Vec<f32>,
         pub metadata: Vec<MetaEntry>,

@@ -230,18 +230,13 @@ struct MakeGridArgs {
     #[arg(long, default_value_t = 2)]
     thickness: u32,
     /// Grid value inside the shape.
-    #[arg(long, default_value_t = 1.0)]
+    #[arg(long, default_value_t = 1.0, allow_negative_numbers = true)]
     value: f32,
     /// Voxel size: one number, or three (x,y,z) for anisotropic voxels.
-    #[arg(long, value_delimiter = ',', num_args = 1..=3, default_value = "1")]
+    #[arg(long, value_delimiter = ',', default_value = "1")]
     voxel_size: Vec<f64>,
     /// Rotation in degrees about x, then y, then z.
-    #[arg(
-        long,
-        value_delimiter = ',',
-        num_args = 3,
-        allow_negative_numbers = true
-    )]
+    #[arg(long, value_delimiter = ',', allow_negative_numbers = true)]
     rotate_deg: Option<Vec<f64>>,
     /// Grid name.
     #[arg(long, default_value = "density")]

@@ -216,14 +216,14 @@ fn the_same_seed_renders_the_same_file_for_any_thread_count() {
 #[test]
 fn every_sample_asset_renders() {
     let dir = tempfile::tempdir().unwrap();
-    for (vdb, grid) in [
-        ("smoke.vdb", "grid = \"density\""),
-        ("torus01.vdb", "grid = \"voxel_fog_density\""),
-        ("dragon_with_xform.vdb", ""),
-        ("grids.vdb", "grid_index = 1"),
-        ("tiny_sphere.vdb", ""),
+    for (vdb, index, grid) in [
+        ("smoke.vdb", 0, "grid = \"density\""),
+        ("torus01.vdb", 0, "grid = \"voxel_fog_density\""),
+        ("dragon_with_xform.vdb", 0, ""),
+        ("grids.vdb", 1, "grid_index = 1"),
+        ("tiny_sphere.vdb", 0, ""),
     ] {
-        let (lo, hi) = world_box(&asset(vdb));
+        let (lo, hi) = world_box(&asset(vdb), index);
         let centre = [
             (lo[0] + hi[0]) / 2.0,
             (lo[1] + hi[1]) / 2.0,
@@ -266,10 +266,10 @@ fn every_sample_asset_renders() {
     }
 }
 
-/// World bounding box as `info` prints it.
-fn world_box(vdb: &str) -> ([f64; 3], [f64; 3]) {
+/// World bounding box of grid `index`, as `info` prints it.
+fn world_box(vdb: &str, index: usize) -> ([f64; 3], [f64; 3]) {
     let s = volgrad::vdb::list_grids(Path::new(vdb)).unwrap();
-    (s[0].world_min, s[0].world_max)
+    (s[index].world_min, s[index].world_max)
 }
 
 #[test]
