@@ -47,6 +47,17 @@ pub enum Suffix {
 /// Receives one sample of ∂pixel/∂θ_k (RGB) for voxel k.
 pub trait GradientSink {
     fn add(&mut self, voxel: IVec3, d_pixel: Vec3);
+
+    /// The eight corners of a trilinear cell at once (corner k = `base + corner(k)`), so that
+    /// sinks can resolve the cell's brick once.
+    #[inline]
+    fn add_cell(&mut self, base: IVec3, weights: &[f32; 8], d_pixel: Vec3) {
+        for (k, &w) in weights.iter().enumerate() {
+            if w > 0.0 {
+                self.add(base + corner(k), d_pixel * w);
+            }
+        }
+    }
 }
 
 /// Adds `value · ∂σt(p)/∂θ_k` for every voxel k that the lookup at index point `p` weights.
@@ -58,15 +69,19 @@ pub fn splat_d_sigma(medium: &Medium, p: Vec3, value: Vec3, sink: &mut impl Grad
         Filter::Trilinear => {
             let base = floor_ivec3(p);
             let f = p - base.as_vec3();
-            for k in 0..8 {
-                let c = corner(k);
-                let w = (if c.x == 1 { f.x } else { 1.0 - f.x })
-                    * (if c.y == 1 { f.y } else { 1.0 - f.y })
-                    * (if c.z == 1 { f.z } else { 1.0 - f.z });
-                if w > 0.0 {
-                    sink.add(base + c, value * w);
-                }
-            }
+            let (g, h) = (Vec3::ONE - f, f);
+            // Corner k has bits x = 4, y = 2, z = 1 (see `brickmap::corner`).
+            let weights = [
+                g.x * g.y * g.z,
+                g.x * g.y * h.z,
+                g.x * h.y * g.z,
+                g.x * h.y * h.z,
+                h.x * g.y * g.z,
+                h.x * g.y * h.z,
+                h.x * h.y * g.z,
+                h.x * h.y * h.z,
+            ];
+            sink.add_cell(base, &weights, value);
         }
     }
 }
@@ -195,7 +210,8 @@ fn replay(
 
     for (j, seg) in segments.iter().enumerate() {
         let length = in_medium(seg);
-        if length <= 0.0 {
+        if length <= 0.0 || (seg.depth > options.max_depth && seg.collision.is_some()) {
+            // Outside the medium, or a collision beyond the maximum depth: ĥ(y) = ĥ(x_j) = 0.
             continue;
         }
         let ray = medium.to_index_ray(seg.origin, seg.dir);

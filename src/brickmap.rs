@@ -283,7 +283,8 @@ pub fn corner(k: usize) -> IVec3 {
     IVec3::new((k >> 2) as i32 & 1, (k >> 1) as i32 & 1, k as i32 & 1)
 }
 
-const CORNER_OFFSETS: [usize; 8] = [0, 1, 8, 9, 64, 65, 72, 73];
+/// Leaf offsets of the eight corners of a trilinear cell, relative to its base voxel.
+pub const CORNER_OFFSETS: [usize; 8] = [0, 1, 8, 9, 64, 65, 72, 73];
 
 fn active_bounds(leaves: &[Leaf], tiles: &[Tile]) -> Option<(IVec3, IVec3)> {
     let mut lo = IVec3::splat(i32::MAX);

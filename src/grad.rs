@@ -12,13 +12,9 @@ use crate::brickmap::BrickMap;
 use crate::gradgrid::GradientGrid;
 use crate::image_io::RgbImage;
 use crate::render::RenderStats;
-use crate::sampling::pixel_rng;
+use crate::sampling::{sample_rng, Pass};
 use crate::scene::Scene;
 use crate::tracking::TrackingStats;
-
-/// Random stream of the adjoint pass: independent of the forward render's (stream 0), so a primal
-/// image rendered with the same seed does not correlate with the gradient samples.
-const ADJOINT_STREAM: u64 = 1;
 
 #[derive(Debug, Clone, Copy)]
 pub struct GradOptions {
@@ -52,6 +48,20 @@ impl GradientSink for GridSink<'_> {
         }
         self.grid.add(voxel, self.weight.dot(d_pixel) as f64);
     }
+
+    #[inline]
+    fn add_cell(&mut self, base: IVec3, weights: &[f32; 8], d_pixel: Vec3) {
+        match self.active {
+            None => self
+                .grid
+                .add_cell(base, weights, self.weight.dot(d_pixel) as f64),
+            Some(_) => {
+                for (k, &w) in weights.iter().enumerate() {
+                    self.add(base + crate::brickmap::corner(k), d_pixel * w);
+                }
+            }
+        }
+    }
 }
 
 /// Sums the samples whose voxel lies in an inclusive box: d pixel / d ε for ε added to the box.
@@ -70,28 +80,28 @@ impl GradientSink for BoxSink {
     }
 }
 
-/// Runs `per_pixel(x, y, rng, stats, scratch)` for every pixel in parallel over row bands, each
-/// pixel with its own random stream. Returns the per-band results in order and the summed stats.
+/// Runs `per_pixel(acc, x, y, stats, scratch)` for every pixel in parallel over row bands.
+/// Returns the per-band accumulators and the summed stats.
 fn over_pixels<T: Send>(
     scene: &Scene,
-    seed: u64,
     progress: bool,
     what: &str,
     init: impl Fn() -> T + Sync + Send,
-    per_pixel: impl Fn(&mut T, u32, u32, &mut rand::rngs::SmallRng, &mut TrackingStats, &mut Scratch)
-        + Sync
-        + Send,
+    per_pixel: impl Fn(&mut T, u32, u32, &mut TrackingStats, &mut Scratch) + Sync + Send,
 ) -> (Vec<T>, TrackingStats) {
     let (w, h) = (scene.camera.width, scene.camera.height);
     let bar = crate::progress::bar(progress, h as u64, what);
+    // A few row bands per thread: enough to balance the load, few enough that the per-band
+    // accumulators (whole gradient grids) stay cheap to allocate and merge.
+    let band = h.div_ceil(4 * rayon::current_num_threads() as u32).max(1) as usize;
     let results: Vec<(T, TrackingStats)> = (0..h)
         .into_par_iter()
+        .with_min_len(band)
         .fold(
             || (init(), TrackingStats::default(), Scratch::default()),
             |(mut acc, mut stats, mut scratch), y| {
                 for x in 0..w {
-                    let mut rng = pixel_rng(seed, (y * w + x) as u64, ADJOINT_STREAM);
-                    per_pixel(&mut acc, x, y, &mut rng, &mut stats, &mut scratch);
+                    per_pixel(&mut acc, x, y, &mut stats, &mut scratch);
                 }
                 bar.inc(1);
                 (acc, stats, scratch)
@@ -111,6 +121,39 @@ fn over_pixels<T: Send>(
     (values, stats)
 }
 
+/// One camera path through pixel (x, y) with its own random stream; its gradient samples go to
+/// `sink` and its radiance is returned.
+#[allow(clippy::too_many_arguments)]
+fn sample_gradient(
+    scene: &Scene,
+    options: &GradOptions,
+    x: u32,
+    y: u32,
+    sample: u32,
+    stats: &mut TrackingStats,
+    scratch: &mut Scratch,
+    sink: &mut impl GradientSink,
+) -> Vec3 {
+    let camera = &scene.camera;
+    let mut rng = sample_rng(
+        options.seed,
+        (y * camera.width + x) as u64,
+        sample,
+        Pass::Adjoint,
+    );
+    let dir = camera.direction(x as f32 + rng.gen::<f32>(), y as f32 + rng.gen::<f32>());
+    camera_path_gradient(
+        scene,
+        &options.adjoint,
+        camera.position,
+        dir,
+        &mut rng,
+        stats,
+        scratch,
+        sink,
+    )
+}
+
 /// The gradient of a loss whose adjoint image is `adjoint` (∂loss/∂pixel), per voxel.
 pub fn gradient(scene: &Scene, adjoint: &[Vec3], options: &GradOptions) -> GradientRun {
     let start = Instant::now();
@@ -121,11 +164,10 @@ pub fn gradient(scene: &Scene, adjoint: &[Vec3], options: &GradOptions) -> Gradi
     let spp = options.spp;
     let (parts, tracking) = over_pixels(
         scene,
-        options.seed,
         options.progress,
         "gradient",
         || (template.empty_like(), Vec::<(u32, Vec3)>::new()),
-        |(grid, pixels), x, y, rng, stats, scratch| {
+        |(grid, pixels), x, y, stats, scratch| {
             let index = y * w + x;
             let mut sink = GridSink {
                 grid,
@@ -133,19 +175,8 @@ pub fn gradient(scene: &Scene, adjoint: &[Vec3], options: &GradOptions) -> Gradi
                 active,
             };
             let mut sum = Vec3::ZERO;
-            for _ in 0..spp {
-                let dir =
-                    camera.direction(x as f32 + rng.gen::<f32>(), y as f32 + rng.gen::<f32>());
-                sum += camera_path_gradient(
-                    scene,
-                    &options.adjoint,
-                    camera.position,
-                    dir,
-                    rng,
-                    stats,
-                    scratch,
-                    &mut sink,
-                );
+            for sample in 0..spp {
+                sum += sample_gradient(scene, options, x, y, sample, stats, scratch, &mut sink);
             }
             pixels.push((index, sum / spp as f32));
         },
@@ -183,29 +214,17 @@ pub fn derivative_image(
     let spp = options.spp;
     let (parts, tracking) = over_pixels(
         scene,
-        options.seed,
         options.progress,
         "d pixel",
         Vec::<(u32, Vec3)>::new,
-        |pixels, x, y, rng, stats, scratch| {
+        |pixels, x, y, stats, scratch| {
             let mut sink = BoxSink {
                 lo,
                 hi,
                 sum: Vec3::ZERO,
             };
-            for _ in 0..spp {
-                let dir =
-                    camera.direction(x as f32 + rng.gen::<f32>(), y as f32 + rng.gen::<f32>());
-                camera_path_gradient(
-                    scene,
-                    &options.adjoint,
-                    camera.position,
-                    dir,
-                    rng,
-                    stats,
-                    scratch,
-                    &mut sink,
-                );
+            for sample in 0..spp {
+                sample_gradient(scene, options, x, y, sample, stats, scratch, &mut sink);
             }
             pixels.push((y * w + x, sink.sum / spp as f32));
         },

@@ -46,6 +46,8 @@ pub struct GradcheckOptions {
     pub repeats: u32,
     pub voxels: usize,
     pub fd: FdOptions,
+    /// Use `fd.eps` for every check instead of `fd::auto_eps` per check.
+    pub fixed_eps: bool,
 }
 
 fn mean_se(runs: &[GradientGrid], f: impl Fn(&GradientGrid) -> f64) -> (f64, f64) {
@@ -56,15 +58,13 @@ fn mean_se(runs: &[GradientGrid], f: impl Fn(&GradientGrid) -> f64) -> (f64, f64
     (mean, (var / n).sqrt())
 }
 
-pub fn gradcheck(scene: &Scene, options: &GradcheckOptions) -> Vec<Check> {
+pub fn gradcheck(scene: &Scene, options: &GradcheckOptions) -> anyhow::Result<Vec<Check>> {
     let grid = &scene.medium.grid;
     let Some((lo, hi)) = fd::domain_bounds(grid) else {
-        return Vec::new();
+        return Ok(Vec::new());
     };
-    let adjoint = vec![
-        Vec3::ONE / (3.0 * (scene.camera.width * scene.camera.height) as f32);
-        (scene.camera.width * scene.camera.height) as usize
-    ];
+    let pixels = (scene.camera.width * scene.camera.height) as usize;
+    let adjoint = vec![Vec3::ONE / (3 * pixels) as f32; pixels];
     let runs: Vec<GradientGrid> = (0..options.repeats.max(2))
         .map(|r| {
             let mut o = options.grad;
@@ -74,17 +74,22 @@ pub fn gradcheck(scene: &Scene, options: &GradcheckOptions) -> Vec<Check> {
         .collect();
     let domain = fd::box_voxels(grid, lo, hi, options.grad.active_only);
     let mut checks = Vec::new();
-    let mut check = |name: String, direction: Direction| {
+    let mut check = |name: String, direction: Direction| -> anyhow::Result<()> {
         let (estimate, estimate_se) = mean_se(&runs, |g| {
             direction.iter().map(|&(v, d)| d as f64 * g.get(v)).sum()
         });
-        let fd = fd::directional_derivative(scene, None, &direction, &options.fd);
+        let mut fd_options = options.fd;
+        if !options.fixed_eps {
+            fd_options.eps = fd::auto_eps(scene, &direction);
+        }
+        let fd = fd::directional_derivative(scene, None, &direction, &fd_options)?;
         checks.push(Check {
             name,
             estimate,
             estimate_se,
             fd,
         });
+        Ok(())
     };
     // k random voxels among those the estimator reached.
     let mut reached: Vec<IVec3> = runs[0]
@@ -95,26 +100,33 @@ pub fn gradcheck(scene: &Scene, options: &GradcheckOptions) -> Vec<Check> {
     reached.sort_by_key(|v| (v.x, v.y, v.z));
     let mut rng = pixel_rng(options.grad.seed, u64::MAX - 1, 3);
     for &v in reached.choose_multiple(&mut rng, options.voxels) {
-        check(format!("voxel {v}"), vec![(v, 1.0)]);
+        check(format!("voxel {v}"), vec![(v, 1.0)])?;
     }
-    // A 3³ box around an empty voxel (inside the active box if there is one, else the apron).
+    // A 3³ box of empty voxels: prefer one with no density at all (where free-flight sampling
+    // never collides), inside the active box, near its centre.
+    let density_in_box = |v: IVec3| {
+        fd::box_voxels(grid, v - 1, v + 1, false)
+            .iter()
+            .filter(|&&u| grid.voxel(u) != 0.0)
+            .count()
+    };
+    let centre = (lo + hi) / 2;
+    let inside = |v: IVec3| {
+        grid.active_bounds()
+            .is_some_and(|(a, b)| v.cmpge(a).all() && v.cmple(b).all())
+    };
     let empty = domain
         .iter()
         .copied()
         .filter(|&v| grid.voxel(v) == 0.0)
-        .min_by_key(|v| {
-            let inside = grid
-                .active_bounds()
-                .is_some_and(|(a, b)| v.cmpge(a).all() && v.cmple(b).all());
-            (!inside, (*v - (lo + hi) / 2).length_squared())
-        });
+        .min_by_key(|&v| (density_in_box(v), !inside(v), (v - centre).length_squared()));
     if let Some(e) = empty {
         let voxels = fd::box_voxels(grid, e - 1, e + 1, options.grad.active_only);
         check(
             format!("box {}..{} (empty voxels)", e - 1, e + 1),
             fd::ones(&voxels),
-        );
+        )?;
     }
-    check("⟨g, 1⟩ over the domain".into(), fd::ones(&domain));
-    checks
+    check("⟨g, 1⟩ over the domain".into(), fd::ones(&domain))?;
+    Ok(checks)
 }

@@ -5,7 +5,9 @@
 
 use glam::IVec3;
 
-use crate::brickmap::{leaf_offset, BrickMap, BrickMapBuilder, BRICK_VOXELS};
+use crate::brickmap::{
+    corner, leaf_offset, BrickMap, BrickMapBuilder, BRICK_VOXELS, CORNER_OFFSETS,
+};
 
 #[derive(Clone)]
 pub struct GradientGrid {
@@ -69,6 +71,32 @@ impl GradientGrid {
         self.bricks[self.slots[slot] as usize - 1].1[leaf_offset(v & 7)] += value;
     }
 
+    /// Adds `weights[k] · value` to corner k of the trilinear cell at `base`, resolving the brick
+    /// once when the cell does not straddle bricks.
+    #[inline]
+    pub fn add_cell(&mut self, base: IVec3, weights: &[f32; 8], value: f64) {
+        if (base & 7).cmplt(IVec3::splat(7)).all() {
+            let Some(slot) = self.slot(base >> 3) else {
+                return;
+            };
+            if self.slots[slot] == 0 {
+                self.bricks.push((base & !7, Box::new([0.0; BRICK_VOXELS])));
+                self.slots[slot] = self.bricks.len() as u32;
+            }
+            let values = &mut self.bricks[self.slots[slot] as usize - 1].1;
+            let o = leaf_offset(base & 7);
+            for (k, &w) in weights.iter().enumerate() {
+                values[o + CORNER_OFFSETS[k]] += w as f64 * value;
+            }
+        } else {
+            for (k, &w) in weights.iter().enumerate() {
+                if w > 0.0 {
+                    self.add(base + corner(k), w as f64 * value);
+                }
+            }
+        }
+    }
+
     pub fn get(&self, v: IVec3) -> f64 {
         match self.slot(v >> 3).map(|s| self.slots[s]) {
             Some(i) if i > 0 => self.bricks[i as usize - 1].1[leaf_offset(v & 7)],
@@ -76,17 +104,21 @@ impl GradientGrid {
         }
     }
 
-    /// `self += weight · other` (same extent).
+    /// `self += weight · other` (same extent), brick by brick.
     pub fn merge(&mut self, other: &GradientGrid, weight: f64) {
         assert_eq!(
             self.slot_dims, other.slot_dims,
             "gradient grids of different extents"
         );
         for (origin, values) in &other.bricks {
-            for (o, &v) in values.iter().enumerate() {
-                if v != 0.0 {
-                    self.add(*origin + offset_voxel(o), v * weight);
-                }
+            let slot = self.slot(*origin >> 3).expect("same extent");
+            if self.slots[slot] == 0 {
+                self.bricks.push((*origin, Box::new([0.0; BRICK_VOXELS])));
+                self.slots[slot] = self.bricks.len() as u32;
+            }
+            let mine = &mut self.bricks[self.slots[slot] as usize - 1].1;
+            for (m, v) in mine.iter_mut().zip(values.iter()) {
+                *m += weight * v;
             }
         }
     }
@@ -160,6 +192,15 @@ mod tests {
         h.merge(&g, 0.5);
         h.merge(&g, 0.5);
         assert_eq!(h.get(IVec3::new(29, 29, 29)), -2.0);
+        // A cell inside one brick and one straddling bricks give the same per-corner sums.
+        let weights = [0.1, 0.2, 0.05, 0.15, 0.1, 0.1, 0.2, 0.1];
+        for base in [IVec3::new(1, 2, 3), IVec3::new(7, 7, 7)] {
+            let mut a = g.empty_like();
+            a.add_cell(base, &weights, 2.0);
+            for k in 0..8 {
+                assert!((a.get(base + corner(k)) - 2.0 * weights[k] as f64).abs() < 1e-7);
+            }
+        }
         assert_eq!(h.sum(), 0.5);
         assert_eq!(h.sum_in_box(IVec3::splat(0), IVec3::splat(29)), -2.0);
         let map = h.to_brickmap();

@@ -2,6 +2,7 @@
 
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
+use std::time::Duration;
 
 use anyhow::{bail, Context, Result};
 use clap::{Args, Parser, Subcommand, ValueEnum};
@@ -9,6 +10,7 @@ use clap::{Args, Parser, Subcommand, ValueEnum};
 use glam::IVec3;
 use volgrad::adjoint::{AdjointOptions, Estimator, Suffix};
 use volgrad::brickmap::BRICK_VOXELS;
+use volgrad::compare;
 use volgrad::fd::{self, FdOptions};
 use volgrad::grad::{derivative_image, gradient, GradOptions};
 use volgrad::gradcheck::{gradcheck, GradcheckOptions, Z_LIMIT};
@@ -47,6 +49,9 @@ enum Command {
     Grad(GradArgs),
     /// Compare an estimator with finite differences (z-scores) before trusting its gradients.
     Gradcheck(GradcheckArgs),
+    /// Speed against accuracy: estimators (and the renderer) at equal time against a reference,
+    /// as charts, a CSV and tables; or the stability suite (--suite stability).
+    Compare(CompareArgs),
     /// Combine gradient VDBs from runs with different seeds, weighted by their spp.
     Merge {
         /// Gradient VDBs written by `volgrad grad`.
@@ -105,7 +110,8 @@ struct AdjointArgs {
 
 #[derive(Args)]
 struct FdArgs {
-    /// Finite-difference step, in grid-value units (default: 0.15 × the grid's largest value).
+    /// Finite-difference step, in grid-value units (default: per direction, a step that changes the
+    /// optical depth along the direction's longest chord by about 0.05).
     #[arg(long)]
     eps: Option<f32>,
     /// Samples per pixel of each finite-difference render.
@@ -249,6 +255,107 @@ struct MakeGridArgs {
     force: bool,
 }
 
+#[derive(Clone, Copy, PartialEq, Eq, ValueEnum)]
+enum SuiteArg {
+    /// Error against time for each estimator and for the renderer's majorants, on SCENE.
+    EqualTime,
+    /// Scenes built in memory to break estimators: bias, variance, non-finite values.
+    Stability,
+}
+
+#[derive(Args)]
+struct CompareArgs {
+    /// The scene file (TOML); not needed for --suite stability.
+    #[arg(required_unless_present = "suite")]
+    scene: Option<PathBuf>,
+    #[arg(long, value_enum, default_value = "equal-time")]
+    suite: SuiteArg,
+    /// Estimators to compare, comma-separated.
+    #[arg(
+        long,
+        value_enum,
+        value_delimiter = ',',
+        default_value = "joint,drt,naive"
+    )]
+    estimators: Vec<Estimator>,
+    /// Wall time per estimator (and per majorant mode for the renderer), e.g. 120s, 2m.
+    #[arg(long, default_value = "120s", value_parser = parse_duration)]
+    budget: Duration,
+    /// Wall time per majorant mode of the forward-renderer comparison (default: budget / 4; 0s
+    /// skips it).
+    #[arg(long, value_parser = parse_duration)]
+    render_budget: Option<Duration>,
+    /// A reference gradient written by an earlier `volgrad compare` (reference.vdb).
+    #[arg(long)]
+    reference: Option<PathBuf>,
+    /// Samples per pixel of each reference run.
+    #[arg(long, default_value_t = 64)]
+    reference_spp: u32,
+    /// Runs of each of joint and drt averaged into the reference.
+    #[arg(long, default_value_t = 8)]
+    reference_seeds: u32,
+    /// Use the reference even if finite differences disagree with it (|z| > 4).
+    #[arg(long)]
+    force_reference: bool,
+    /// Largest spp of a sweep.
+    #[arg(long, default_value_t = 4096)]
+    max_spp: u32,
+    /// Voxels (of largest |gradient|) checked against finite differences.
+    #[arg(long, default_value_t = 3)]
+    fd_voxels: usize,
+    /// Samples per pixel of each finite-difference render (default: 16; 4096 for the suite).
+    #[arg(long)]
+    fd_spp: Option<u32>,
+    /// Finite-difference repetitions (default: 4; 8 for the suite).
+    #[arg(long)]
+    repeats: Option<u32>,
+    /// Stability suite: independent runs per estimator and scene (for the standard error).
+    #[arg(long, default_value_t = 8)]
+    suite_runs: u32,
+    /// Stability suite: samples per pixel of each run.
+    #[arg(long, default_value_t = 64)]
+    suite_spp: u32,
+    /// Random seed (default: render.seed, or 1 for the suite).
+    #[arg(long)]
+    seed: Option<u64>,
+    /// Output directory (default: compare-<scene>/, or compare-stability/).
+    #[arg(long)]
+    out: Option<PathBuf>,
+    /// Worker threads (default: all cores).
+    #[arg(long)]
+    threads: Option<usize>,
+    /// No progress bars.
+    #[arg(long, short)]
+    quiet: bool,
+    /// Overwrite existing outputs.
+    #[arg(long)]
+    force: bool,
+}
+
+/// "120s", "2m", "1.5h", "90" (seconds).
+fn parse_duration(text: &str) -> Result<Duration, String> {
+    let t = text.trim();
+    let (number, unit) = match t.find(|c: char| c.is_ascii_alphabetic()) {
+        Some(i) => t.split_at(i),
+        None => (t, "s"),
+    };
+    let factor = match unit {
+        "ms" => 1e-3,
+        "s" => 1.0,
+        "m" | "min" => 60.0,
+        "h" => 3600.0,
+        _ => {
+            return Err(format!(
+                "unknown unit '{unit}' in '{text}' (use s, m or h, e.g. 120s)"
+            ))
+        }
+    };
+    match number.trim().parse::<f64>() {
+        Ok(v) if v.is_finite() && v >= 0.0 => Ok(Duration::from_secs_f64(v * factor)),
+        _ => Err(format!("'{text}' is not a duration (e.g. 120s, 2m)")),
+    }
+}
+
 fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
@@ -257,6 +364,7 @@ fn main() -> ExitCode {
         Command::MakeGrid(args) => make_grid_command(&args),
         Command::Grad(args) => grad_command(&args),
         Command::Gradcheck(args) => gradcheck_command(&args),
+        Command::Compare(args) => compare_command(&args),
         Command::Merge {
             inputs,
             output,
@@ -547,6 +655,7 @@ fn fd_options(
     seed: u64,
     max_depth: u32,
 ) -> Result<FdOptions> {
+    // Without --eps, callers pick fd::auto_eps per direction; this is the cap it never exceeds.
     let eps = args
         .eps
         .unwrap_or(0.15 * scene.medium.grid.max_value().max(1e-3));
@@ -723,6 +832,7 @@ fn parse_fd_direction(
     scene: &Scene,
     active_only: bool,
     seed: u64,
+    floor: f32,
 ) -> Result<Vec<(String, fd::Direction)>> {
     let grid = &scene.medium.grid;
     let (lo, hi) = fd::domain_bounds(grid).context("the grid is empty")?;
@@ -748,7 +858,7 @@ fn parse_fd_direction(
         None if spec == "ones" => vec![("⟨g, 1⟩".into(), fd::ones(&domain()))],
         None if spec == "random" => vec![(
             format!("random ±1 (seed {seed})"),
-            fd::random_signs(&domain(), seed),
+            fd::random_signs(grid, &domain(), seed, floor),
         )],
         _ => bail!(
             "--fd takes voxels:x,y,z;x,y,z, box:x0,y0,z0,x1,y1,z1, ones or random (got '{spec}')"
@@ -764,23 +874,33 @@ fn fd_command(args: &GradArgs, scene: &Scene, target: Option<&image_io::RgbImage
     let seed = args.adjoint.seed.unwrap_or(scene.settings.seed);
     let max_depth = args.adjoint.max_depth.unwrap_or(scene.settings.max_depth);
     let options = fd_options(scene, args.loss, &args.fd_args, seed, max_depth)?;
-    let directions =
-        parse_fd_direction(spec, scene, args.adjoint.domain == DomainArg::Active, seed)?;
+    let directions = parse_fd_direction(
+        spec,
+        scene,
+        args.adjoint.domain == DomainArg::Active,
+        seed,
+        3.0 * options.eps,
+    )?;
     println!(
-        "finite differences of {} (ε = {}, {} spp × {} repeats, common random numbers)",
+        "finite differences of {} ({} spp × {} repeats, common random numbers)",
         args.loss.name(),
-        options.eps,
         options.spp,
         options.repeats
     );
     let bar = volgrad::progress::bar(!args.adjoint.quiet, directions.len() as u64, "fd");
     for (name, direction) in directions {
-        let r = fd::directional_derivative(scene, target, &direction, &options);
+        let mut options = options;
+        options.eps = args
+            .fd_args
+            .eps
+            .unwrap_or_else(|| fd::auto_eps(scene, &direction));
+        let r = fd::directional_derivative(scene, target, &direction, &options)?;
         bar.suspend(|| {
             println!(
-                "{name:<32} {:>14.6e} ± {:.2e}{}",
+                "{name:<32} {:>14.6e} ± {:.2e}  (ε = {:.3e}){}",
                 r.value,
                 r.std_err,
+                options.eps,
                 if r.one_sided {
                     "  (one-sided: empty voxels)"
                 } else {
@@ -811,9 +931,14 @@ fn gradcheck_command(args: &GradcheckArgs) -> Result<()> {
         repeats: args.fd_args.repeats,
         voxels: args.voxels,
         fd,
+        fixed_eps: args.fd_args.eps.is_some(),
     };
-    eprintln!("checking {:?} ({} spp × {} runs) against finite differences (ε = {}, {} spp × {} repeats) on d(mean pixel)/dθ", args.estimator, grad.spp, options.repeats, fd.eps, fd.spp, fd.repeats);
-    let checks = gradcheck(&scene, &options);
+    let eps = match args.fd_args.eps {
+        Some(e) => e.to_string(),
+        None => "automatic".into(),
+    };
+    eprintln!("checking {:?} ({} spp × {} runs) against finite differences (ε {eps}, {} spp × {} repeats) on d(mean pixel)/dθ", args.estimator, grad.spp, options.repeats, fd.spp, fd.repeats);
+    let checks = gradcheck(&scene, &options)?;
     println!(
         "{:<40} {:>24} {:>24} {:>8}",
         "check", "estimator", "finite differences", "z"
@@ -844,5 +969,241 @@ fn merge_command(inputs: &[PathBuf], output: &Path, force: bool) -> Result<()> {
     let grid = gradio::merge(&paths)?;
     vdb::write_grids(output, &[&grid], false, force)?;
     eprintln!("wrote {} ({} inputs)", output.display(), inputs.len());
+    Ok(())
+}
+
+fn compare_command(args: &CompareArgs) -> Result<()> {
+    set_threads(args.threads)?;
+    let mut estimators = args.estimators.clone();
+    estimators.dedup();
+    let progress = !args.quiet;
+    match (args.suite, &args.scene) {
+        (SuiteArg::Stability, _) => {
+            let out = args
+                .out
+                .clone()
+                .unwrap_or_else(|| PathBuf::from("compare-stability"));
+            let files = [out.join("stability.md"), out.join("stability.csv")];
+            prepare_out_dir(&out, &files, args.force)?;
+            let options = compare::StabilityOptions {
+                runs: args.suite_runs.max(2),
+                spp: args.suite_spp.max(1),
+                fd_spp: args.fd_spp.unwrap_or(4096).max(1),
+                fd_repeats: args.repeats.unwrap_or(8).max(2),
+                seed: args.seed.unwrap_or(1),
+                max_depth: 16,
+                progress,
+            };
+            let scenes = compare::stability_scenes();
+            let rows = compare::stability(&scenes, &estimators, &options)?;
+            let table = compare::stability_markdown(&scenes, &rows, &options);
+            std::fs::write(&files[0], &table)?;
+            std::fs::write(&files[1], compare::stability_csv(&rows))?;
+            println!("{table}");
+            eprintln!("wrote {} and {}", files[0].display(), files[1].display());
+            let non_finite: usize = rows.iter().map(|r| r.non_finite).sum();
+            let unexpected = rows
+                .iter()
+                .filter(|r| !r.unbiased() && !r.expected_failure)
+                .count();
+            if non_finite > 0 || unexpected > 0 {
+                bail!("{non_finite} non-finite values and {unexpected} unexpected biased checks");
+            }
+            Ok(())
+        }
+        (SuiteArg::EqualTime, None) => bail!("give a scene file, or --suite stability"),
+        (SuiteArg::EqualTime, Some(path)) => compare_equal_time(args, path, &estimators, progress),
+    }
+}
+
+/// Creates `out` and refuses, before any work, to overwrite one of `files` without --force.
+fn prepare_out_dir(out: &Path, files: &[PathBuf], force: bool) -> Result<()> {
+    for f in files {
+        volgrad::refuse_overwrite(f, force)?;
+    }
+    std::fs::create_dir_all(out)
+        .with_context(|| format!("cannot create the output directory '{}'", out.display()))
+}
+
+fn compare_equal_time(
+    args: &CompareArgs,
+    path: &Path,
+    estimators: &[Estimator],
+    progress: bool,
+) -> Result<()> {
+    if estimators.is_empty() {
+        bail!("--estimators needs at least one of joint, drt, naive");
+    }
+    if args.reference_spp == 0 || args.reference_seeds < 1 || args.max_spp == 0 {
+        bail!("--reference-spp, --reference-seeds and --max-spp must be at least 1");
+    }
+    let scene = Scene::load(path)?;
+    let stem = path
+        .file_stem()
+        .map_or("scene".into(), |s| s.to_string_lossy().into_owned());
+    let out = args
+        .out
+        .clone()
+        .unwrap_or_else(|| PathBuf::from(format!("compare-{stem}")));
+    let render_budget = args.render_budget.unwrap_or(args.budget / 4);
+    let mut files: Vec<PathBuf> = [
+        "runs.csv",
+        "summary.md",
+        "gradient-error.png",
+        "gradient-error.svg",
+    ]
+    .iter()
+    .map(|f| out.join(f))
+    .collect();
+    if args.reference.is_none() {
+        files.push(out.join("reference.vdb"));
+    }
+    if !render_budget.is_zero() {
+        files.push(out.join("render-error.png"));
+        files.push(out.join("render-error.svg"));
+    }
+    prepare_out_dir(&out, &files, args.force)?;
+    let seed = args.seed.unwrap_or(scene.settings.seed);
+    let max_depth = scene.settings.max_depth;
+
+    let reference = match &args.reference {
+        Some(file) => {
+            let r = compare::load_reference(file, &scene)?;
+            eprintln!(
+                "reference: {} ({} runs × {} spp)",
+                file.display(),
+                r.runs,
+                r.spp_per_run
+            );
+            r
+        }
+        None => {
+            let options = compare::ReferenceOptions {
+                spp: args.reference_spp,
+                seeds: args.reference_seeds,
+                seed,
+                max_depth,
+                progress,
+            };
+            eprintln!(
+                "building the reference: {} runs each of joint and drt at {} spp",
+                options.seeds, options.spp
+            );
+            let (r, seconds) = compare::timed(|| compare::build_reference(&scene, &options));
+            let file = out.join("reference.vdb");
+            compare::save_reference(&file, &scene, &r, args.force)?;
+            eprintln!("wrote {} ({seconds:.1} s)", file.display());
+            r
+        }
+    };
+    let fd = FdOptions {
+        loss: Loss::Mean,
+        eps: 0.15 * scene.medium.grid.max_value().max(1e-3),
+        spp: args.fd_spp.unwrap_or(16).max(1),
+        repeats: args.repeats.unwrap_or(4).max(2),
+        seed,
+        max_depth,
+    };
+    eprintln!(
+        "checking the reference against finite differences (ε = {}, {} spp × {} repeats)",
+        fd.eps, fd.spp, fd.repeats
+    );
+    let checks = compare::check_reference(&scene, &reference, &fd, args.fd_voxels)?;
+    let mut worst: f64 = 0.0;
+    let mut check_table =
+        String::from("| check | reference | finite differences | z |\n|---|---:|---:|---:|\n");
+    for c in &checks {
+        worst = worst.max(c.z().abs());
+        let line = format!(
+            "| {} | {:.4e} ± {:.1e} | {:.4e} ± {:.1e} | {:.2} |",
+            c.name,
+            c.estimate,
+            c.estimate_se,
+            c.fd.value,
+            c.fd.std_err,
+            c.z()
+        );
+        eprintln!("  {line}");
+        check_table += &line;
+        check_table += "\n";
+    }
+    if !(worst < Z_LIMIT) {
+        if args.force_reference {
+            eprintln!("warning: the reference disagrees with finite differences (|z| = {worst:.1}); using it because of --force-reference");
+        } else {
+            bail!("the reference disagrees with finite differences (|z| = {worst:.1} > {Z_LIMIT}): build it with more --reference-spp/--reference-seeds, or pass --force-reference");
+        }
+    }
+
+    let sweep = compare::SweepOptions {
+        budget: args.budget,
+        max_spp: args.max_spp,
+        seed,
+        max_depth,
+        progress,
+    };
+    let mut rows = compare::gradient_sweeps(&scene, estimators, &reference, &sweep);
+    let names: Vec<&str> = estimators
+        .iter()
+        .map(|&e| compare::estimator_name(e))
+        .collect();
+    let mut summary = format!(
+        "### `volgrad compare {}`\n\nBudget {:.0} s per estimator; reference: {} runs × {} spp (joint and drt alternating); {} threads.\n\n#### Reference against finite differences\n\n{check_table}\n",
+        path.display(),
+        args.budget.as_secs_f64(),
+        reference.runs,
+        reference.spp_per_run,
+        rayon::current_num_threads()
+    );
+    summary += &compare::summary(&rows, &names, "drt", "joint", "Gradient");
+    compare::write_chart(
+        &out,
+        "gradient-error",
+        &compare::chart(
+            &rows,
+            &format!("{stem}: gradient error against time"),
+            "relative RMSE vs reference",
+        ),
+    )?;
+    if !render_budget.is_zero() {
+        let image_reference = compare::build_image_reference(
+            &scene,
+            args.reference_spp,
+            args.reference_seeds.max(2),
+            seed,
+            max_depth,
+            progress,
+        );
+        let render_rows = compare::render_sweeps(
+            &scene,
+            &image_reference,
+            &compare::SweepOptions {
+                budget: render_budget,
+                ..sweep
+            },
+        );
+        summary += "\n";
+        summary += &compare::summary(
+            &render_rows,
+            &[compare::RENDER_GRID, compare::RENDER_GLOBAL],
+            compare::RENDER_GLOBAL,
+            compare::RENDER_GRID,
+            "Forward render",
+        );
+        compare::write_chart(
+            &out,
+            "render-error",
+            &compare::chart(
+                &render_rows,
+                &format!("{stem}: image error against time"),
+                "relative image RMSE",
+            ),
+        )?;
+        rows.extend(render_rows);
+    }
+    std::fs::write(out.join("runs.csv"), compare::csv(&rows))?;
+    std::fs::write(out.join("summary.md"), &summary)?;
+    println!("{summary}");
+    eprintln!("wrote {}", out.display());
     Ok(())
 }

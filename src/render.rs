@@ -8,7 +8,7 @@ use rand::Rng;
 use rayon::prelude::*;
 
 use crate::image_io::RgbImage;
-use crate::sampling::{pixel_rng, power_heuristic, HenyeyGreenstein};
+use crate::sampling::{power_heuristic, sample_rng, HenyeyGreenstein, Pass};
 use crate::scene::Scene;
 use crate::tracking::{sample_collision, transmittance, TrackingStats};
 
@@ -290,6 +290,13 @@ pub fn trace(
         p += dir * t;
         // A real collision scatters with probability α; the albedo weights the throughput.
         throughput *= medium.albedo;
+        if throughput == Vec3::ZERO {
+            // Absorbed (albedo 0): nothing more can reach the camera along this path.
+            if let Some(r) = record.as_deref_mut() {
+                r.segments.push(segment);
+            }
+            break;
+        }
         let light_sample = LightSample::draw(rng);
         let shadows = record.as_deref_mut().map(|r| (&mut r.shadows, throughput));
         segment.nee = direct_light(scene, p, dir, &light_sample, rng, stats, shadows);
@@ -356,9 +363,10 @@ pub fn render(scene: &Scene, options: &RenderOptions) -> (RgbImage, RenderStats)
             let mut pixels = Vec::with_capacity((TILE * TILE) as usize);
             for y in y0..(y0 + TILE).min(h) {
                 for x in x0..(x0 + TILE).min(w) {
-                    let mut rng = pixel_rng(options.seed, (y * w + x) as u64, 0);
                     let mut sum = Vec3::ZERO;
-                    for _ in 0..options.spp {
+                    for sample in 0..options.spp {
+                        let mut rng =
+                            sample_rng(options.seed, (y * w + x) as u64, sample, Pass::Forward);
                         let dir = camera
                             .direction(x as f32 + rng.gen::<f32>(), y as f32 + rng.gen::<f32>());
                         sum += trace_path(

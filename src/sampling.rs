@@ -19,6 +19,21 @@ pub fn pixel_rng(seed: u64, pixel: u64, stream: u64) -> SmallRng {
     SmallRng::seed_from_u64(z ^ (z >> 31))
 }
 
+/// Which pass draws the numbers: the forward render and the adjoint pass use unrelated streams.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Pass {
+    Forward = 0,
+    Adjoint = 1,
+}
+
+/// The stream of one sample (path) of one pixel. A stream per sample, not per pixel, keeps finite
+/// differences' common random numbers common: a decision flipped in one path cannot shift the
+/// numbers every later path of the pixel draws.
+#[inline]
+pub fn sample_rng(seed: u64, pixel: u64, sample: u32, pass: Pass) -> SmallRng {
+    pixel_rng(seed, pixel, ((sample as u64) << 1) | pass as u64)
+}
+
 /// An orthonormal basis around unit `n` (Duff et al. 2017).
 #[inline]
 pub fn basis(n: Vec3) -> (Vec3, Vec3) {

@@ -1,0 +1,130 @@
+//! `cargo bench --bench gradients`: cost and variance of the gradient estimators on the default
+//! scene at equal spp, measured in one run.
+//!
+//! - time of joint, drt and naive relative to a forward render (runs interleaved, best of
+//!   VOLGRAD_BENCH_ROUNDS, so that a noisy neighbour hurts every method alike);
+//! - per-voxel variance over VOLGRAD_BENCH_SEEDS seeds (mean over the voxels any run reached), and
+//!   variance × time of joint relative to drt (the figure that decides which to use).
+
+use std::path::PathBuf;
+use std::time::{Duration, Instant};
+
+use volgrad::adjoint::{AdjointOptions, Estimator, Suffix};
+use volgrad::grad::{gradient, GradOptions};
+use volgrad::gradgrid::GradientGrid;
+use volgrad::image_io::RgbImage;
+use volgrad::loss::Loss;
+use volgrad::render::{render, RenderOptions};
+use volgrad::scene::Scene;
+
+fn env(name: &str, default: u64) -> u64 {
+    std::env::var(name)
+        .ok()
+        .and_then(|s| s.parse().ok())
+        .unwrap_or(default)
+}
+
+fn main() {
+    let root = PathBuf::from(env!("CARGO_MANIFEST_DIR"));
+    let path = std::env::var("VOLGRAD_BENCH_SCENE")
+        .map(PathBuf::from)
+        .unwrap_or(root.join("scenes/cloud.toml"));
+    let spp = env("VOLGRAD_BENCH_SPP", 4) as u32;
+    let rounds = env("VOLGRAD_BENCH_ROUNDS", 3);
+    let seeds = env("VOLGRAD_BENCH_SEEDS", 6);
+    let scene = Scene::load(&path).expect("bench scene loads");
+    let (w, h) = (scene.camera.width, scene.camera.height);
+    let adjoint = Loss::Mean.adjoint(&RgbImage::new(w, h), None);
+    let options = |estimator, seed| GradOptions {
+        adjoint: AdjointOptions {
+            estimator,
+            suffix: Suffix::PerPath,
+            max_depth: scene.settings.max_depth,
+        },
+        spp,
+        seed,
+        active_only: false,
+        progress: false,
+    };
+    let estimators = [Estimator::Joint, Estimator::Drt, Estimator::Naive];
+    println!(
+        "scene {} at {w}×{h}, {spp} spp, {} threads, loss = mean",
+        path.display(),
+        rayon::current_num_threads()
+    );
+
+    // Time, interleaved: forward, joint, drt, naive, forward, ...
+    let mut best = [Duration::MAX; 4];
+    for round in 0..rounds {
+        let start = Instant::now();
+        render(
+            &scene,
+            &RenderOptions {
+                spp,
+                seed: round,
+                max_depth: scene.settings.max_depth,
+                progress: false,
+            },
+        );
+        best[0] = best[0].min(start.elapsed());
+        for (i, &e) in estimators.iter().enumerate() {
+            let start = Instant::now();
+            gradient(&scene, &adjoint, &options(e, round));
+            best[i + 1] = best[i + 1].min(start.elapsed());
+        }
+    }
+    println!("\n| pass | best of {rounds} | × forward |");
+    println!("|---|---:|---:|");
+    for (name, t) in ["forward", "joint", "drt", "naive"].iter().zip(best) {
+        println!(
+            "| {name} | {:.3} s | {:.2}× |",
+            t.as_secs_f64(),
+            t.as_secs_f64() / best[0].as_secs_f64()
+        );
+    }
+
+    // Variance over seeds.
+    let mut rows = Vec::new();
+    for (i, &e) in estimators.iter().enumerate() {
+        let runs: Vec<GradientGrid> = (0..seeds)
+            .map(|s| gradient(&scene, &adjoint, &options(e, 1000 + s)).gradient)
+            .collect();
+        let mut mean = runs[0].empty_like();
+        let mut square = runs[0].empty_like();
+        for r in &runs {
+            mean.merge(r, 1.0 / seeds as f64);
+            for (v, g) in r.voxels() {
+                square.add(v, g * g / seeds as f64);
+            }
+        }
+        // Unbiased per-voxel variance: n/(n−1)·(E[g²] − E[g]²), averaged over voxels reached.
+        let n = seeds as f64;
+        let (sum, count) = square.voxels().fold((0.0, 0usize), |(s, c), (v, g2)| {
+            let m = mean.get(v);
+            (s + (g2 - m * m).max(0.0) * n / (n - 1.0), c + 1)
+        });
+        let variance = sum / count.max(1) as f64;
+        let totals: Vec<f64> = runs.iter().map(|r| r.sum()).collect();
+        let total_mean = totals.iter().sum::<f64>() / n;
+        let total_se =
+            (totals.iter().map(|t| (t - total_mean).powi(2)).sum::<f64>() / (n - 1.0) / n).sqrt();
+        rows.push((
+            e,
+            total_mean,
+            total_se,
+            variance,
+            variance * best[i + 1].as_secs_f64(),
+        ));
+    }
+    let drt = rows[1].4;
+    println!(
+        "\n| estimator | ⟨g, 1⟩ (mean ± se) | mean per-voxel variance | variance × time vs drt |"
+    );
+    println!("|---|---:|---:|---:|");
+    for (e, total_mean, total_se, variance, vt) in rows {
+        println!(
+            "| {e:?} | {total_mean:.4e} ± {total_se:.1e} | {variance:.3e} | {:.3}× |",
+            vt / drt
+        );
+    }
+}

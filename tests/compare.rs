@@ -1,0 +1,307 @@
+//! The compare machinery on tiny in-memory scenes: the reference (built, checked against finite
+//! differences, saved and read back), equal-time sweeps, the CSV, the charts, and the stability
+//! suite. Fixed seeds throughout; the whole file runs in well under a minute in release.
+
+mod common;
+
+use std::time::Duration;
+
+use common::*;
+use glam::{IVec3, Vec3};
+use volgrad::adjoint::Estimator;
+use volgrad::compare::{self, Reference, ReferenceOptions, Row, StabilityOptions, SweepOptions};
+use volgrad::fd::FdOptions;
+use volgrad::lights::DirectionalLight;
+use volgrad::loss::Loss;
+use volgrad::majorant::MajorantMode;
+use volgrad::medium::Filter;
+use volgrad::scene::Scene;
+
+const N: i32 = 6;
+
+/// A lumpy 6³ block with empty voxels inside it (nearest lookups, so σt = 0 there), a sky and a
+/// sun: every estimator has something to get right and naive something to get wrong.
+fn scene() -> Scene {
+    let value = |v: IVec3| {
+        if (v.x + 2 * v.y + v.z) % 4 == 0 {
+            0.0
+        } else {
+            0.6 + 0.4 * ((v.x as f32 * 1.3).sin() * (v.y as f32 * 0.8 + v.z as f32).cos())
+        }
+    };
+    let mut s = SceneBuilder::new(14.0, 35.0, 8)
+        .constant_light(Vec3::new(0.8, 0.9, 1.0))
+        .build(
+            grid(N, value),
+            centred(N, 1.0),
+            0.5,
+            Vec3::splat(0.9),
+            0.3,
+            Filter::Nearest,
+            MajorantMode::Grid { cell_voxels: 4 },
+        );
+    s.lights.directional.push(DirectionalLight {
+        to_light: Vec3::new(0.4, 1.0, 0.3).normalize(),
+        irradiance: Vec3::splat(2.0),
+    });
+    s
+}
+
+fn reference(scene: &Scene) -> Reference {
+    reference_at(scene, 256)
+}
+
+fn reference_at(scene: &Scene, spp: u32) -> Reference {
+    compare::build_reference(
+        scene,
+        &ReferenceOptions {
+            spp,
+            seeds: 6,
+            seed: 1,
+            max_depth: 16,
+            progress: false,
+        },
+    )
+}
+
+fn sweep_options(budget_ms: u64, max_spp: u32) -> SweepOptions {
+    SweepOptions {
+        budget: Duration::from_millis(budget_ms),
+        max_spp,
+        seed: 1,
+        max_depth: 16,
+        progress: false,
+    }
+}
+
+fn rows_of<'a>(rows: &'a [Row], method: &str) -> Vec<&'a Row> {
+    rows.iter().filter(|r| r.method == method).collect()
+}
+
+#[test]
+fn reference_agrees_with_fd_and_survives_a_vdb_round_trip() {
+    let scene = scene();
+    let r = reference(&scene);
+    assert_eq!(r.runs, 12);
+    assert!(r.sum_se > 0.0 && r.sum_se.is_finite());
+    // Standard errors exist wherever the mean does, and their squares fall as 1/spp: a quarter
+    // of the samples gives four times the variance (per-voxel gradients on an 8×8 image are
+    // noisy, so the reference is judged by how its noise scales, not by its size).
+    let variance = |r: &Reference| {
+        let (mut n, mut se2) = (0, 0.0);
+        for (v, _) in r.mean.voxels().filter(|(_, m)| *m != 0.0) {
+            let se = r.stderr.get(v);
+            assert!(se.is_finite() && se >= 0.0);
+            n += 1;
+            se2 += se * se;
+        }
+        assert!(n > 100, "the reference reached only {n} voxels");
+        se2
+    };
+    let ratio = variance(&reference_at(&scene, 64)) / variance(&r);
+    assert!(
+        (2.5..6.5).contains(&ratio),
+        "variance at 64 spp / at 256 spp = {ratio}, not about 4"
+    );
+
+    let fd = FdOptions {
+        loss: Loss::Mean,
+        eps: 0.15,
+        spp: 2048,
+        repeats: 4,
+        seed: 1,
+        max_depth: 16,
+    };
+    let checks = compare::check_reference(&scene, &r, &fd, 2).unwrap();
+    assert_eq!(checks.len(), 3);
+    for c in &checks {
+        assert!(c.z().abs() < 4.0, "{}: z = {:.2} ({c:?})", c.name, c.z());
+    }
+    // ⟨g, 1⟩ is resolved: the check could have failed.
+    let total = checks.last().unwrap();
+    assert!(total.estimate_se < 0.2 * total.estimate.abs());
+
+    let dir = tempfile::tempdir().unwrap();
+    let file = dir.path().join("reference.vdb");
+    compare::save_reference(&file, &scene, &r, false).unwrap();
+    assert!(
+        compare::save_reference(&file, &scene, &r, false).is_err(),
+        "overwrote without being asked"
+    );
+    let back = compare::load_reference(&file, &scene).unwrap();
+    assert_eq!((back.runs, back.spp_per_run), (12, 256));
+    assert!((back.sum_se - r.sum_se).abs() <= 1e-9 * r.sum_se);
+    for (v, m) in r.mean.voxels() {
+        assert!((back.mean.get(v) - m).abs() <= 1e-6 * m.abs().max(1e-9));
+        let se = r.stderr.get(v);
+        assert!((back.stderr.get(v) - se).abs() <= 1e-6 * se.max(1e-12));
+    }
+    // A reference for another grid is refused.
+    let mut other = scene.clone();
+    other.medium.transform = centred(N, 2.0);
+    assert!(compare::load_reference(&file, &other).is_err());
+}
+
+#[test]
+fn sweeps_write_a_row_per_run_and_valid_charts() {
+    let scene = scene();
+    let r = reference(&scene);
+    let estimators = [Estimator::Joint, Estimator::Drt, Estimator::Naive];
+    let rows = compare::gradient_sweeps(&scene, &estimators, &r, &sweep_options(400, 32));
+    for name in ["joint", "drt", "naive"] {
+        let runs = rows_of(&rows, name);
+        assert!(runs.len() >= 3, "{name}: only {} runs", runs.len());
+        for (i, run) in runs.iter().enumerate() {
+            assert_eq!(run.spp, 1 << i, "{name}: spp doubles from 1");
+            assert!(run.seconds > 0.0);
+            assert!(run.rel_rmse.is_finite() && run.rel_rmse_raw >= run.rel_rmse);
+            assert!(run.cosine.is_finite() && run.cosine <= 1.0 + 1e-9);
+            assert!(run.empty_rmse.is_finite(), "the scene has empty voxels");
+        }
+        // Spent time stays within the budget (plus one run's overshoot at most).
+        let spent: f64 = runs.iter().map(|r| r.seconds).sum();
+        assert!(spent < 1.2, "{name} spent {spent} s of a 0.4 s budget");
+    }
+    let (joint, naive) = (rows_of(&rows, "joint"), rows_of(&rows, "naive"));
+    let (first, last) = (joint.first().unwrap(), joint.last().unwrap());
+    assert!(
+        last.rel_rmse < 0.8 * first.rel_rmse,
+        "joint's error does not fall with spp: {} → {}",
+        first.rel_rmse,
+        last.rel_rmse
+    );
+    assert!(last.cosine > first.cosine);
+    // Naive is biased in empty voxels: more spp do not bring its error there down to joint's.
+    let naive_last = naive.last().unwrap();
+    assert!(
+        naive_last.empty_rmse > 3.0 * last.empty_rmse,
+        "naive's empty-voxel RMSE {} vs joint's {}",
+        naive_last.empty_rmse,
+        last.empty_rmse
+    );
+
+    let csv = compare::csv(&rows);
+    let lines: Vec<&str> = csv.lines().collect();
+    assert_eq!(
+        lines[0],
+        "estimator,spp,seconds,rel_rmse,empty_rmse,cosine,bias,bias_se,rel_rmse_raw"
+    );
+    assert_eq!(lines.len(), rows.len() + 1);
+    for line in &lines[1..] {
+        assert_eq!(line.split(',').count(), 9, "{line}");
+    }
+    assert_eq!(
+        lines.iter().filter(|l| l.starts_with("drt,")).count(),
+        rows_of(&rows, "drt").len()
+    );
+
+    let dir = tempfile::tempdir().unwrap();
+    let chart = compare::chart(&rows, "tiny: gradient error", "relative RMSE");
+    compare::write_chart(dir.path(), "gradient-error", &chart).unwrap();
+    let png = image::open(dir.path().join("gradient-error.png"))
+        .expect("a PNG the image crate decodes")
+        .to_rgb8();
+    assert_eq!(png.dimensions(), (820, 520));
+    // The first line's colour (Okabe–Ito blue) is drawn: lines are there, not only axes.
+    let blue = png.pixels().filter(|p| p.0 == [0, 114, 178]).count();
+    assert!(blue > 50, "{blue} pixels of the first series' colour");
+    let svg = std::fs::read_to_string(dir.path().join("gradient-error.svg")).unwrap();
+    let doc = roxmltree::Document::parse(&svg).expect("well-formed SVG");
+    let polylines: Vec<_> = doc
+        .descendants()
+        .filter(|n| n.has_tag_name("polyline"))
+        .collect();
+    assert_eq!(polylines.len(), 3, "one polyline per estimator");
+    for (p, name) in polylines.iter().zip(["joint", "drt", "naive"]) {
+        let points = p.attribute("points").unwrap().split(' ').count();
+        assert_eq!(points, rows_of(&rows, name).len());
+    }
+    let texts: Vec<&str> = doc.descendants().filter_map(|n| n.text()).collect();
+    for name in ["joint", "drt", "naive", "wall time (s)"] {
+        assert!(texts.contains(&name), "the SVG does not label {name}");
+    }
+
+    let summary = compare::summary(
+        &rows,
+        &["joint", "drt", "naive"],
+        "drt",
+        "joint",
+        "Gradient",
+    );
+    assert!(
+        summary.contains("joint reaches drt's final error"),
+        "{summary}"
+    );
+    assert!(summary.contains("| naive |"));
+}
+
+#[test]
+fn render_sweeps_compare_the_majorants() {
+    let scene = scene();
+    let r = compare::build_image_reference(&scene, 256, 4, 1, 16, false);
+    assert!(r.noise_mse > 0.0 && r.noise_mse.is_finite());
+    let rows = compare::render_sweeps(&scene, &r, &sweep_options(150, 64));
+    for name in [compare::RENDER_GRID, compare::RENDER_GLOBAL] {
+        let runs = rows_of(&rows, name);
+        assert!(runs.len() >= 3, "{name}: {} runs", runs.len());
+        let (first, last) = (runs.first().unwrap(), runs.last().unwrap());
+        assert!(
+            last.rel_rmse_raw < 0.7 * first.rel_rmse_raw,
+            "{name}: image error does not fall: {} → {}",
+            first.rel_rmse_raw,
+            last.rel_rmse_raw
+        );
+        assert!(
+            last.cosine.is_nan(),
+            "gradient columns are empty for renders"
+        );
+    }
+    let csv = compare::csv(&rows);
+    assert!(csv.contains(&format!("{},1,", compare::RENDER_GLOBAL)));
+}
+
+#[test]
+fn stability_suite_is_finite_and_flags_naive_in_empty_voxels() {
+    let scenes: Vec<_> = compare::stability_scenes()
+        .into_iter()
+        .filter(|s| ["empty-voxels", "dense", "rotated-anisotropic"].contains(&s.name))
+        .collect();
+    assert_eq!(scenes.len(), 3);
+    let options = StabilityOptions {
+        runs: 6,
+        spp: 32,
+        fd_spp: 1024,
+        fd_repeats: 4,
+        seed: 1,
+        max_depth: 16,
+        progress: false,
+    };
+    let estimators = [Estimator::Joint, Estimator::Naive];
+    let rows = compare::stability(&scenes, &estimators, &options).unwrap();
+    // Two checks on the scene with empty voxels, one on the others, per estimator.
+    assert_eq!(rows.len(), 2 * (2 + 1 + 1));
+    for r in &rows {
+        assert_eq!(r.non_finite, 0, "{r:?}");
+        assert!(r.estimate.is_finite() && r.estimate_se.is_finite() && r.fd.value.is_finite());
+    }
+    let find = |estimator: &str, check: &str| {
+        rows.iter()
+            .find(|r| r.scene == "empty-voxels" && r.estimator == estimator && r.check == check)
+            .unwrap()
+    };
+    let naive = find("naive", "empty voxels");
+    assert!(!naive.unbiased() && naive.expected_failure, "{naive:?}");
+    assert!(naive.z() < -6.0, "naive is biased low: z = {}", naive.z());
+    let joint = find("joint", "empty voxels");
+    assert!(joint.unbiased() && !joint.weak(), "{joint:?}");
+    for r in rows.iter().filter(|r| r.estimator == "joint") {
+        assert!(r.unbiased(), "joint on {}: z = {:.2}", r.scene, r.z());
+    }
+    let table = compare::stability_markdown(&scenes, &rows, &options);
+    assert!(table.contains("biased (expected)"));
+    assert!(!table.contains("**BIASED**"), "{table}");
+    assert_eq!(
+        compare::stability_csv(&rows).lines().count(),
+        rows.len() + 1
+    );
+}

@@ -1,0 +1,440 @@
+//! `volgrad grad`, `merge` and `gradcheck` end to end, and their bad inputs.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+use glam::IVec3;
+use volgrad::vdb::{self, GridSelector};
+
+fn volgrad(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_volgrad"))
+        .args(args)
+        .output()
+        .expect("runs volgrad")
+}
+
+fn stderr(o: &Output) -> String {
+    String::from_utf8_lossy(&o.stderr).into_owned()
+}
+
+fn stdout(o: &Output) -> String {
+    String::from_utf8_lossy(&o.stdout).into_owned()
+}
+
+fn ok(o: Output) -> Output {
+    assert!(o.status.success(), "failed: {}{}", stdout(&o), stderr(&o));
+    o
+}
+
+fn assert_clean_error(o: &Output, needles: &[&str]) {
+    let err = stderr(o);
+    assert_eq!(o.status.code(), Some(1), "expected a clean failure: {err}");
+    assert!(!err.contains("panicked"), "{err}");
+    for n in needles {
+        assert!(err.contains(n), "error does not mention {n:?}: {err}");
+    }
+}
+
+fn s(p: &Path) -> &str {
+    p.to_str().unwrap()
+}
+
+/// A 16×16-pixel scene around an 8³ box with empty voxels: a sphere inside an active block.
+fn scene(dir: &Path, name: &str, density_scale: f32) -> PathBuf {
+    let vdb = dir.join("sphere.vdb");
+    if !vdb.exists() {
+        ok(volgrad(&[
+            "make-grid",
+            "sphere",
+            "--size",
+            "8",
+            "--value",
+            "1",
+            "--voxel-size",
+            "0.5",
+            "-o",
+            s(&vdb),
+        ]));
+    }
+    let path = dir.join(name);
+    std::fs::write(
+        &path,
+        format!(
+            "[camera]\nposition = [0, 1, 8]\ntarget = [0, 0, 0]\nfov_deg = 40\nwidth = 16\nheight = 16\n\
+             [medium]\nvdb = \"sphere.vdb\"\ndensity_scale = {density_scale}\nalbedo = 0.8\nphase_g = 0.2\n\
+             [[light]]\ntype = \"constant\"\nradiance = 0.5\n\
+             [[light]]\ntype = \"directional\"\ndirection = [0, -1, -1]\nirradiance = 2\n\
+             [render]\nspp = 8\nmax_depth = 16\n"
+        ),
+    )
+    .unwrap();
+    path
+}
+
+#[test]
+fn grad_writes_a_vdb_that_openvdb_reads_with_the_inputs_transform() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = scene(dir.path(), "s.toml", 1.0);
+    let out = dir.path().join("g.vdb");
+    let o = ok(volgrad(&[
+        "grad",
+        s(&scene),
+        "--estimator",
+        "joint",
+        "--loss",
+        "mean",
+        "--spp",
+        "8",
+        "--seed",
+        "3",
+        "-o",
+        s(&out),
+        "-q",
+        "--stats",
+        "--image-of",
+        "all",
+    ]));
+    assert!(stdout(&o).contains("ms per spp"), "{}", stdout(&o));
+    let grids = vdb::list_grids(&out).unwrap();
+    assert_eq!(grids.len(), 1);
+    let g = &grids[0];
+    assert_eq!(g.name, "grad_density");
+    assert_eq!(g.grid_class, "fog volume");
+    let input = &vdb::list_grids(&dir.path().join("sphere.vdb")).unwrap()[0];
+    assert_eq!(g.index_to_world, input.index_to_world);
+    let meta = |k: &str| {
+        g.metadata
+            .iter()
+            .find(|e| e.name == k)
+            .map(|e| e.value.clone())
+            .unwrap_or_default()
+    };
+    assert_eq!(meta("volgrad_estimator"), "joint");
+    assert_eq!(meta("volgrad_spp"), "8");
+    assert_eq!(meta("volgrad_seed"), "3");
+    assert_eq!(meta("volgrad_loss"), "mean");
+    assert!(g.active_voxels > 100);
+    let grid = vdb::read_grid(&out, &GridSelector::Index(0)).unwrap();
+    assert!(grid
+        .bricks
+        .leaves()
+        .iter()
+        .flat_map(|l| l.values)
+        .all(f32::is_finite));
+    for picture in ["g.png", "g.dpixel.exr", "g.dpixel.png"] {
+        assert!(dir.path().join(picture).exists(), "{picture} missing");
+    }
+    // OpenVDB's own tool reads it, with our grid and transform.
+    let print = Command::new("vdb_print")
+        .args(["-l", s(&out)])
+        .output()
+        .expect("vdb_print is installed (scripts/setup.sh)");
+    let text = String::from_utf8_lossy(&print.stdout);
+    assert!(
+        print.status.success() && text.contains("grad_density"),
+        "{text}"
+    );
+    assert!(text.contains("0.5"), "voxel size missing: {text}");
+    // No overwrite without --force.
+    assert_clean_error(
+        &volgrad(&["grad", s(&scene), "--spp", "1", "-o", s(&out), "-q"]),
+        &["already exists"],
+    );
+}
+
+#[test]
+fn an_l2_loss_toward_a_denser_target_asks_for_more_density() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = scene(dir.path(), "s.toml", 1.0);
+    let denser = scene_path_with_scale(dir.path(), 3.0);
+    let out = dir.path().join("g.vdb");
+    let o = ok(volgrad(&[
+        "grad",
+        s(&scene),
+        "--loss",
+        "l2",
+        "--target-scene",
+        s(&denser),
+        "--target-spp",
+        "64",
+        "--spp",
+        "32",
+        "-o",
+        s(&out),
+        "-q",
+    ]));
+    assert!(stderr(&o).contains("loss (l2)"), "{}", stderr(&o));
+    let grid = vdb::read_grid(&out, &GridSelector::Index(0)).unwrap();
+    let total: f64 = grid
+        .bricks
+        .leaves()
+        .iter()
+        .flat_map(|l| l.values)
+        .map(|v| v as f64)
+        .sum();
+    assert!(
+        total < 0.0,
+        "⟨g, 1⟩ = {total}: raising the density must lower the loss"
+    );
+}
+
+fn scene_path_with_scale(dir: &Path, scale: f32) -> PathBuf {
+    scene(dir, "target.toml", scale)
+}
+
+#[test]
+fn merge_weights_runs_by_their_spp() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = scene(dir.path(), "s.toml", 1.0);
+    let (a, b, m) = (
+        dir.path().join("a.vdb"),
+        dir.path().join("b.vdb"),
+        dir.path().join("m.vdb"),
+    );
+    ok(volgrad(&[
+        "grad",
+        s(&scene),
+        "--spp",
+        "2",
+        "--seed",
+        "1",
+        "-o",
+        s(&a),
+        "-q",
+    ]));
+    ok(volgrad(&[
+        "grad",
+        s(&scene),
+        "--spp",
+        "6",
+        "--seed",
+        "2",
+        "-o",
+        s(&b),
+        "-q",
+    ]));
+    ok(volgrad(&["merge", s(&a), s(&b), "-o", s(&m)]));
+    let read = |p: &Path| vdb::read_grid(p, &GridSelector::Index(0)).unwrap();
+    let (ga, gb, gm) = (read(&a), read(&b), read(&m));
+    let mut checked = 0;
+    for leaf in gm.bricks.leaves() {
+        for (o, &v) in leaf.values.iter().enumerate() {
+            let p =
+                leaf.origin + IVec3::new((o >> 6) as i32, ((o >> 3) & 7) as i32, (o & 7) as i32);
+            let expected =
+                (2.0 * ga.bricks.voxel(p) as f64 + 6.0 * gb.bricks.voxel(p) as f64) / 8.0;
+            assert!(
+                (v as f64 - expected).abs() <= 1e-6 * expected.abs().max(1e-9),
+                "{p}: {v} vs {expected}"
+            );
+            checked += usize::from(v != 0.0);
+        }
+    }
+    assert!(checked > 100);
+    let spp = gm
+        .metadata
+        .iter()
+        .find(|e| e.name == "volgrad_spp")
+        .unwrap();
+    assert_eq!(spp.value, "8");
+    // A file that is not a gradient cannot be merged.
+    assert_clean_error(
+        &volgrad(&[
+            "merge",
+            s(&a),
+            s(&dir.path().join("sphere.vdb")),
+            "-o",
+            s(&dir.path().join("x.vdb")),
+        ]),
+        &["sphere.vdb"],
+    );
+}
+
+#[test]
+fn gradcheck_passes_joint_and_catches_naive_in_empty_voxels() {
+    let dir = tempfile::tempdir().unwrap();
+    let vdb = dir.path().join("hot.vdb");
+    ok(volgrad(&[
+        "make-grid",
+        "single-voxel",
+        "--size",
+        "5",
+        "--value",
+        "4",
+        "-o",
+        s(&vdb),
+    ]));
+    let scene = dir.path().join("hot.toml");
+    std::fs::write(
+        &scene,
+        "[camera]\nposition = [0, 0, 9]\ntarget = [0, 0, 0]\nfov_deg = 40\nwidth = 12\nheight = 12\n\
+         [medium]\nvdb = \"hot.vdb\"\ndensity_scale = 0.5\nalbedo = 0.9\nfilter = \"nearest\"\n\
+         [[light]]\ntype = \"constant\"\nradiance = 1\n[[light]]\ntype = \"directional\"\ndirection = [0, -1, 0]\nirradiance = 3\n\
+         [render]\nmax_depth = 8\n",
+    )
+    .unwrap();
+    let args = |e: &str| {
+        volgrad(&[
+            "gradcheck",
+            s(&scene),
+            "--estimator",
+            e,
+            "--spp",
+            "32",
+            "--fd-spp",
+            "1024",
+            "--repeats",
+            "8",
+            "--voxels",
+            "2",
+            "-q",
+        ])
+    };
+    let joint = args("joint");
+    assert!(
+        joint.status.success(),
+        "{}{}",
+        stdout(&joint),
+        stderr(&joint)
+    );
+    assert!(stdout(&joint).contains("⟨g, 1⟩"), "{}", stdout(&joint));
+    let naive = args("naive");
+    assert_clean_error(&naive, &["checks beyond"]);
+    assert!(stdout(&naive).contains("FAIL"), "{}", stdout(&naive));
+}
+
+#[test]
+fn finite_differences_print_values_with_standard_errors() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = scene(dir.path(), "s.toml", 1.0);
+    let o = ok(volgrad(&[
+        "grad",
+        s(&scene),
+        "--estimator",
+        "fd",
+        "--fd",
+        "voxels:3,3,3;0,0,0",
+        "--fd-spp",
+        "16",
+        "--repeats",
+        "3",
+        "-q",
+    ]));
+    let out = stdout(&o);
+    assert_eq!(out.matches(" ± ").count(), 2, "{out}");
+    assert!(out.contains("one-sided"), "voxel [0,0,0] is empty: {out}");
+}
+
+#[test]
+fn bad_gradient_inputs_give_clear_errors() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = scene(dir.path(), "s.toml", 1.0);
+    let out = dir.path().join("g.vdb");
+    assert_clean_error(
+        &volgrad(&["grad", s(&scene), "--loss", "l2", "-o", s(&out), "-q"]),
+        &["--target"],
+    );
+    let small = dir.path().join("small.exr");
+    ok(volgrad(&[
+        "render",
+        s(&scene),
+        "-o",
+        s(&small),
+        "-q",
+        "--spp",
+        "1",
+    ]));
+    let tiny = scene_with_size(dir.path());
+    assert_clean_error(
+        &volgrad(&[
+            "grad",
+            s(&tiny),
+            "--loss",
+            "l1",
+            "--target",
+            s(&small),
+            "-o",
+            s(&out),
+            "-q",
+        ]),
+        &["target is 16×16", "8×4"],
+    );
+    assert_clean_error(
+        &volgrad(&[
+            "grad",
+            s(&scene),
+            "--loss",
+            "l2",
+            "--target",
+            s(&dir.path().join("nope.exr")),
+            "-o",
+            s(&out),
+            "-q",
+        ]),
+        &["nope.exr"],
+    );
+    assert_clean_error(
+        &volgrad(&["grad", s(&scene), "--estimator", "fd", "-q"]),
+        &["--fd"],
+    );
+    assert_clean_error(
+        &volgrad(&[
+            "grad",
+            s(&scene),
+            "--estimator",
+            "fd",
+            "--fd",
+            "voxels:1,2",
+            "-q",
+        ]),
+        &["x,y,z"],
+    );
+    assert_clean_error(
+        &volgrad(&[
+            "grad",
+            s(&scene),
+            "--image-of",
+            "1,2,3",
+            "-o",
+            s(&out),
+            "-q",
+        ]),
+        &["six integers"],
+    );
+    assert_clean_error(
+        &volgrad(&[
+            "grad",
+            s(&scene),
+            "--spp",
+            "0",
+            "-o",
+            s(&dir.path().join("z.vdb")),
+            "-q",
+        ]),
+        &["--spp"],
+    );
+    assert_clean_error(
+        &volgrad(&[
+            "grad",
+            s(&scene),
+            "-o",
+            "/no/such/dir/g.vdb",
+            "-q",
+            "--spp",
+            "1",
+        ]),
+        &["/no/such/dir"],
+    );
+}
+
+fn scene_with_size(dir: &Path) -> PathBuf {
+    let base = std::fs::read_to_string(scene(dir, "s.toml", 1.0)).unwrap();
+    let path = dir.join("tiny.toml");
+    std::fs::write(
+        &path,
+        base.replace("width = 16", "width = 8")
+            .replace("height = 16", "height = 4"),
+    )
+    .unwrap();
+    path
+}
