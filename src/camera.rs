@@ -46,4 +46,17 @@ impl Camera {
         let sy = (1.0 - 2.0 * y / self.height as f32) * self.tan_half.1;
         (self.forward + self.right * sx + self.up * sy).normalize()
     }
+
+    /// The same view at another resolution (the horizontal field of view is kept).
+    pub fn with_resolution(&self, width: u32, height: u32) -> Camera {
+        Camera {
+            tan_half: (
+                self.tan_half.0,
+                self.tan_half.0 * height as f32 / width as f32,
+            ),
+            width,
+            height,
+            ..*self
+        }
+    }
 }

@@ -37,8 +37,9 @@ pub fn robust_scale(values: &[f32]) -> f32 {
     *mags.select_nth_unstable_by(k, |a, b| a.total_cmp(b)).1
 }
 
-/// Writes `values` (row-major, `width`×`height`) as a diverging-colour PNG; returns the scale used
-/// (the value shown at full saturation).
+/// Writes `values` (row-major, `width`×`height`) as a diverging-colour PNG, enlarged by whole
+/// pixels until its long side is at least 384 so that small grids stay legible; returns the scale
+/// used (the value shown at full saturation).
 pub fn write_signed_png(
     path: &Path,
     width: u32,
@@ -46,12 +47,20 @@ pub fn write_signed_png(
     values: &[f32],
 ) -> anyhow::Result<f32> {
     let scale = robust_scale(values);
-    let image = RgbImage {
-        width,
-        height,
-        pixels: values.iter().map(|v| diverging(v / scale)).collect(),
-    };
-    write_png(path, &image, 1.0)?;
+    let k = 384u32.div_ceil(width.max(height).max(1));
+    let (w, h) = (width * k, height * k);
+    let pixels = (0..w * h)
+        .map(|i| diverging(values[((i / w / k) * width + (i % w) / k) as usize] / scale))
+        .collect();
+    write_png(
+        path,
+        &RgbImage {
+            width: w,
+            height: h,
+            pixels,
+        },
+        1.0,
+    )?;
     Ok(scale)
 }
 

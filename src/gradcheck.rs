@@ -48,6 +48,8 @@ pub struct GradcheckOptions {
     pub fd: FdOptions,
     /// Use `fd.eps` for every check instead of `fd::auto_eps` per check.
     pub fixed_eps: bool,
+    /// A progress bar on stderr (estimator runs, then checks).
+    pub progress: bool,
 }
 
 fn mean_se(runs: &[GradientGrid], f: impl Fn(&GradientGrid) -> f64) -> (f64, f64) {
@@ -65,10 +67,18 @@ pub fn gradcheck(scene: &Scene, options: &GradcheckOptions) -> anyhow::Result<Ve
     };
     let pixels = (scene.camera.width * scene.camera.height) as usize;
     let adjoint = vec![Vec3::ONE / (3 * pixels) as f32; pixels];
-    let runs: Vec<GradientGrid> = (0..options.repeats.max(2))
+    let repeats = options.repeats.max(2);
+    let bar = crate::progress::bar(
+        options.progress,
+        (repeats as usize + options.voxels + 2) as u64,
+        "gradcheck",
+    );
+    let runs: Vec<GradientGrid> = (0..repeats)
         .map(|r| {
             let mut o = options.grad;
             o.seed = o.seed.wrapping_add(r as u64);
+            o.progress = false;
+            bar.inc(1);
             gradient(scene, &adjoint, &o).gradient
         })
         .collect();
@@ -83,6 +93,7 @@ pub fn gradcheck(scene: &Scene, options: &GradcheckOptions) -> anyhow::Result<Ve
             fd_options.eps = fd::auto_eps(scene, &direction);
         }
         let fd = fd::directional_derivative(scene, None, &direction, &fd_options)?;
+        bar.inc(1);
         checks.push(Check {
             name,
             estimate,
@@ -128,5 +139,6 @@ pub fn gradcheck(scene: &Scene, options: &GradcheckOptions) -> anyhow::Result<Ve
         )?;
     }
     check("⟨g, 1⟩ over the domain".into(), fd::ones(&domain))?;
+    bar.finish_and_clear();
     Ok(checks)
 }
