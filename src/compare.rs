@@ -289,8 +289,8 @@ pub fn ones_eps(scene: &Scene) -> f32 {
     (ONES_OPTICAL_STEP / (scene.medium.density_scale as f64 * side).max(1e-12)) as f32
 }
 
-/// The reference against finite differences: the `voxels` voxels where the reference is most
-/// significant (largest |g| / se: the largest |g| are often one run's outlier) with
+/// The reference against finite differences: the `voxels` voxels of largest |g| among those the
+/// reference resolves (|g| > 4 se: the largest |g| overall are often one run's outlier), with
 /// `fd_options.eps`, and ⟨g, 1⟩ over the whole domain with `ones_eps`.
 pub fn check_reference(
     scene: &Scene,
@@ -303,11 +303,11 @@ pub fn check_reference(
         .mean
         .voxels()
         .map(|(v, g)| (v, g, r.stderr.get(v)))
-        .filter(|&(_, g, se)| g != 0.0 && se > 0.0)
+        .filter(|&(_, g, se)| se > 0.0 && g.abs() > 4.0 * se)
         .collect();
     strongest.sort_by(|a, b| {
-        (b.1.abs() / b.2)
-            .total_cmp(&(a.1.abs() / a.2))
+        b.1.abs()
+            .total_cmp(&a.1.abs())
             .then((a.0.x, a.0.y, a.0.z).cmp(&(b.0.x, b.0.y, b.0.z)))
     });
     let mut checks: Vec<Check> = strongest
@@ -690,6 +690,30 @@ pub fn time_to_reach(points: &[(f64, f64)], target: f64) -> Option<(f64, bool)> 
     Some((last.0 * (target / last.1).powf(1.0 / MC_SLOPE), true))
 }
 
+/// Runs below this spp are left out of the efficiency: their time is mostly fixed overhead.
+const EFFICIENCY_MIN_SPP: u32 = 4;
+
+/// Error² × time, the median over a method's runs of at least `EFFICIENCY_MIN_SPP` spp: a constant
+/// for a Monte Carlo method once overheads are paid, and robust to one run's outlier (heavy-tailed
+/// estimators such as drt jump up and down between runs).
+pub fn inefficiency(rows: &[Row], method: &str) -> Option<f64> {
+    let mut v: Vec<f64> = curve(rows, method)
+        .iter()
+        .filter(|r| r.spp >= EFFICIENCY_MIN_SPP)
+        .map(|r| r.rel_rmse * r.rel_rmse * r.seconds)
+        .collect();
+    if v.is_empty() {
+        return None;
+    }
+    v.sort_by(f64::total_cmp);
+    let n = v.len();
+    Some(if n % 2 == 1 {
+        v[n / 2]
+    } else {
+        0.5 * (v[n / 2 - 1] + v[n / 2])
+    })
+}
+
 fn points(rows: &[&Row]) -> Vec<(f64, f64)> {
     rows.iter().map(|r| (r.seconds, r.rel_rmse)).collect()
 }
@@ -776,6 +800,17 @@ pub fn summary(
             let _ = writeln!(s, "| {m} | {at} | {reach} |");
         }
         s += "\n(~ marks values extrapolated along error ∝ 1/√time beyond the measured runs.)\n";
+    }
+    let _ = writeln!(
+        s,
+        "\n| method | error² × time (median over runs ≥ {EFFICIENCY_MIN_SPP} spp) | relative to {baseline} |\n|---|---:|---:|"
+    );
+    let base = inefficiency(rows, baseline);
+    for m in methods {
+        if let Some(e) = inefficiency(rows, m) {
+            let rel = base.map_or("—".into(), |b| format!("{:.3}", e / b));
+            let _ = writeln!(s, "| {m} | {e:.4e} | {rel} |");
+        }
     }
     match speedup(rows, baseline, contender) {
         Some((factor, target, t, extrapolated)) => {
