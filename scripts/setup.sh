@@ -4,7 +4,8 @@
 # present.
 set -euo pipefail
 
-packages=(libopenvdb-dev libopenimageio-dev libboost-dev libtbb-dev g++ libopenvdb-tools)
+# fonts-dejavu-core: the labels of the PNG charts of `volgrad compare` (src/chart.rs).
+packages=(libopenvdb-dev libopenimageio-dev libboost-dev libtbb-dev g++ libopenvdb-tools fonts-dejavu-core)
 missing=()
 for p in "${packages[@]}"; do
   dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")

@@ -484,3 +484,62 @@ fn bad_inputs_give_clear_errors_and_a_nonzero_exit() {
     );
     assert!(!out.exists(), "a failed render must not leave files behind");
 }
+
+#[test]
+fn an_envmap_light_from_an_exr_file_passes_the_white_furnace() {
+    // A constant lat-long map and albedo 1: whatever the medium does, every pixel sees the map's
+    // radiance. Exercises the scene's envmap loading (OpenImageIO) and its importance sampling.
+    let dir = tempfile::tempdir().unwrap();
+    let sky = volgrad::image_io::RgbImage {
+        width: 32,
+        height: 16,
+        pixels: vec![glam::Vec3::new(0.5, 0.25, 1.0); 32 * 16],
+    };
+    volgrad::image_io::write_exr(&dir.path().join("sky.exr"), &sky, false).unwrap();
+    let scene = tiny_scene(dir.path(), "", "");
+    let text = std::fs::read_to_string(&scene).unwrap();
+    let text = text
+        .replace("albedo = [0.9, 0.8, 0.7]", "albedo = 1.0")
+        .replace(
+            "type = \"constant\"\nradiance = 0.5\n",
+            "type = \"envmap\"\nfile = \"sky.exr\"\n",
+        )
+        .replace(
+            "[[light]]\ntype = \"directional\"\ndirection = [0, -1, -1]\nirradiance = 2\n",
+            "",
+        )
+        .replace("spp = 4", "spp = 64\nmax_depth = 10000");
+    std::fs::write(&scene, text).unwrap();
+    let out = dir.path().join("furnace.exr");
+    let o = volgrad(&[
+        "render",
+        scene.to_str().unwrap(),
+        "-o",
+        out.to_str().unwrap(),
+        "--quiet",
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let mean = volgrad::image_io::read_rgb(&out).unwrap().mean();
+    assert!(
+        (mean - glam::Vec3::new(0.5, 0.25, 1.0)).abs().max_element() < 0.01,
+        "mean {mean}"
+    );
+
+    // A map with negative radiance is refused, naming the light.
+    let bad = volgrad::image_io::RgbImage {
+        width: 2,
+        height: 1,
+        pixels: vec![glam::Vec3::splat(-1.0); 2],
+    };
+    volgrad::image_io::write_exr(&dir.path().join("sky.exr"), &bad, false).unwrap();
+    assert_clean_error(
+        &volgrad(&[
+            "render",
+            scene.to_str().unwrap(),
+            "-o",
+            dir.path().join("b.exr").to_str().unwrap(),
+            "--quiet",
+        ]),
+        &["light[0].file", "negative"],
+    );
+}

@@ -305,3 +305,53 @@ fn stability_suite_is_finite_and_flags_naive_in_empty_voxels() {
         rows.len() + 1
     );
 }
+
+/// The command line refuses bad input before any work, with a message and exit status 1 or 2.
+#[test]
+fn command_line_refuses_bad_input_without_panicking() {
+    let exe = env!("CARGO_BIN_EXE_volgrad");
+    let scene = concat!(env!("CARGO_MANIFEST_DIR"), "/scenes/box.toml");
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("out");
+    std::fs::create_dir(&out).unwrap();
+    std::fs::write(out.join("runs.csv"), "mine").unwrap();
+    let run = |args: &[&str]| {
+        let o = std::process::Command::new(exe)
+            .arg("compare")
+            .args(args)
+            .output()
+            .unwrap();
+        (
+            o.status.code(),
+            String::from_utf8_lossy(&o.stderr).into_owned(),
+        )
+    };
+    let out_arg = out.to_str().unwrap();
+    let (code, err) = run(&[scene, "--out", out_arg, "--budget", "1s"]);
+    assert_eq!(code, Some(1), "{err}");
+    assert!(err.contains("runs.csv") && err.contains("--force"), "{err}");
+    assert_eq!(
+        std::fs::read_to_string(out.join("runs.csv")).unwrap(),
+        "mine"
+    );
+
+    let (code, err) = run(&[scene, "--budget", "5x"]);
+    assert_eq!(code, Some(2), "{err}");
+    assert!(err.contains("unknown unit"), "{err}");
+
+    let missing = dir.path().join("missing.vdb");
+    let fresh = dir.path().join("fresh");
+    let (code, err) = run(&[
+        scene,
+        "--reference",
+        missing.to_str().unwrap(),
+        "--out",
+        fresh.to_str().unwrap(),
+    ]);
+    assert_eq!(code, Some(1), "{err}");
+    assert!(err.contains("missing.vdb"), "{err}");
+    assert!(!err.contains("panicked"), "{err}");
+
+    let (code, err) = run(&[]);
+    assert_eq!(code, Some(2), "{err}");
+}
