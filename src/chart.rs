@@ -255,9 +255,9 @@ impl Canvas {
         }
         let a = coverage.min(1.0);
         let i = ((y as u32 * self.width + x as u32) * 3) as usize;
-        for k in 0..3 {
-            let old = self.data[i + k] as f64;
-            self.data[i + k] = (old + (c[k] as f64 - old) * a).round() as u8;
+        for (channel, &target) in self.data[i..i + 3].iter_mut().zip(&c) {
+            let old = *channel as f64;
+            *channel = (old + (target as f64 - old) * a).round() as u8;
         }
     }
 

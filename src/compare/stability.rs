@@ -223,7 +223,8 @@ impl StabilityRow {
 
     /// Finite differences too noisy to tell a biased estimator (se above half the value).
     pub fn weak(&self) -> bool {
-        !(self.fd.std_err < 0.5 * self.fd.value.abs())
+        // NaN (no finite difference) counts as weak.
+        self.fd.std_err.is_nan() || self.fd.std_err >= 0.5 * self.fd.value.abs()
     }
 }
 
