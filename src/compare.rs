@@ -645,8 +645,8 @@ mod tests {
         let rows = [
             row("drt", 2.0, 1.0),
             row("drt", 8.0, 0.5),
-            row("joint", 1.0, 0.7071067811865476),
-            row("joint", 4.0, 0.3535533905932738),
+            row("joint", 1.0, std::f64::consts::FRAC_1_SQRT_2),
+            row("joint", 4.0, std::f64::consts::FRAC_1_SQRT_2 / 2.0),
         ];
         let (factor, target, t, extrapolated) = speedup(&rows, "drt", "joint").unwrap();
         assert!((factor - 0.25).abs() < 1e-9, "{factor}");

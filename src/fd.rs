@@ -20,10 +20,10 @@ use rand::Rng;
 use crate::brickmap::BrickMap;
 use crate::image_io::RgbImage;
 use crate::loss::Loss;
-use crate::majorant::{MajorantGrid, MajorantMode};
+use crate::majorant::MajorantGrid;
 use crate::render::{render, RenderOptions};
 use crate::sampling::pixel_rng;
-use crate::scene::{MajorantName, Scene};
+use crate::scene::Scene;
 
 /// A sparse direction in parameter space.
 pub type Direction = Vec<(IVec3, f32)>;
@@ -163,12 +163,7 @@ pub fn directional_derivative(
             .map(|&(v, d)| (v, reach * eps * d.abs()))
             .collect::<Vec<_>>(),
     );
-    let mode = match scene.settings.majorant {
-        MajorantName::Global => MajorantMode::Global,
-        MajorantName::Grid => MajorantMode::Grid {
-            cell_voxels: scene.settings.majorant_cell,
-        },
-    };
+    let mode = scene.settings.majorant_mode();
     let majorant = MajorantGrid::build(
         &upper,
         scene.medium.bounds,

@@ -152,6 +152,18 @@ fn default_majorant_cell() -> u32 {
     DEFAULT_MAJORANT_CELL
 }
 
+impl RenderFile {
+    /// The tracking structure these settings ask for.
+    pub fn majorant_mode(&self) -> MajorantMode {
+        match self.majorant {
+            MajorantName::Grid => MajorantMode::Grid {
+                cell_voxels: self.majorant_cell,
+            },
+            MajorantName::Global => MajorantMode::Global,
+        }
+    }
+}
+
 impl Default for RenderFile {
     fn default() -> Self {
         RenderFile {
@@ -341,13 +353,7 @@ impl Scene {
             FilterName::Nearest => Filter::Nearest,
             FilterName::Trilinear => Filter::Trilinear,
         };
-        let r = &file.render;
-        let mode = match r.majorant {
-            MajorantName::Grid => MajorantMode::Grid {
-                cell_voxels: r.majorant_cell,
-            },
-            MajorantName::Global => MajorantMode::Global,
-        };
+        let mode = file.render.majorant_mode();
         if grid.bricks.min_value() < 0.0 {
             bail!(
                 "grid '{}' in '{}' has negative values (min {}): extinction must be ≥ 0",

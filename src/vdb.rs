@@ -36,7 +36,7 @@ fn path_str(path: &Path) -> Result<&str> {
 }
 
 pub fn list_grids(path: &Path) -> Result<Vec<GridSummary>> {
-    Ok(ffi::list_grids(path_str(path)?).map_err(|e| anyhow!("{}", e.what()))?)
+    ffi::list_grids(path_str(path)?).map_err(|e| anyhow!("{}", e.what()))
 }
 
 pub fn read_grid(path: &Path, selector: &GridSelector) -> Result<Grid> {
