@@ -67,8 +67,11 @@ enum Command {
 
 #[derive(Clone, Copy, PartialEq, Eq, ValueEnum)]
 enum EstimatorArg {
+    /// Sample matching: scattering and transmittance parts at one shared probe per segment.
     Joint,
+    /// Differential ratio tracking (Nimier-David et al. 2022).
     Drt,
+    /// Differentiated free-flight sampling: biased where σt = 0 (a baseline).
     Naive,
     /// Finite differences along the direction given by --fd.
     Fd,
@@ -136,6 +139,7 @@ struct GradArgs {
     /// A scene whose render (at --target-spp) is the target.
     #[arg(long)]
     target_scene: Option<PathBuf>,
+    /// Samples per pixel of the --target-scene render.
     #[arg(long, default_value_t = 256)]
     target_spp: u32,
     /// Output gradient VDB (a picture of it goes beside it as .png). Default: <scene>.grad.vdb.
