@@ -7,44 +7,18 @@ mod common;
 use std::time::Duration;
 
 use common::*;
-use glam::{IVec3, Vec3};
 use volgrad::adjoint::Estimator;
 use volgrad::compare::{self, Reference, ReferenceOptions, Row, StabilityOptions, SweepOptions};
 use volgrad::fd::FdOptions;
-use volgrad::lights::DirectionalLight;
 use volgrad::loss::Loss;
-use volgrad::majorant::MajorantMode;
 use volgrad::medium::Filter;
 use volgrad::scene::Scene;
 
 const N: i32 = 6;
 
-/// A lumpy 6³ block with empty voxels inside it (nearest lookups, so σt = 0 there), a sky and a
-/// sun: every estimator has something to get right and naive something to get wrong.
+/// The shared lumpy block with empty voxels, nearest lookups (so σt = 0 there).
 fn scene() -> Scene {
-    let value = |v: IVec3| {
-        if (v.x + 2 * v.y + v.z) % 4 == 0 {
-            0.0
-        } else {
-            0.6 + 0.4 * ((v.x as f32 * 1.3).sin() * (v.y as f32 * 0.8 + v.z as f32).cos())
-        }
-    };
-    let mut s = SceneBuilder::new(14.0, 35.0, 8)
-        .constant_light(Vec3::new(0.8, 0.9, 1.0))
-        .build(
-            grid(N, value),
-            centred(N, 1.0),
-            0.5,
-            Vec3::splat(0.9),
-            0.3,
-            Filter::Nearest,
-            MajorantMode::Grid { cell_voxels: 4 },
-        );
-    s.lights.directional.push(DirectionalLight {
-        to_light: Vec3::new(0.4, 1.0, 0.3).normalize(),
-        irradiance: Vec3::splat(2.0),
-    });
-    s
+    lumpy_block_scene(Filter::Nearest, true, 0.9)
 }
 
 fn reference(scene: &Scene) -> Reference {

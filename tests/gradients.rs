@@ -13,7 +13,6 @@ use volgrad::adjoint::{AdjointOptions, Estimator, Suffix};
 use volgrad::fd::{self, FdOptions};
 use volgrad::grad::{derivative_image, gradient, GradOptions};
 use volgrad::gradgrid::GradientGrid;
-use volgrad::lights::DirectionalLight;
 use volgrad::loss::Loss;
 use volgrad::majorant::MajorantMode;
 use volgrad::medium::Filter;
@@ -21,32 +20,8 @@ use volgrad::scene::Scene;
 
 const N: i32 = 6;
 
-/// A lumpy 6³ block with empty voxels inside it, a sky and a sun.
 fn scene(filter: Filter, empty_voxels: bool, albedo: f32) -> Scene {
-    let value = move |v: IVec3| {
-        if empty_voxels && (v.x + 2 * v.y + v.z) % 4 == 0 {
-            0.0
-        } else {
-            0.6 + 0.4 * ((v.x as f32 * 1.3).sin() * (v.y as f32 * 0.8 + v.z as f32).cos())
-        }
-    };
-    let mut s = SceneBuilder::new(14.0, 35.0, 8)
-        .constant_light(Vec3::new(0.8, 0.9, 1.0))
-        .build(
-            grid(N, value),
-            centred(N, 1.0),
-            0.5,
-            Vec3::splat(albedo),
-            0.3,
-            filter,
-            MajorantMode::Grid { cell_voxels: 4 },
-        );
-    s.lights.directional.push(DirectionalLight {
-        to_light: Vec3::new(0.4, 1.0, 0.3).normalize(),
-        irradiance: Vec3::splat(2.0),
-    });
-    s.settings.max_depth = 16;
-    s
+    lumpy_block_scene(filter, empty_voxels, albedo)
 }
 
 /// Estimator runs and finite differences both use the scene's max_depth.
@@ -288,39 +263,26 @@ fn naive_is_biased_in_empty_voxels_and_agrees_without_them() {
 
 #[test]
 fn gradients_stay_finite_in_extreme_media() {
-    let dense = SceneBuilder::new(14.0, 35.0, 6)
-        .constant_light(Vec3::ONE)
-        .build(
-            grid(N, |_| 1.0),
-            centred(N, 1.0),
-            1e4,
-            Vec3::splat(0.9),
-            0.5,
-            Filter::Trilinear,
-            MajorantMode::Grid { cell_voxels: 4 },
-        );
-    let vacuum = SceneBuilder::new(14.0, 35.0, 6)
-        .constant_light(Vec3::ONE)
-        .build(
-            grid(N, |_| 0.0),
-            centred(N, 1.0),
-            1.0,
-            Vec3::splat(0.9),
-            0.5,
-            Filter::Trilinear,
-            MajorantMode::Grid { cell_voxels: 4 },
-        );
-    let hot = SceneBuilder::new(14.0, 35.0, 6)
-        .constant_light(Vec3::ONE)
-        .build(
-            grid(N, |v| if v == IVec3::splat(3) { 1e3 } else { 0.0 }),
-            centred(N, 1.0),
-            1.0,
-            Vec3::splat(0.9),
-            0.5,
-            Filter::Nearest,
-            MajorantMode::Grid { cell_voxels: 4 },
-        );
+    let make = |grid, density_scale, filter| {
+        SceneBuilder::new(14.0, 35.0, 6)
+            .constant_light(Vec3::ONE)
+            .build(
+                grid,
+                centred(N, 1.0),
+                density_scale,
+                Vec3::splat(0.9),
+                0.5,
+                filter,
+                MajorantMode::Grid { cell_voxels: 4 },
+            )
+    };
+    let dense = make(grid(N, |_| 1.0), 1e4, Filter::Trilinear);
+    let vacuum = make(grid(N, |_| 0.0), 1.0, Filter::Trilinear);
+    let hot = make(
+        grid(N, |v| if v == IVec3::splat(3) { 1e3 } else { 0.0 }),
+        1.0,
+        Filter::Nearest,
+    );
     for (name, scene) in [
         ("τ ≫ 87", &dense),
         ("σ = 0", &vacuum),

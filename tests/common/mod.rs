@@ -6,7 +6,7 @@ use std::path::PathBuf;
 use glam::{DAffine3, DMat3, DVec3, IVec3, Vec3};
 use volgrad::brickmap::{BrickMap, BrickMapBuilder};
 use volgrad::camera::Camera;
-use volgrad::lights::{Environment, Lights};
+use volgrad::lights::{DirectionalLight, Environment, Lights};
 use volgrad::majorant::MajorantMode;
 use volgrad::medium::{Filter, Medium};
 use volgrad::scene::{RenderFile, Scene};
@@ -90,4 +90,34 @@ impl SceneBuilder {
             vdb_path: PathBuf::from("test.vdb"),
         }
     }
+}
+
+/// A lumpy 6³ block, optionally with empty voxels inside it, under a sky and a sun, seen by an 8×8
+/// camera, 16-deep paths: every estimator has something to get right and naive, with empty voxels,
+/// something to get wrong.
+pub fn lumpy_block_scene(filter: Filter, empty_voxels: bool, albedo: f32) -> Scene {
+    let value = move |v: IVec3| {
+        if empty_voxels && (v.x + 2 * v.y + v.z) % 4 == 0 {
+            0.0
+        } else {
+            0.6 + 0.4 * ((v.x as f32 * 1.3).sin() * (v.y as f32 * 0.8 + v.z as f32).cos())
+        }
+    };
+    let mut s = SceneBuilder::new(14.0, 35.0, 8)
+        .constant_light(Vec3::new(0.8, 0.9, 1.0))
+        .build(
+            grid(6, value),
+            centred(6, 1.0),
+            0.5,
+            Vec3::splat(albedo),
+            0.3,
+            filter,
+            MajorantMode::Grid { cell_voxels: 4 },
+        );
+    s.lights.directional.push(DirectionalLight {
+        to_light: Vec3::new(0.4, 1.0, 0.3).normalize(),
+        irradiance: Vec3::splat(2.0),
+    });
+    s.settings.max_depth = 16;
+    s
 }
