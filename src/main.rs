@@ -725,6 +725,20 @@ fn load_target(args: &GradArgs, scene: &Scene) -> Result<Option<image_io::RgbIma
     Ok(target)
 }
 
+/// What `grad` writes: the VDB, its picture, and with `--image-of` the derivative image as EXR and
+/// PNG. All are checked before any work so that a refusal to overwrite costs nothing.
+fn gradient_outputs(vdb: &Path, image_of: bool) -> Vec<PathBuf> {
+    let stem = vdb.with_extension("");
+    let mut paths = vec![vdb.to_path_buf(), vdb.with_extension("png")];
+    if image_of {
+        paths.extend([
+            stem.with_extension("dpixel.exr"),
+            stem.with_extension("dpixel.png"),
+        ]);
+    }
+    paths
+}
+
 fn grad_command(args: &GradArgs) -> Result<()> {
     set_threads(args.adjoint.threads)?;
     let vdb_out = args.output.clone().unwrap_or_else(|| {
@@ -737,10 +751,16 @@ fn grad_command(args: &GradArgs) -> Result<()> {
         if vdb_out.extension().and_then(|e| e.to_str()) != Some("vdb") {
             bail!("--output must end in .vdb (got '{}')", vdb_out.display());
         }
-        volgrad::refuse_overwrite(&vdb_out, args.force)?;
-        volgrad::refuse_overwrite(&vdb_out.with_extension("png"), args.force)?;
+        for path in gradient_outputs(&vdb_out, args.image_of.is_some()) {
+            volgrad::refuse_overwrite(&path, args.force)?;
+        }
     }
     let scene = Scene::load(&args.scene)?;
+    let image_box = args
+        .image_of
+        .as_deref()
+        .map(|spec| parse_box(spec, &scene))
+        .transpose()?;
     let target = load_target(args, &scene)?;
     let estimator = match args.estimator {
         EstimatorArg::Joint => Estimator::Joint,
@@ -797,23 +817,18 @@ fn grad_command(args: &GradArgs) -> Result<()> {
         png.display(),
         scale.unwrap_or(0.0)
     );
-    if let Some(spec) = &args.image_of {
-        let (lo, hi) = parse_box(spec, &scene)?;
+    if let Some((lo, hi)) = image_box {
         let (image, _) = derivative_image(&scene, lo, hi, &options);
-        let stem = vdb_out.with_extension("");
-        let (exr, png) = (
-            stem.with_extension("dpixel.exr"),
-            stem.with_extension("dpixel.png"),
-        );
-        volgrad::refuse_overwrite(&exr, args.force)?;
-        image_io::write_exr(&exr, &image, false)?;
+        let outputs = gradient_outputs(&vdb_out, true);
+        let (exr, png) = (&outputs[2], &outputs[3]);
+        image_io::write_exr(exr, &image, false)?;
         let luminance: Vec<f32> = image
             .pixels
             .iter()
             .map(|&c| volgrad::lights::luminance(c))
             .collect();
         let scale =
-            volgrad::colormap::write_signed_png(&png, image.width, image.height, &luminance)?;
+            volgrad::colormap::write_signed_png(png, image.width, image.height, &luminance)?;
         eprintln!(
             "wrote {} and {} (d pixel / d ε for the box {lo}..{hi}; full colour at ±{scale:.3e})",
             exr.display(),
