@@ -152,22 +152,6 @@ pub struct ShadowRay {
     pub contribution: Vec3,
 }
 
-/// Transmittance from world point `p` along unit `dir` to the medium's boundary.
-#[inline]
-pub fn transmittance_to_boundary(
-    scene: &Scene,
-    p: Vec3,
-    dir: Vec3,
-    rng: &mut impl Rng,
-    stats: &mut TrackingStats,
-) -> f32 {
-    let ray = scene.medium.to_index_ray(p, dir);
-    match scene.medium.intersect(&ray) {
-        Some((t0, t1)) => transmittance(&scene.medium, &ray, t0, t1, rng, stats),
-        None => 1.0,
-    }
-}
-
 /// Next-event estimation at a scattering point `p` reached along `dir`: the in-scattered radiance
 /// from all directional lights and one environment sample (MIS-weighted against phase sampling),
 /// before the albedo. With `shadows`, each shadow ray's contribution (times `throughput`) is kept.
@@ -231,8 +215,8 @@ pub fn direct_light(
 }
 
 /// Follows a path from `state` until it escapes, is absorbed by Russian roulette, or reaches
-/// `max_depth` scattering events; returns the radiance it carries back, relative to
-/// `state.throughput`'s starting point. With `record`, every segment is kept for the adjoint pass.
+/// `max_depth` scattering events; returns the radiance it carries back to `state.p`, weighted by
+/// `state.throughput`. With `record`, every segment is kept for the adjoint pass.
 pub fn trace(
     scene: &Scene,
     state: PathState,
@@ -346,8 +330,8 @@ pub fn trace_path(
     )
 }
 
-/// Renders the scene's camera view. Each pixel has its own random stream (seed, pixel), so the
-/// image does not depend on the number of threads.
+/// Renders the scene's camera view. Each path has its own random stream (seed, pixel, sample), so
+/// the image does not depend on the number of threads.
 pub fn render(scene: &Scene, options: &RenderOptions) -> (RgbImage, RenderStats) {
     let start = Instant::now();
     let camera = &scene.camera;

@@ -85,23 +85,6 @@ impl IndexTransform {
         let m = self.index_to_world.matrix3;
         DVec3::new(m.x_axis.length(), m.y_axis.length(), m.z_axis.length())
     }
-
-    /// The world-space axis-aligned box around an index-space box.
-    pub fn world_bounds(&self, lo: Vec3, hi: Vec3) -> (Vec3, Vec3) {
-        let mut min = Vec3::splat(f32::INFINITY);
-        let mut max = Vec3::splat(f32::NEG_INFINITY);
-        for corner in 0..8 {
-            let p = Vec3::new(
-                if corner & 1 == 0 { lo.x } else { hi.x },
-                if corner & 2 == 0 { lo.y } else { hi.y },
-                if corner & 4 == 0 { lo.z } else { hi.z },
-            );
-            let w = self.point_to_world(p);
-            min = min.min(w);
-            max = max.max(w);
-        }
-        (min, max)
-    }
 }
 
 #[cfg(test)]
