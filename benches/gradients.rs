@@ -9,7 +9,7 @@
 use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
-use volgrad::adjoint::{AdjointOptions, Estimator, Suffix};
+use volgrad::adjoint::Estimator;
 use volgrad::grad::{gradient, GradOptions};
 use volgrad::gradgrid::GradientGrid;
 use volgrad::image_io::RgbImage;
@@ -35,17 +35,8 @@ fn main() {
     let scene = Scene::load(&path).expect("bench scene loads");
     let (w, h) = (scene.camera.width, scene.camera.height);
     let adjoint = Loss::Mean.adjoint(&RgbImage::new(w, h), None);
-    let options = |estimator, seed| GradOptions {
-        adjoint: AdjointOptions {
-            estimator,
-            suffix: Suffix::PerPath,
-            max_depth: scene.settings.max_depth,
-        },
-        spp,
-        seed,
-        active_only: false,
-        progress: false,
-    };
+    let options =
+        |estimator, seed| GradOptions::new(estimator, spp, seed, scene.settings.max_depth);
     let estimators = [Estimator::Joint, Estimator::Drt, Estimator::Naive];
     println!(
         "scene {} at {w}×{h}, {spp} spp, {} threads, loss = mean",

@@ -100,6 +100,20 @@ impl BrickMap {
         map
     }
 
+    /// The `n`³ block of active voxels 0..n with values `f(voxel)`: test and example grids.
+    pub fn block(n: i32, f: impl Fn(IVec3) -> f32) -> BrickMap {
+        let mut b = BrickMapBuilder::new();
+        for x in 0..n {
+            for y in 0..n {
+                for z in 0..n {
+                    let v = IVec3::new(x, y, z);
+                    b.set(v, f(v), true);
+                }
+            }
+        }
+        b.build()
+    }
+
     pub fn leaves(&self) -> &[Leaf] {
         &self.leaves
     }

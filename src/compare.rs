@@ -28,7 +28,7 @@ use std::time::{Duration, Instant};
 use anyhow::{Context, Result};
 use glam::{IVec3, Vec3};
 
-use crate::adjoint::{AdjointOptions, Estimator, Suffix};
+use crate::adjoint::Estimator;
 use crate::brickmap::BrickMap;
 use crate::chart::{Chart, Series};
 use crate::fd;
@@ -59,20 +59,6 @@ fn mean_adjoint(scene: &Scene) -> Vec<Vec3> {
         &RgbImage::new(scene.camera.width, scene.camera.height),
         None,
     )
-}
-
-fn grad_options(estimator: Estimator, spp: u32, seed: u64, max_depth: u32) -> GradOptions {
-    GradOptions {
-        adjoint: AdjointOptions {
-            estimator,
-            suffix: Suffix::PerPath,
-            max_depth,
-        },
-        spp,
-        seed,
-        active_only: false,
-        progress: false,
-    }
 }
 
 /// Calls `f(v)` for every voxel of the parameter domain (active box plus the trilinear apron).
@@ -233,7 +219,7 @@ pub fn gradient_sweeps(
             let run = gradient(
                 scene,
                 &adjoint,
-                &grad_options(estimator, spp, seed, o.max_depth),
+                &GradOptions::new(estimator, spp, seed, o.max_depth),
             );
             let seconds = run.stats.wall.as_secs_f64();
             score(name, spp, seconds, &run.gradient, r, &scene.medium.grid)

@@ -7,7 +7,9 @@ use glam::{IVec3, Vec3};
 use rand::Rng;
 use rayon::prelude::*;
 
-use crate::adjoint::{camera_path_gradient, AdjointOptions, GradientSink, Scratch};
+use crate::adjoint::{
+    camera_path_gradient, AdjointOptions, Estimator, GradientSink, Scratch, Suffix,
+};
 use crate::brickmap::BrickMap;
 use crate::gradgrid::GradientGrid;
 use crate::image_io::RgbImage;
@@ -24,6 +26,24 @@ pub struct GradOptions {
     /// Keep only the grid's active voxels (`--domain active`).
     pub active_only: bool,
     pub progress: bool,
+}
+
+impl GradOptions {
+    /// Per-path suffixes over every voxel of the domain, without a progress bar: what tests,
+    /// benchmarks and comparisons use.
+    pub fn new(estimator: Estimator, spp: u32, seed: u64, max_depth: u32) -> Self {
+        GradOptions {
+            adjoint: AdjointOptions {
+                estimator,
+                suffix: Suffix::PerPath,
+                max_depth,
+            },
+            spp,
+            seed,
+            active_only: false,
+            progress: false,
+        }
+    }
 }
 
 pub struct GradientRun {

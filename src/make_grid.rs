@@ -1,6 +1,6 @@
 //! Small analytic grids for tests and examples, written as real .vdb files through the bridge.
 
-use glam::{DAffine3, DMat3, DVec3, IVec3};
+use glam::{DMat3, DVec3, IVec3};
 
 use crate::brickmap::BrickMapBuilder;
 use crate::transform::IndexTransform;
@@ -90,8 +90,7 @@ pub fn make_grid(spec: &GridSpec) -> anyhow::Result<Grid> {
         * DMat3::from_rotation_y(ry)
         * DMat3::from_rotation_x(rx)
         * DMat3::from_diagonal(DVec3::from(spec.voxel_size));
-    let transform =
-        IndexTransform::new(DAffine3::from_mat3_translation(linear, -(linear * centre)))?;
+    let transform = IndexTransform::centred(linear, centre)?;
     Ok(Grid {
         name: spec.name.clone(),
         grid_class: "fog volume".into(),

@@ -37,6 +37,12 @@ impl IndexTransform {
         })
     }
 
+    /// The linear map `linear` (voxel edges, rotation) placed so that index point `centre` lands on
+    /// the world origin.
+    pub fn centred(linear: DMat3, centre: DVec3) -> anyhow::Result<Self> {
+        Self::new(DAffine3::from_mat3_translation(linear, -(linear * centre)))
+    }
+
     /// Uniform voxels of edge `voxel_size`, voxel (0,0,0) centred at `origin`.
     pub fn uniform(voxel_size: f64, origin: DVec3) -> Self {
         Self::new(DAffine3::from_mat3_translation(

@@ -9,7 +9,7 @@ mod common;
 
 use common::*;
 use glam::{IVec3, Vec3};
-use volgrad::adjoint::{AdjointOptions, Estimator, Suffix};
+use volgrad::adjoint::{Estimator, Suffix};
 use volgrad::fd::{self, FdOptions};
 use volgrad::grad::{derivative_image, gradient, GradOptions};
 use volgrad::gradgrid::GradientGrid;
@@ -26,17 +26,7 @@ fn scene(filter: Filter, empty_voxels: bool, albedo: f32) -> Scene {
 
 /// Estimator runs and finite differences both use the scene's max_depth.
 fn options(scene: &Scene, estimator: Estimator, spp: u32, seed: u64) -> GradOptions {
-    GradOptions {
-        adjoint: AdjointOptions {
-            estimator,
-            suffix: Suffix::PerPath,
-            max_depth: scene.settings.max_depth,
-        },
-        spp,
-        seed,
-        active_only: false,
-        progress: false,
-    }
+    GradOptions::new(estimator, spp, seed, scene.settings.max_depth)
 }
 
 /// Gradients of the mean pixel value from `repeats` seeds.

@@ -6,10 +6,10 @@ use std::path::Path;
 use anyhow::{bail, Context, Result};
 use glam::IVec3;
 
-use super::{grad_options, mean_adjoint, mean_and_se, REFERENCE_SEED_OFFSET};
+use super::{mean_adjoint, mean_and_se, REFERENCE_SEED_OFFSET};
 use crate::adjoint::Estimator;
 use crate::fd::{self, FdOptions};
-use crate::grad::gradient;
+use crate::grad::{gradient, GradOptions};
 use crate::gradcheck::Check;
 use crate::gradgrid::GradientGrid;
 use crate::gradio::{self, Provenance};
@@ -55,7 +55,7 @@ pub fn build_reference(scene: &Scene, o: &ReferenceOptions) -> Reference {
         let g = gradient(
             scene,
             &adjoint,
-            &grad_options(estimator, o.spp, seed, o.max_depth),
+            &GradOptions::new(estimator, o.spp, seed, o.max_depth),
         )
         .gradient;
         sum.merge(&g, 1.0);

@@ -8,12 +8,12 @@ use std::fmt::Write as _;
 use anyhow::Result;
 use glam::{DMat3, DVec3, IVec3, Vec3};
 
-use super::{estimator_name, grad_options, mean_adjoint, mean_and_se, SWEEP_SEED_OFFSET};
+use super::{estimator_name, mean_adjoint, mean_and_se, SWEEP_SEED_OFFSET};
 use crate::adjoint::Estimator;
-use crate::brickmap::{BrickMap, BrickMapBuilder};
+use crate::brickmap::BrickMap;
 use crate::camera::Camera;
 use crate::fd::{self, FdOptions, FdResult};
-use crate::grad::gradient;
+use crate::grad::{gradient, GradOptions};
 use crate::gradcheck::Check;
 use crate::lights::{DirectionalLight, Environment, Lights};
 use crate::loss::Loss;
@@ -76,16 +76,7 @@ fn suite_scene(
 }
 
 fn block(f: impl Fn(IVec3) -> f32) -> BrickMap {
-    let mut b = BrickMapBuilder::new();
-    for x in 0..SUITE_N {
-        for y in 0..SUITE_N {
-            for z in 0..SUITE_N {
-                let v = IVec3::new(x, y, z);
-                b.set(v, f(v), true);
-            }
-        }
-    }
-    b.build()
+    BrickMap::block(SUITE_N, f)
 }
 
 fn lumpy(v: IVec3) -> f32 {
@@ -93,12 +84,8 @@ fn lumpy(v: IVec3) -> f32 {
 }
 
 fn centred(linear: DMat3) -> IndexTransform {
-    let centre = DVec3::splat((SUITE_N - 1) as f64 * 0.5);
-    IndexTransform::new(glam::DAffine3::from_mat3_translation(
-        linear,
-        -(linear * centre),
-    ))
-    .expect("an invertible transform")
+    IndexTransform::centred(linear, DVec3::splat((SUITE_N - 1) as f64 * 0.5))
+        .expect("an invertible transform")
 }
 
 /// Scenes built to break estimators. Optical depths are across the 6-voxel block.
@@ -292,7 +279,7 @@ pub fn stability(
                 let g = gradient(
                     scene,
                     &adjoint,
-                    &grad_options(estimator, o.spp, seed, o.max_depth),
+                    &GradOptions::new(estimator, o.spp, seed, o.max_depth),
                 )
                 .gradient;
                 non_finite += g.voxels().filter(|(_, x)| !x.is_finite()).count();

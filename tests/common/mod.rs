@@ -3,8 +3,8 @@
 
 use std::path::PathBuf;
 
-use glam::{DAffine3, DMat3, DVec3, IVec3, Vec3};
-use volgrad::brickmap::{BrickMap, BrickMapBuilder};
+use glam::{DMat3, DVec3, IVec3, Vec3};
+use volgrad::brickmap::BrickMap;
 use volgrad::camera::Camera;
 use volgrad::lights::{DirectionalLight, Environment, Lights};
 use volgrad::majorant::MajorantMode;
@@ -14,16 +14,7 @@ use volgrad::transform::IndexTransform;
 
 /// A grid of `n`³ voxels (0..n) whose values come from `f`.
 pub fn grid(n: i32, f: impl Fn(IVec3) -> f32) -> BrickMap {
-    let mut b = BrickMapBuilder::new();
-    for x in 0..n {
-        for y in 0..n {
-            for z in 0..n {
-                let v = IVec3::new(x, y, z);
-                b.set(v, f(v), true);
-            }
-        }
-    }
-    b.build()
+    BrickMap::block(n, f)
 }
 
 /// A uniform transform with voxel (0,0,0)... centred so that the `n`³ block sits around the origin.
@@ -32,8 +23,7 @@ pub fn centred(n: i32, voxel: f64) -> IndexTransform {
 }
 
 pub fn affine(linear: DMat3, n: i32) -> IndexTransform {
-    let centre = DVec3::splat((n - 1) as f64 * 0.5);
-    IndexTransform::new(DAffine3::from_mat3_translation(linear, -(linear * centre))).unwrap()
+    IndexTransform::centred(linear, DVec3::splat((n - 1) as f64 * 0.5)).unwrap()
 }
 
 pub struct SceneBuilder {
