@@ -1,8 +1,8 @@
-//! Builds the C++ half of the cxx bridge (`src/bridge.rs` <-> `cpp/bridge.cpp`) against the system
+//! Builds the C++ half of the cxx bridge (`src/io/bridge.rs` <-> `cpp/bridge.cpp`) against the system
 //! OpenVDB and OpenImageIO (Debian: libopenvdb-dev, libopenimageio-dev, libtbb-dev, libboost-dev).
 
 fn main() {
-    cxx_build::bridge("src/bridge.rs")
+    cxx_build::bridge("src/io/bridge.rs")
         .file("cpp/bridge.cpp")
         .std("c++17")
         .flag_if_supported("-O2")
@@ -16,7 +16,7 @@ fn main() {
     }
 
     println!("cargo:rerun-if-changed=build.rs");
-    println!("cargo:rerun-if-changed=src/bridge.rs");
+    println!("cargo:rerun-if-changed=src/io/bridge.rs");
     println!("cargo:rerun-if-changed=cpp/bridge.cpp");
     println!("cargo:rerun-if-changed=cpp/bridge.h");
 }

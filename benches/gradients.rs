@@ -9,13 +9,13 @@
 use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
-use volgrad::adjoint::Estimator;
-use volgrad::grad::{gradient, GradOptions};
-use volgrad::gradgrid::GradientGrid;
-use volgrad::image_io::RgbImage;
-use volgrad::loss::Loss;
-use volgrad::render::{render, RenderOptions};
-use volgrad::scene::Scene;
+use volgrad::gradient::adjoint::Estimator;
+use volgrad::gradient::passes::{gradient, GradOptions};
+use volgrad::gradient::grid::GradientGrid;
+use volgrad::io::images::RgbImage;
+use volgrad::gradient::loss::Loss;
+use volgrad::render::image::{render, RenderOptions};
+use volgrad::render::scene::Scene;
 
 fn env(name: &str, default: u64) -> u64 {
     std::env::var(name)

@@ -5,9 +5,9 @@
 
 use std::path::PathBuf;
 
-use volgrad::majorant::MajorantMode;
-use volgrad::render::{render, RenderOptions, RenderStats};
-use volgrad::scene::Scene;
+use volgrad::volume::majorant::MajorantMode;
+use volgrad::render::image::{render, RenderOptions, RenderStats};
+use volgrad::render::scene::Scene;
 
 fn run(scene: &mut Scene, mode: MajorantMode, spp: u32) -> RenderStats {
     scene.set_majorant(mode);

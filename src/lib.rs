@@ -1,34 +1,14 @@
 //! volgrad: a differentiable volumetric path tracer for OpenVDB density grids.
 //!
-//! Data flows `.vdb → vdb (bridge) → brickmap → medium + majorant → render → image_io`; gradients
-//! replay the renderer's paths (`adjoint`), accumulate per voxel (`grad`, `gradgrid`) and go back
-//! out through `vdb`. `fd` is the finite-difference reference.
+//! Layers, each using only those before it: `volume` (bricks, majorants, tracking) < `io` (files
+//! and the terminal) < `render` (scenes and the path tracer) < `gradient` (path replay, passes,
+//! finite differences) < `compare` (equal-time studies). The binary's `cli` sits on top.
 
-pub mod adjoint;
-pub mod brickmap;
-pub mod bridge;
-pub mod camera;
-pub mod chart;
-pub mod colormap;
 pub mod compare;
-pub mod fd;
-pub mod grad;
-pub mod gradcheck;
-pub mod gradgrid;
-pub mod gradio;
-pub mod image_io;
-pub mod lights;
-pub mod loss;
-pub mod majorant;
-pub mod make_grid;
-pub mod medium;
-pub mod progress;
+pub mod gradient;
+pub mod io;
 pub mod render;
-pub mod sampling;
-pub mod scene;
-pub mod tracking;
-pub mod transform;
-pub mod vdb;
+pub mod volume;
 
 use std::path::Path;
 

@@ -8,20 +8,20 @@ use anyhow::{bail, Context, Result};
 use clap::{Args, Parser, Subcommand, ValueEnum};
 
 use glam::IVec3;
-use volgrad::adjoint::{AdjointOptions, Estimator, Suffix};
-use volgrad::brickmap::BRICK_VOXELS;
+use volgrad::gradient::adjoint::{AdjointOptions, Estimator, Suffix};
+use volgrad::volume::brickmap::BRICK_VOXELS;
 use volgrad::compare;
-use volgrad::fd::{self, FdOptions};
-use volgrad::grad::{derivative_image, gradient, GradOptions};
-use volgrad::gradcheck::{gradcheck, GradcheckOptions, Z_LIMIT};
-use volgrad::gradio::{self, Provenance};
-use volgrad::image_io;
-use volgrad::loss::Loss;
-use volgrad::majorant::MajorantMode;
-use volgrad::make_grid::{make_grid, GridKind, GridSpec};
-use volgrad::render::{render, RenderOptions, RenderStats};
-use volgrad::scene::{MajorantName, Scene};
-use volgrad::vdb;
+use volgrad::gradient::fd::{self, FdOptions};
+use volgrad::gradient::passes::{derivative_image, gradient, GradOptions};
+use volgrad::gradient::gradcheck::{gradcheck, GradcheckOptions, Z_LIMIT};
+use volgrad::io::gradient_files::{self, Provenance};
+use volgrad::io::images;
+use volgrad::gradient::loss::Loss;
+use volgrad::volume::majorant::MajorantMode;
+use volgrad::io::make_grid::{make_grid, GridKind, GridSpec};
+use volgrad::render::image::{render, RenderOptions, RenderStats};
+use volgrad::render::scene::{MajorantName, Scene};
+use volgrad::io::vdb;
 
 #[derive(Parser)]
 #[command(
@@ -537,8 +537,8 @@ fn render_command(args: &RenderArgs) -> Result<()> {
         bail!("--spp must be at least 1");
     }
     let (image, stats) = render(&scene, &options);
-    image_io::write_exr(&exr, &image, args.half)?;
-    image_io::write_png(&png, &image, scene.settings.exposure)?;
+    images::write_exr(&exr, &image, args.half)?;
+    images::write_png(&png, &image, scene.settings.exposure)?;
     eprintln!("wrote {} and {}", exr.display(), png.display());
     if args.stats {
         print_stats(&scene, &stats);
@@ -684,10 +684,10 @@ fn fd_options(
 }
 
 /// The target image of a loss, checked against the scene's resolution.
-fn load_target(args: &GradArgs, scene: &Scene) -> Result<Option<image_io::RgbImage>> {
+fn load_target(args: &GradArgs, scene: &Scene) -> Result<Option<images::RgbImage>> {
     let target = match (&args.target, &args.target_scene) {
         (Some(path), _) => Some(
-            image_io::read_rgb(path).with_context(|| format!("--target '{}'", path.display()))?,
+            images::read_rgb(path).with_context(|| format!("--target '{}'", path.display()))?,
         ),
         (None, Some(path)) => {
             let other = Scene::load(path)
@@ -788,7 +788,7 @@ fn grad_command(args: &GradArgs) -> Result<()> {
         );
         args.loss.adjoint(&primal, target.as_ref())
     } else {
-        let blank = image_io::RgbImage::new(scene.camera.width, scene.camera.height);
+        let blank = images::RgbImage::new(scene.camera.width, scene.camera.height);
         args.loss.adjoint(&blank, None)
     };
     let run = gradient(&scene, &adjoint, &options);
@@ -799,7 +799,7 @@ fn grad_command(args: &GradArgs) -> Result<()> {
         loss: args.loss.name().into(),
         scene: args.scene.display().to_string(),
     };
-    let grid = gradio::gradient_grid(
+    let grid = gradient_files::gradient_grid(
         &run.gradient,
         &scene.grid_name,
         scene.medium.transform,
@@ -807,7 +807,7 @@ fn grad_command(args: &GradArgs) -> Result<()> {
     );
     vdb::write_grids(&vdb_out, &[&grid], false, args.force)?;
     let png = vdb_out.with_extension("png");
-    let scale = gradio::write_projection_png(&png, &grid)?;
+    let scale = gradient_files::write_projection_png(&png, &grid)?;
     eprintln!(
         "wrote {} (grid {}, {} voxels with gradient, ⟨g, 1⟩ = {:.6e}) and {} (sum along index z; full colour at ±{:.3e})",
         vdb_out.display(),
@@ -821,14 +821,14 @@ fn grad_command(args: &GradArgs) -> Result<()> {
         let (image, _) = derivative_image(&scene, lo, hi, &options);
         let outputs = gradient_outputs(&vdb_out, true);
         let (exr, png) = (&outputs[2], &outputs[3]);
-        image_io::write_exr(exr, &image, false)?;
+        images::write_exr(exr, &image, false)?;
         let luminance: Vec<f32> = image
             .pixels
             .iter()
-            .map(|&c| volgrad::lights::luminance(c))
+            .map(|&c| volgrad::render::lights::luminance(c))
             .collect();
         let scale =
-            volgrad::colormap::write_signed_png(png, image.width, image.height, &luminance)?;
+            volgrad::io::colormap::write_signed_png(png, image.width, image.height, &luminance)?;
         eprintln!(
             "wrote {} and {} (d pixel / d ε for the box {lo}..{hi}; full colour at ±{scale:.3e})",
             exr.display(),
@@ -889,7 +889,7 @@ fn parse_fd_direction(
     })
 }
 
-fn fd_command(args: &GradArgs, scene: &Scene, target: Option<&image_io::RgbImage>) -> Result<()> {
+fn fd_command(args: &GradArgs, scene: &Scene, target: Option<&images::RgbImage>) -> Result<()> {
     let spec = args
         .fd
         .as_deref()
@@ -910,7 +910,7 @@ fn fd_command(args: &GradArgs, scene: &Scene, target: Option<&image_io::RgbImage
         options.spp,
         options.repeats
     );
-    let bar = volgrad::progress::bar(!args.adjoint.quiet, directions.len() as u64, "fd");
+    let bar = volgrad::io::progress::bar(!args.adjoint.quiet, directions.len() as u64, "fd");
     for (name, direction) in directions {
         let mut options = options;
         options.eps = args
@@ -995,7 +995,7 @@ fn gradcheck_command(args: &GradcheckArgs) -> Result<()> {
 
 fn merge_command(inputs: &[PathBuf], output: &Path, force: bool) -> Result<()> {
     let paths: Vec<&Path> = inputs.iter().map(|p| p.as_path()).collect();
-    let grid = gradio::merge(&paths)?;
+    let grid = gradient_files::merge(&paths)?;
     vdb::write_grids(output, &[&grid], false, force)?;
     eprintln!("wrote {} ({} inputs)", output.display(), inputs.len());
     Ok(())

@@ -1,4 +1,4 @@
-//! Integration tests of the C++ bridge (`cpp/bridge.cpp`) through `volgrad::bridge::ffi`: the facts
+//! Integration tests of the C++ bridge (`cpp/bridge.cpp`) through `volgrad::io::bridge::ffi`: the facts
 //! of the bundled OpenVDB assets, float-grid round trips, error messages, and images checked with
 //! independent pure-Rust decoders (`exr`, `image`).
 
@@ -6,7 +6,7 @@ use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
 use exr::prelude::f16;
-use volgrad::bridge::ffi::{self, FloatGridData, GridSummary, ImageData, MetaEntry};
+use volgrad::io::bridge::ffi::{self, FloatGridData, GridSummary, ImageData, MetaEntry};
 
 fn asset(name: &str) -> String {
     format!("{}/scenes/assets/{}", env!("CARGO_MANIFEST_DIR"), name)

@@ -159,7 +159,7 @@ fn render_writes_exr_and_srgb_png_that_independent_decoders_read() {
     for (i, lin) in linear.iter().enumerate() {
         let px = png.get_pixel(i as u32 % 24, i as u32 / 24);
         for c in 0..3 {
-            let expected = volgrad::image_io::srgb_encode(lin[c]) * 255.0;
+            let expected = volgrad::io::images::srgb_encode(lin[c]) * 255.0;
             assert!(
                 (px[c] as f32 - expected).abs() <= 1.0,
                 "pixel {i} channel {c}: {} vs {expected}",
@@ -208,7 +208,7 @@ fn the_same_seed_renders_the_same_file_for_any_thread_count() {
             "11",
         ]);
         assert!(o.status.success(), "{}", stderr(&o));
-        files.push(volgrad::image_io::read_rgb(&exr).unwrap());
+        files.push(volgrad::io::images::read_rgb(&exr).unwrap());
     }
     assert_eq!(files[0], files[1]);
 }
@@ -253,7 +253,7 @@ fn every_sample_asset_renders() {
             "--quiet",
         ]);
         assert!(o.status.success(), "{vdb}: {}", stderr(&o));
-        let image = volgrad::image_io::read_rgb(&out).unwrap();
+        let image = volgrad::io::images::read_rgb(&out).unwrap();
         let min = image
             .pixels
             .iter()
@@ -268,7 +268,7 @@ fn every_sample_asset_renders() {
 
 /// World bounding box of grid `index`, as `info` prints it.
 fn world_box(vdb: &str, index: usize) -> ([f64; 3], [f64; 3]) {
-    let s = volgrad::vdb::list_grids(Path::new(vdb)).unwrap();
+    let s = volgrad::io::vdb::list_grids(Path::new(vdb)).unwrap();
     (s[index].world_min, s[index].world_max)
 }
 
@@ -292,7 +292,7 @@ fn make_grid_writes_every_kind_and_refuses_to_overwrite() {
             "3",
         ]);
         assert!(o.status.success(), "{kind}: {}", stderr(&o));
-        let g = volgrad::vdb::list_grids(&path).unwrap();
+        let g = volgrad::io::vdb::list_grids(&path).unwrap();
         assert_eq!(g[0].active_voxels, active, "{kind}");
         assert_eq!(g[0].name, "density");
     }
@@ -310,7 +310,7 @@ fn make_grid_writes_every_kind_and_refuses_to_overwrite() {
         path.to_str().unwrap(),
     ]);
     assert!(o.status.success(), "{}", stderr(&o));
-    let g = &volgrad::vdb::list_grids(&path).unwrap()[0];
+    let g = &volgrad::io::vdb::list_grids(&path).unwrap()[0];
     assert!(!g.axis_aligned);
     assert!((g.voxel_size[1] - 2.0).abs() < 1e-9);
     assert_clean_error(
@@ -490,12 +490,12 @@ fn an_envmap_light_from_an_exr_file_passes_the_white_furnace() {
     // A constant lat-long map and albedo 1: whatever the medium does, every pixel sees the map's
     // radiance. Exercises the scene's envmap loading (OpenImageIO) and its importance sampling.
     let dir = tempfile::tempdir().unwrap();
-    let sky = volgrad::image_io::RgbImage {
+    let sky = volgrad::io::images::RgbImage {
         width: 32,
         height: 16,
         pixels: vec![glam::Vec3::new(0.5, 0.25, 1.0); 32 * 16],
     };
-    volgrad::image_io::write_exr(&dir.path().join("sky.exr"), &sky, false).unwrap();
+    volgrad::io::images::write_exr(&dir.path().join("sky.exr"), &sky, false).unwrap();
     let scene = tiny_scene(dir.path(), "", "");
     let text = std::fs::read_to_string(&scene).unwrap();
     let text = text
@@ -519,19 +519,19 @@ fn an_envmap_light_from_an_exr_file_passes_the_white_furnace() {
         "--quiet",
     ]);
     assert!(o.status.success(), "{}", stderr(&o));
-    let mean = volgrad::image_io::read_rgb(&out).unwrap().mean();
+    let mean = volgrad::io::images::read_rgb(&out).unwrap().mean();
     assert!(
         (mean - glam::Vec3::new(0.5, 0.25, 1.0)).abs().max_element() < 0.01,
         "mean {mean}"
     );
 
     // A map with negative radiance is refused, naming the light.
-    let bad = volgrad::image_io::RgbImage {
+    let bad = volgrad::io::images::RgbImage {
         width: 2,
         height: 1,
         pixels: vec![glam::Vec3::splat(-1.0); 2],
     };
-    volgrad::image_io::write_exr(&dir.path().join("sky.exr"), &bad, false).unwrap();
+    volgrad::io::images::write_exr(&dir.path().join("sky.exr"), &bad, false).unwrap();
     assert_clean_error(
         &volgrad(&[
             "render",

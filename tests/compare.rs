@@ -7,12 +7,12 @@ mod common;
 use std::time::Duration;
 
 use common::*;
-use volgrad::adjoint::Estimator;
+use volgrad::gradient::adjoint::Estimator;
 use volgrad::compare::{self, Reference, ReferenceOptions, Row, StabilityOptions, SweepOptions};
-use volgrad::fd::FdOptions;
-use volgrad::loss::Loss;
-use volgrad::medium::Filter;
-use volgrad::scene::Scene;
+use volgrad::gradient::fd::FdOptions;
+use volgrad::gradient::loss::Loss;
+use volgrad::volume::medium::Filter;
+use volgrad::render::scene::Scene;
 
 const N: i32 = 6;
 

@@ -6,12 +6,12 @@ mod common;
 use common::*;
 use glam::{DMat3, DVec3, IVec3, Vec3};
 use rand::Rng;
-use volgrad::lights::{DirectionalLight, EnvMap, Environment};
-use volgrad::majorant::MajorantMode;
-use volgrad::medium::Filter;
-use volgrad::render::{render, RenderOptions};
-use volgrad::sampling::pixel_rng;
-use volgrad::tracking::{transmittance, TrackingStats};
+use volgrad::render::lights::{DirectionalLight, EnvMap, Environment};
+use volgrad::volume::majorant::MajorantMode;
+use volgrad::volume::medium::Filter;
+use volgrad::render::image::{render, RenderOptions};
+use volgrad::render::sampling::pixel_rng;
+use volgrad::volume::tracking::{transmittance, TrackingStats};
 
 const GRID8: MajorantMode = MajorantMode::Grid { cell_voxels: 8 };
 const GRID4: MajorantMode = MajorantMode::Grid { cell_voxels: 4 };
@@ -26,7 +26,7 @@ fn options(spp: u32, max_depth: u32) -> RenderOptions {
 }
 
 /// A lumpy ball: values vary smoothly inside and drop to empty voxels outside.
-fn lumpy_ball(n: i32) -> volgrad::brickmap::BrickMap {
+fn lumpy_ball(n: i32) -> volgrad::volume::brickmap::BrickMap {
     let c = (n - 1) as f32 * 0.5;
     grid(n, |v| {
         let d = (v.as_vec3() - c).length() / c;
@@ -244,7 +244,7 @@ fn nearest_and_trilinear_agree_on_constant_data_with_its_apron() {
     // With the inactive apron voxels holding the same value, both filters see the same σ at every
     // point of the medium, so the renders match exactly (same random numbers, same decisions).
     let n = 10;
-    let mut b = volgrad::brickmap::BrickMapBuilder::new();
+    let mut b = volgrad::volume::brickmap::BrickMapBuilder::new();
     for x in -1..=n {
         for y in -1..=n {
             for z in -1..=n {
@@ -272,7 +272,7 @@ fn nearest_and_trilinear_agree_on_constant_data_with_its_apron() {
     assert_eq!(a, c);
 }
 
-fn b_clone(b: &volgrad::brickmap::BrickMapBuilder) -> volgrad::brickmap::BrickMap {
+fn b_clone(b: &volgrad::volume::brickmap::BrickMapBuilder) -> volgrad::volume::brickmap::BrickMap {
     b.clone().build()
 }
 
@@ -280,12 +280,12 @@ fn b_clone(b: &volgrad::brickmap::BrickMapBuilder) -> volgrad::brickmap::BrickMa
 /// world space, stored with a rotated, anisotropic transform.
 fn rotated_pair() -> (
     (
-        volgrad::brickmap::BrickMap,
-        volgrad::transform::IndexTransform,
+        volgrad::volume::brickmap::BrickMap,
+        volgrad::volume::transform::IndexTransform,
     ),
     (
-        volgrad::brickmap::BrickMap,
-        volgrad::transform::IndexTransform,
+        volgrad::volume::brickmap::BrickMap,
+        volgrad::volume::transform::IndexTransform,
     ),
 ) {
     let n = 12;

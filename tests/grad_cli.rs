@@ -4,7 +4,7 @@ use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
 use glam::IVec3;
-use volgrad::vdb::{self, GridSelector};
+use volgrad::io::vdb::{self, GridSelector};
 
 fn volgrad(args: &[&str]) -> Output {
     Command::new(env!("CARGO_BIN_EXE_volgrad"))

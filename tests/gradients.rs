@@ -9,14 +9,14 @@ mod common;
 
 use common::*;
 use glam::{IVec3, Vec3};
-use volgrad::adjoint::{Estimator, Suffix};
-use volgrad::fd::{self, FdOptions};
-use volgrad::grad::{derivative_image, gradient, GradOptions};
-use volgrad::gradgrid::GradientGrid;
-use volgrad::loss::Loss;
-use volgrad::majorant::MajorantMode;
-use volgrad::medium::Filter;
-use volgrad::scene::Scene;
+use volgrad::gradient::adjoint::{Estimator, Suffix};
+use volgrad::gradient::fd::{self, FdOptions};
+use volgrad::gradient::passes::{derivative_image, gradient, GradOptions};
+use volgrad::gradient::grid::GradientGrid;
+use volgrad::gradient::loss::Loss;
+use volgrad::volume::majorant::MajorantMode;
+use volgrad::volume::medium::Filter;
+use volgrad::render::scene::Scene;
 
 const N: i32 = 6;
 
@@ -32,7 +32,7 @@ fn options(scene: &Scene, estimator: Estimator, spp: u32, seed: u64) -> GradOpti
 /// Gradients of the mean pixel value from `repeats` seeds.
 fn runs(scene: &Scene, estimator: Estimator, spp: u32, repeats: u64) -> Vec<GradientGrid> {
     let adjoint = Loss::Mean.adjoint(
-        &volgrad::image_io::RgbImage::new(scene.camera.width, scene.camera.height),
+        &volgrad::io::images::RgbImage::new(scene.camera.width, scene.camera.height),
         None,
     );
     (0..repeats)
@@ -140,7 +140,7 @@ fn joint_and_drt_agree_with_finite_differences() {
 fn per_segment_suffixes_agree_with_per_path_ones_and_with_fd() {
     let scene = scene(Filter::Trilinear, true, 0.9);
     let fd_all = fd_along(&scene, &fd::ones(&all_voxels(&scene)));
-    let adjoint = Loss::Mean.adjoint(&volgrad::image_io::RgbImage::new(8, 8), None);
+    let adjoint = Loss::Mean.adjoint(&volgrad::io::images::RgbImage::new(8, 8), None);
     let run = |suffix| -> Vec<GradientGrid> {
         (0..8)
             .map(|r| {

@@ -7,15 +7,15 @@ use anyhow::{bail, Context, Result};
 use glam::IVec3;
 
 use super::{mean_adjoint, mean_and_se, REFERENCE_SEED_OFFSET};
-use crate::adjoint::Estimator;
-use crate::fd::{self, FdOptions};
-use crate::grad::{gradient, GradOptions};
-use crate::gradcheck::Check;
-use crate::gradgrid::GradientGrid;
-use crate::gradio::{self, Provenance};
-use crate::loss::Loss;
-use crate::scene::Scene;
-use crate::vdb::{self, meta, GridSelector};
+use crate::gradient::adjoint::Estimator;
+use crate::gradient::fd::{self, FdOptions};
+use crate::gradient::passes::{gradient, GradOptions};
+use crate::gradient::gradcheck::Check;
+use crate::gradient::grid::GradientGrid;
+use crate::io::gradient_files::{self, Provenance};
+use crate::gradient::loss::Loss;
+use crate::render::scene::Scene;
+use crate::io::vdb::{self, meta, GridSelector};
 
 pub struct Reference {
     pub mean: GradientGrid,
@@ -44,7 +44,7 @@ pub fn build_reference(scene: &Scene, o: &ReferenceOptions) -> Reference {
     let mut squares = sum.empty_like();
     let mut totals = Vec::new();
     let runs = 2 * o.seeds.max(1);
-    let bar = crate::progress::bar(o.progress, runs as u64, "reference");
+    let bar = crate::io::progress::bar(o.progress, runs as u64, "reference");
     for r in 0..runs {
         let estimator = if r % 2 == 0 {
             Estimator::Joint
@@ -108,9 +108,9 @@ pub fn save_reference(path: &Path, scene: &Scene, r: &Reference, overwrite: bool
         meta("volgrad_reference_runs", "int64", r.runs),
         meta("volgrad_reference_spp", "int64", r.spp_per_run),
     ];
-    let mut mean = gradio::gradient_grid(&r.mean, &scene.grid_name, transform, &provenance);
+    let mut mean = gradient_files::gradient_grid(&r.mean, &scene.grid_name, transform, &provenance);
     mean.metadata.extend(extra.iter().cloned());
-    let mut se = gradio::gradient_grid(&r.stderr, &scene.grid_name, transform, &provenance);
+    let mut se = gradient_files::gradient_grid(&r.stderr, &scene.grid_name, transform, &provenance);
     se.name = format!("grad_{}_stderr", scene.grid_name);
     se.metadata.extend(extra.iter().cloned());
     vdb::write_grids(path, &[&mean, &se], false, overwrite)

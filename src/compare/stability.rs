@@ -9,18 +9,18 @@ use anyhow::Result;
 use glam::{DMat3, DVec3, IVec3, Vec3};
 
 use super::{estimator_name, mean_adjoint, mean_and_se, SWEEP_SEED_OFFSET};
-use crate::adjoint::Estimator;
-use crate::brickmap::BrickMap;
-use crate::camera::Camera;
-use crate::fd::{self, FdOptions, FdResult};
-use crate::grad::{gradient, GradOptions};
-use crate::gradcheck::Check;
-use crate::lights::{DirectionalLight, Environment, Lights};
-use crate::loss::Loss;
-use crate::majorant::MajorantMode;
-use crate::medium::{Filter, Medium};
-use crate::scene::{RenderFile, Scene};
-use crate::transform::IndexTransform;
+use crate::gradient::adjoint::Estimator;
+use crate::volume::brickmap::BrickMap;
+use crate::render::camera::Camera;
+use crate::gradient::fd::{self, FdOptions, FdResult};
+use crate::gradient::passes::{gradient, GradOptions};
+use crate::gradient::gradcheck::Check;
+use crate::render::lights::{DirectionalLight, Environment, Lights};
+use crate::gradient::loss::Loss;
+use crate::volume::majorant::MajorantMode;
+use crate::volume::medium::{Filter, Medium};
+use crate::render::scene::{RenderFile, Scene};
+use crate::volume::transform::IndexTransform;
 
 pub struct StabilityScene {
     pub name: &'static str,
@@ -233,7 +233,7 @@ pub fn stability(
     o: &StabilityOptions,
 ) -> Result<Vec<StabilityRow>> {
     let mut rows = Vec::new();
-    let bar = crate::progress::bar(
+    let bar = crate::io::progress::bar(
         o.progress,
         (scenes.len() * (estimators.len() + 1)) as u64,
         "stability",

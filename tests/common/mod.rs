@@ -4,13 +4,13 @@
 use std::path::PathBuf;
 
 use glam::{DMat3, DVec3, IVec3, Vec3};
-use volgrad::brickmap::BrickMap;
-use volgrad::camera::Camera;
-use volgrad::lights::{DirectionalLight, Environment, Lights};
-use volgrad::majorant::MajorantMode;
-use volgrad::medium::{Filter, Medium};
-use volgrad::scene::{RenderFile, Scene};
-use volgrad::transform::IndexTransform;
+use volgrad::volume::brickmap::BrickMap;
+use volgrad::render::camera::Camera;
+use volgrad::render::lights::{DirectionalLight, Environment, Lights};
+use volgrad::volume::majorant::MajorantMode;
+use volgrad::volume::medium::{Filter, Medium};
+use volgrad::render::scene::{RenderFile, Scene};
+use volgrad::volume::transform::IndexTransform;
 
 /// A grid of `n`³ voxels (0..n) whose values come from `f`.
 pub fn grid(n: i32, f: impl Fn(IVec3) -> f32) -> BrickMap {

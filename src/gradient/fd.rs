@@ -17,13 +17,13 @@
 use glam::IVec3;
 use rand::Rng;
 
-use crate::brickmap::BrickMap;
-use crate::image_io::RgbImage;
-use crate::loss::Loss;
-use crate::majorant::MajorantGrid;
-use crate::render::{render, RenderOptions};
-use crate::sampling::pixel_rng;
-use crate::scene::Scene;
+use crate::volume::brickmap::BrickMap;
+use crate::io::images::RgbImage;
+use crate::gradient::loss::Loss;
+use crate::volume::majorant::MajorantGrid;
+use crate::render::image::{render, RenderOptions};
+use crate::render::sampling::pixel_rng;
+use crate::render::scene::Scene;
 
 /// A sparse direction in parameter space.
 pub type Direction = Vec<(IVec3, f32)>;

@@ -7,7 +7,7 @@
 
 use rand::Rng;
 
-use crate::medium::{IndexRay, Medium};
+use crate::volume::medium::{IndexRay, Medium};
 
 /// Counters kept per thread and summed once at the end.
 #[derive(Debug, Default, Clone, Copy)]

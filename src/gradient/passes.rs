@@ -7,16 +7,16 @@ use glam::{IVec3, Vec3};
 use rand::Rng;
 use rayon::prelude::*;
 
-use crate::adjoint::{
+use crate::gradient::adjoint::{
     camera_path_gradient, AdjointOptions, Estimator, GradientSink, Scratch, Suffix,
 };
-use crate::brickmap::BrickMap;
-use crate::gradgrid::GradientGrid;
-use crate::image_io::RgbImage;
-use crate::render::RenderStats;
-use crate::sampling::{sample_rng, Pass};
-use crate::scene::Scene;
-use crate::tracking::TrackingStats;
+use crate::volume::brickmap::BrickMap;
+use crate::gradient::grid::GradientGrid;
+use crate::io::images::RgbImage;
+use crate::render::image::RenderStats;
+use crate::render::sampling::{sample_rng, Pass};
+use crate::render::scene::Scene;
+use crate::volume::tracking::TrackingStats;
 
 #[derive(Debug, Clone, Copy)]
 pub struct GradOptions {
@@ -77,7 +77,7 @@ impl GradientSink for GridSink<'_> {
                 .add_cell(base, weights, self.weight.dot(d_pixel) as f64),
             Some(_) => {
                 for (k, &w) in weights.iter().enumerate() {
-                    self.add(base + crate::brickmap::corner(k), d_pixel * w);
+                    self.add(base + crate::volume::brickmap::corner(k), d_pixel * w);
                 }
             }
         }
@@ -110,7 +110,7 @@ fn over_pixels<T: Send>(
     per_pixel: impl Fn(&mut T, u32, u32, &mut TrackingStats, &mut Scratch) + Sync + Send,
 ) -> (Vec<T>, TrackingStats) {
     let (w, h) = (scene.camera.width, scene.camera.height);
-    let bar = crate::progress::bar(progress, h as u64, what);
+    let bar = crate::io::progress::bar(progress, h as u64, what);
     // A few row bands per thread: enough to balance the load, few enough that the per-band
     // accumulators (whole gradient grids) stay cheap to allocate and merge.
     let band = h.div_ceil(4 * rayon::current_num_threads() as u32).max(1) as usize;

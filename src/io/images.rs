@@ -5,8 +5,8 @@ use std::path::Path;
 use anyhow::{anyhow, Result};
 use glam::Vec3;
 
-use crate::bridge::ffi;
-use crate::bridge::ImageData;
+use crate::io::bridge::ffi;
+use crate::io::bridge::ImageData;
 
 /// A linear RGB image, rows top to bottom.
 #[derive(Debug, Clone, PartialEq)]

@@ -6,7 +6,7 @@ use std::path::Path;
 
 use glam::Vec3;
 
-use crate::image_io::{write_png, RgbImage};
+use crate::io::images::{write_png, RgbImage};
 
 /// Linear RGB for `x` in [−1, 1]: blue (negative) through white (0) to red (positive).
 pub fn diverging(x: f32) -> Vec3 {

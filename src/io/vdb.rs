@@ -5,10 +5,10 @@ use std::path::Path;
 use anyhow::{anyhow, bail, Result};
 use glam::IVec3;
 
-use crate::brickmap::{BrickMap, Leaf, Tile, BRICK_VOXELS};
-use crate::bridge::ffi;
-use crate::bridge::{FloatGridData, GridSummary, MetaEntry};
-use crate::transform::IndexTransform;
+use crate::volume::brickmap::{BrickMap, Leaf, Tile, BRICK_VOXELS};
+use crate::io::bridge::ffi;
+use crate::io::bridge::{FloatGridData, GridSummary, MetaEntry};
+use crate::volume::transform::IndexTransform;
 
 /// Which grid of a file to read.
 #[derive(Debug, Clone, PartialEq, Eq)]

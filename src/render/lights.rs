@@ -5,7 +5,7 @@ use std::f32::consts::PI;
 
 use glam::Vec3;
 
-use crate::sampling::{uniform_sphere, Distribution1D, UNIFORM_SPHERE_PDF};
+use crate::render::sampling::{uniform_sphere, Distribution1D, UNIFORM_SPHERE_PDF};
 
 /// A lat-long environment map, y up, in Mitsuba 3's orientation: u = atan2(x, −z)/2π, v = θ/π with
 /// θ measured from +y. Texels are piecewise constant, and so is the sampling density.
@@ -158,7 +158,7 @@ pub struct Lights {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::sampling::pixel_rng;
+    use crate::render::sampling::pixel_rng;
     use rand::Rng;
 
     #[test]

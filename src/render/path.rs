@@ -1,60 +1,15 @@
 //! The forward renderer: a volumetric path tracer with delta tracking, next-event estimation at
 //! every real collision, and MIS between environment sampling and phase sampling.
 
-use std::time::{Duration, Instant};
-
 use glam::Vec3;
 use rand::Rng;
-use rayon::prelude::*;
 
-use crate::image_io::RgbImage;
-use crate::sampling::{power_heuristic, sample_rng, HenyeyGreenstein, Pass};
-use crate::scene::Scene;
-use crate::tracking::{sample_collision, transmittance, TrackingStats};
+use crate::render::sampling::{power_heuristic, HenyeyGreenstein};
+use crate::render::scene::Scene;
+use crate::volume::tracking::{sample_collision, transmittance, TrackingStats};
 
 /// Paths are terminated by Russian roulette on their throughput from this depth on.
 const RR_START_DEPTH: u32 = 3;
-const TILE: u32 = 16;
-
-#[derive(Debug, Clone, Copy)]
-pub struct RenderOptions {
-    pub spp: u32,
-    pub seed: u64,
-    pub max_depth: u32,
-    /// Show a progress bar on stderr.
-    pub progress: bool,
-}
-
-impl RenderOptions {
-    pub fn from_scene(scene: &Scene) -> Self {
-        RenderOptions {
-            spp: scene.settings.spp,
-            seed: scene.settings.seed,
-            max_depth: scene.settings.max_depth,
-            progress: false,
-        }
-    }
-}
-
-#[derive(Debug, Default, Clone, Copy)]
-pub struct RenderStats {
-    pub paths: u64,
-    pub wall: Duration,
-    pub tracking: TrackingStats,
-}
-
-impl RenderStats {
-    pub fn paths_per_second(&self) -> f64 {
-        self.paths as f64 / self.wall.as_secs_f64().max(1e-9)
-    }
-    pub fn lookups_per_path(&self) -> f64 {
-        (self.tracking.lookups + self.tracking.shadow_lookups) as f64 / self.paths.max(1) as f64
-    }
-    /// Real collisions per density lookup made by free-flight sampling (1 is ideal).
-    pub fn tracking_efficiency(&self) -> f64 {
-        self.tracking.collisions as f64 / self.tracking.lookups.max(1) as f64
-    }
-}
 
 /// The random numbers of one light sample, drawn before they are used so that callers can evaluate
 /// the same light sample at several points.
@@ -330,59 +285,3 @@ pub fn trace_path(
     )
 }
 
-/// Renders the scene's camera view. Each path has its own random stream (seed, pixel, sample), so
-/// the image does not depend on the number of threads.
-pub fn render(scene: &Scene, options: &RenderOptions) -> (RgbImage, RenderStats) {
-    let start = Instant::now();
-    let camera = &scene.camera;
-    let (w, h) = (camera.width, camera.height);
-    let tiles: Vec<(u32, u32)> = (0..h.div_ceil(TILE))
-        .flat_map(|ty| (0..w.div_ceil(TILE)).map(move |tx| (tx * TILE, ty * TILE)))
-        .collect();
-    let progress = crate::progress::bar(options.progress, tiles.len() as u64, "rendering");
-    let results: Vec<((u32, u32), Vec<Vec3>, TrackingStats)> = tiles
-        .par_iter()
-        .map(|&(x0, y0)| {
-            let mut stats = TrackingStats::default();
-            let mut pixels = Vec::with_capacity((TILE * TILE) as usize);
-            for y in y0..(y0 + TILE).min(h) {
-                for x in x0..(x0 + TILE).min(w) {
-                    let mut sum = Vec3::ZERO;
-                    for sample in 0..options.spp {
-                        let mut rng =
-                            sample_rng(options.seed, (y * w + x) as u64, sample, Pass::Forward);
-                        let dir = camera
-                            .direction(x as f32 + rng.gen::<f32>(), y as f32 + rng.gen::<f32>());
-                        sum += trace_path(
-                            scene,
-                            camera.position,
-                            dir,
-                            options.max_depth,
-                            &mut rng,
-                            &mut stats,
-                        );
-                    }
-                    pixels.push(sum / options.spp as f32);
-                }
-            }
-            progress.inc(1);
-            ((x0, y0), pixels, stats)
-        })
-        .collect();
-    progress.finish_and_clear();
-    let mut image = RgbImage::new(w, h);
-    let mut stats = RenderStats {
-        paths: w as u64 * h as u64 * options.spp as u64,
-        ..Default::default()
-    };
-    for ((x0, y0), pixels, tile_stats) in results {
-        let tw = (x0 + TILE).min(w) - x0;
-        for (i, c) in pixels.into_iter().enumerate() {
-            let (x, y) = (x0 + i as u32 % tw, y0 + i as u32 / tw);
-            image.pixels[(y * w + x) as usize] = c;
-        }
-        stats.tracking += tile_stats;
-    }
-    stats.wall = start.elapsed();
-    (image, stats)
-}

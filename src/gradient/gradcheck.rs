@@ -5,11 +5,11 @@
 use glam::{IVec3, Vec3};
 use rand::seq::SliceRandom;
 
-use crate::fd::{self, Direction, FdOptions, FdResult};
-use crate::grad::{gradient, GradOptions};
-use crate::gradgrid::GradientGrid;
-use crate::sampling::pixel_rng;
-use crate::scene::Scene;
+use crate::gradient::fd::{self, Direction, FdOptions, FdResult};
+use crate::gradient::passes::{gradient, GradOptions};
+use crate::gradient::grid::GradientGrid;
+use crate::render::sampling::pixel_rng;
+use crate::render::scene::Scene;
 
 /// z above which a check fails.
 pub const Z_LIMIT: f64 = 4.0;
@@ -68,7 +68,7 @@ pub fn gradcheck(scene: &Scene, options: &GradcheckOptions) -> anyhow::Result<Ve
     let pixels = (scene.camera.width * scene.camera.height) as usize;
     let adjoint = vec![Vec3::ONE / (3 * pixels) as f32; pixels];
     let repeats = options.repeats.max(2);
-    let bar = crate::progress::bar(
+    let bar = crate::io::progress::bar(
         options.progress,
         (repeats as usize + options.voxels + 2) as u64,
         "gradcheck",

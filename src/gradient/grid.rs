@@ -5,7 +5,7 @@
 
 use glam::IVec3;
 
-use crate::brickmap::{
+use crate::volume::brickmap::{
     corner, leaf_offset, BrickMap, BrickMapBuilder, BRICK_VOXELS, CORNER_OFFSETS,
 };
 

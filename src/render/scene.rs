@@ -7,12 +7,12 @@ use anyhow::{bail, Context, Result};
 use glam::Vec3;
 use serde::Deserialize;
 
-use crate::camera::Camera;
-use crate::image_io;
-use crate::lights::{DirectionalLight, EnvMap, Environment, Lights};
-use crate::majorant::MajorantMode;
-use crate::medium::{Filter, Medium};
-use crate::vdb::{self, GridSelector};
+use crate::render::camera::Camera;
+use crate::io::images;
+use crate::render::lights::{DirectionalLight, EnvMap, Environment, Lights};
+use crate::volume::majorant::MajorantMode;
+use crate::volume::medium::{Filter, Medium};
+use crate::io::vdb::{self, GridSelector};
 
 /// A grey value or an RGB triple.
 #[derive(Debug, Clone, Copy, Deserialize)]
@@ -386,7 +386,7 @@ impl Scene {
     /// Rebuilds the majorant structure (e.g. for `--majorant global` from the command line).
     pub fn set_majorant(&mut self, mode: MajorantMode) {
         let m = &mut self.medium;
-        m.majorant = crate::majorant::MajorantGrid::build(&m.grid, m.bounds, m.density_scale, mode);
+        m.majorant = crate::volume::majorant::MajorantGrid::build(&m.grid, m.bounds, m.density_scale, mode);
         self.settings.majorant = match mode {
             MajorantMode::Global => MajorantName::Global,
             MajorantMode::Grid { cell_voxels } => {
@@ -406,7 +406,7 @@ fn load_lights(files: &[LightFile], dir: &Path) -> Result<Lights> {
             LightFile::Envmap { file, scale } => {
                 let path = dir.join(file);
                 let image =
-                    image_io::read_rgb(&path).with_context(|| format!("light[{i}].file"))?;
+                    images::read_rgb(&path).with_context(|| format!("light[{i}].file"))?;
                 if image
                     .pixels
                     .iter()

@@ -8,7 +8,7 @@
 
 use glam::{IVec3, Vec3};
 
-use crate::brickmap::{leaf_offset, BrickMap, BRICK_VOXELS};
+use crate::volume::brickmap::{leaf_offset, BrickMap, BRICK_VOXELS};
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum MajorantMode {
@@ -128,7 +128,7 @@ impl MajorantGrid {
     #[inline]
     pub fn walk(&self, o: Vec3, d: Vec3, t0: f32, t1: f32) -> DdaWalk<'_> {
         let p = (o + d * t0 - self.origin) * self.inv_cell_size;
-        let cell = crate::brickmap::floor_ivec3(p).clamp(IVec3::ZERO, self.dims - 1);
+        let cell = crate::volume::brickmap::floor_ivec3(p).clamp(IVec3::ZERO, self.dims - 1);
         let mut next_t = Vec3::splat(f32::INFINITY);
         let mut delta_t = Vec3::splat(f32::INFINITY);
         let mut step = IVec3::ZERO;
@@ -207,7 +207,7 @@ impl Iterator for DdaWalk<'_> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::brickmap::BrickMapBuilder;
+    use crate::volume::brickmap::BrickMapBuilder;
 
     #[test]
     fn majorant_bounds_every_trilinear_lookup() {

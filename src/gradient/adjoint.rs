@@ -19,12 +19,12 @@
 use glam::{IVec3, Vec3};
 use rand::Rng;
 
-use crate::brickmap::{corner, floor_ivec3};
-use crate::lights::luminance;
-use crate::medium::{Filter, Medium};
-use crate::render::{direct_light, trace, LightSample, PathRecord, PathState};
-use crate::scene::Scene;
-use crate::tracking::{sample_transmittance_distance, TrackingStats};
+use crate::volume::brickmap::{corner, floor_ivec3};
+use crate::render::lights::luminance;
+use crate::volume::medium::{Filter, Medium};
+use crate::render::path::{direct_light, trace, LightSample, PathRecord, PathState};
+use crate::render::scene::Scene;
+use crate::volume::tracking::{sample_transmittance_distance, TrackingStats};
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
 pub enum Estimator {
@@ -178,13 +178,13 @@ fn replay(
         scratch.carried[j] = deeper;
     }
     let in_medium =
-        |seg: &crate::render::Segment| (seg.collision.unwrap_or(seg.t_exit) - seg.t_enter).max(0.0);
+        |seg: &crate::render::path::Segment| (seg.collision.unwrap_or(seg.t_exit) - seg.t_enter).max(0.0);
 
     // Which segment gets the suffix path (per path), and with what weight.
     let mut chosen = usize::MAX;
     let mut chosen_weight = 0.0;
     if options.estimator != Estimator::Naive && options.suffix == Suffix::PerPath {
-        let weight = |seg: &crate::render::Segment| {
+        let weight = |seg: &crate::render::path::Segment| {
             if seg.depth <= options.max_depth {
                 luminance(seg.throughput) * in_medium(seg)
             } else {

@@ -1,25 +1,5 @@
-//! `volgrad compare`: speed against accuracy, and stability where estimators are known to fail.
-//!
-//! - A reference gradient that favours no estimator: the mean of joint and drt runs (alternating,
-//!   each with its own seed) and its per-voxel standard error, checked against finite differences
-//!   before it is trusted.
-//! - Equal-time sweeps: each method runs at 1, 2, 4, … spp until its time budget is spent; every
-//!   run is scored against the reference. The reference's own noise adds Σ se² to ‖g − ref‖², so it
-//!   is subtracted (`rel_rmse`; the raw value is kept as `rel_rmse_raw`): otherwise every curve
-//!   would flatten at the reference's noise floor and the speed-ups would shrink towards 1.
-//! - The same for the forward renderer (image error against time, majorant grid against global).
-//! - The stability suite: small in-memory scenes built to break estimators, each estimator's
-//!   ⟨g, 1⟩ against finite differences, its spread, and a count of non-finite values.
-//!
-//! Every gradient is that of the mean pixel value (loss `mean`). The reference lives in
-//! `compare/reference.rs`, the stability suite in `compare/stability.rs`; this file scores runs,
-//! sweeps spp against a time budget and writes the CSV, the charts and the tables.
-
-mod reference;
-mod stability;
-
-pub use reference::*;
-pub use stability::*;
+//! Equal-time sweeps: each method at 1, 2, 4, … spp until its budget is spent, every run scored
+//! against the reference; the CSV, the charts and the markdown summary.
 
 use std::fmt::Write as _;
 use std::path::Path;
@@ -28,22 +8,23 @@ use std::time::{Duration, Instant};
 use anyhow::{Context, Result};
 use glam::{IVec3, Vec3};
 
-use crate::adjoint::Estimator;
-use crate::brickmap::BrickMap;
-use crate::chart::{Chart, Series};
-use crate::fd;
-use crate::grad::{gradient, GradOptions};
-use crate::gradgrid::GradientGrid;
-use crate::image_io::RgbImage;
-use crate::loss::Loss;
-use crate::majorant::MajorantMode;
-use crate::render::{render, RenderOptions};
-use crate::scene::Scene;
+use crate::gradient::adjoint::Estimator;
+use crate::compare::Reference;
+use crate::volume::brickmap::BrickMap;
+use crate::io::chart::{Chart, Series};
+use crate::gradient::fd;
+use crate::gradient::passes::{gradient, GradOptions};
+use crate::gradient::grid::GradientGrid;
+use crate::io::images::RgbImage;
+use crate::gradient::loss::Loss;
+use crate::volume::majorant::MajorantMode;
+use crate::render::image::{render, RenderOptions};
+use crate::render::scene::Scene;
 
 /// Reference runs use seeds far from the compared runs' (seed, seed + 1, …) so that no compared
 /// run shares random numbers with the reference it is scored against.
-const REFERENCE_SEED_OFFSET: u64 = 1 << 20;
-const SWEEP_SEED_OFFSET: u64 = 1 << 10;
+pub(super) const REFERENCE_SEED_OFFSET: u64 = 1 << 20;
+pub(super) const SWEEP_SEED_OFFSET: u64 = 1 << 10;
 
 pub fn estimator_name(e: Estimator) -> &'static str {
     match e {
@@ -54,7 +35,7 @@ pub fn estimator_name(e: Estimator) -> &'static str {
 }
 
 /// ∂(mean pixel)/∂pixel: the adjoint of loss `mean`.
-fn mean_adjoint(scene: &Scene) -> Vec<Vec3> {
+pub(super) fn mean_adjoint(scene: &Scene) -> Vec<Vec3> {
     Loss::Mean.adjoint(
         &RgbImage::new(scene.camera.width, scene.camera.height),
         None,
@@ -62,7 +43,7 @@ fn mean_adjoint(scene: &Scene) -> Vec<Vec3> {
 }
 
 /// Calls `f(v)` for every voxel of the parameter domain (active box plus the trilinear apron).
-fn for_domain(grid: &BrickMap, mut f: impl FnMut(IVec3)) {
+pub(super) fn for_domain(grid: &BrickMap, mut f: impl FnMut(IVec3)) {
     if let Some((lo, hi)) = fd::domain_bounds(grid) {
         for x in lo.x..=hi.x {
             for y in lo.y..=hi.y {
@@ -75,7 +56,7 @@ fn for_domain(grid: &BrickMap, mut f: impl FnMut(IVec3)) {
 }
 
 /// Mean and standard error of the mean.
-fn mean_and_se(values: &[f64]) -> (f64, f64) {
+pub(super) fn mean_and_se(values: &[f64]) -> (f64, f64) {
     let n = values.len() as f64;
     if n == 0.0 {
         return (f64::NAN, f64::NAN);
@@ -190,7 +171,7 @@ pub struct SweepOptions {
 }
 
 fn budget_bar(o: &SweepOptions, what: &str) -> indicatif::ProgressBar {
-    let bar = crate::progress::bar(o.progress, o.budget.as_millis() as u64, what);
+    let bar = crate::io::progress::bar(o.progress, o.budget.as_millis() as u64, what);
     if o.progress {
         bar.set_style(
             indicatif::ProgressStyle::with_template("{prefix:>10} {msg:>9} [{bar:40}] {elapsed}")
@@ -249,7 +230,7 @@ pub fn build_image_reference(
     progress: bool,
 ) -> ImageReference {
     let seeds = seeds.max(2);
-    let bar = crate::progress::bar(progress, seeds as u64, "image ref");
+    let bar = crate::io::progress::bar(progress, seeds as u64, "image ref");
     let images: Vec<RgbImage> = (0..seeds)
         .map(|s| {
             let options = RenderOptions {
@@ -585,10 +566,10 @@ pub fn summary(
 pub fn write_chart(dir: &Path, stem: &str, chart: &Chart) -> Result<()> {
     std::fs::write(
         dir.join(format!("{stem}.svg")),
-        crate::chart::to_svg(chart)?,
+        crate::io::chart::to_svg(chart)?,
     )
     .with_context(|| format!("writing {stem}.svg in '{}'", dir.display()))?;
-    if !crate::chart::write_png(chart, &dir.join(format!("{stem}.png")))? {
+    if !crate::io::chart::write_png(chart, &dir.join(format!("{stem}.png")))? {
         eprintln!(
             "warning: no TTF font found (install fonts-dejavu-core or set VOLGRAD_FONT): {stem}.png has no labels; {stem}.svg has them"
         );

@@ -4,9 +4,9 @@
 
 use glam::Vec3;
 
-use crate::brickmap::BrickMap;
-use crate::majorant::{MajorantGrid, MajorantMode};
-use crate::transform::IndexTransform;
+use crate::volume::brickmap::BrickMap;
+use crate::volume::majorant::{MajorantGrid, MajorantMode};
+use crate::volume::transform::IndexTransform;
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Filter {

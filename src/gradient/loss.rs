@@ -3,7 +3,7 @@
 
 use glam::Vec3;
 
-use crate::image_io::RgbImage;
+use crate::io::images::RgbImage;
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
 pub enum Loss {

@@ -1,0 +1,9 @@
+//! Extinction gradients: path replay (`adjoint`), the passes over the image, the sparse gradient
+//! grid, losses, finite differences and the estimator check. Uses `volume`, `io` and `render`.
+
+pub mod adjoint;
+pub mod fd;
+pub mod gradcheck;
+pub mod grid;
+pub mod loss;
+pub mod passes;

@@ -1,0 +1,11 @@
+//! Files and the terminal: the OpenVDB/OpenImageIO bridge, grids, images, gradient VDBs, colour
+//! maps, charts, tables and progress bars. Uses `volume` only (bricks and transforms as plain data).
+
+pub mod bridge;
+pub mod chart;
+pub mod colormap;
+pub mod gradient_files;
+pub mod images;
+pub mod make_grid;
+pub mod progress;
+pub mod vdb;

@@ -1,0 +1,9 @@
+//! The forward renderer: scene files, camera, lights, sampling, the path loop (`path`) and the
+//! image loop (`image`). Uses `volume` and `io`.
+
+pub mod camera;
+pub mod image;
+pub mod lights;
+pub mod path;
+pub mod sampling;
+pub mod scene;

@@ -1,0 +1,8 @@
+//! The medium as the path tracer sees it: sparse bricks, the index ↔ world map, σt lookups,
+//! majorants and free-flight / ratio tracking. Uses nothing else in the crate.
+
+pub mod brickmap;
+pub mod majorant;
+pub mod medium;
+pub mod tracking;
+pub mod transform;
