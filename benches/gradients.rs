@@ -10,10 +10,10 @@ use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
 use volgrad::gradient::adjoint::Estimator;
-use volgrad::gradient::passes::{gradient, GradOptions};
 use volgrad::gradient::grid::GradientGrid;
-use volgrad::io::images::RgbImage;
 use volgrad::gradient::loss::Loss;
+use volgrad::gradient::passes::{gradient, GradOptions};
+use volgrad::io::images::RgbImage;
 use volgrad::render::image::{render, RenderOptions};
 use volgrad::render::scene::Scene;
 

@@ -5,11 +5,11 @@
 
 use std::path::PathBuf;
 
-use volgrad::volume::majorant::MajorantMode;
 use volgrad::render::image::{render, RenderOptions, RenderStats};
 use volgrad::render::scene::Scene;
+use volgrad::volume::majorant::Majorant;
 
-fn run(scene: &mut Scene, mode: MajorantMode, spp: u32) -> RenderStats {
+fn run(scene: &mut Scene, mode: Majorant, spp: u32) -> RenderStats {
     scene.set_majorant(mode);
     let options = RenderOptions {
         spp,
@@ -41,11 +41,11 @@ fn main() {
     println!("|---|---:|---:|---:|---:|");
     // Global first, then the grids, interleaved with a second global run to expose drift.
     let modes = [
-        ("global", MajorantMode::Global),
-        ("grid 4³", MajorantMode::Grid { cell_voxels: 4 }),
-        ("grid 8³", MajorantMode::Grid { cell_voxels: 8 }),
-        ("grid 16³", MajorantMode::Grid { cell_voxels: 16 }),
-        ("global (again)", MajorantMode::Global),
+        ("global", Majorant::global()),
+        ("grid 4³", Majorant::grid(4)),
+        ("grid 8³", Majorant::grid(8)),
+        ("grid 16³", Majorant::grid(16)),
+        ("global (again)", Majorant::global()),
     ];
     let mut global = None;
     for (name, mode) in modes {

@@ -12,6 +12,21 @@ pub mod volume;
 
 use std::path::Path;
 
+/// `Display` for an enum that derives `clap::ValueEnum`: its command-line name, which is also its
+/// name in scene files (serde kebab-case) and in outputs. One spelling per value, written once.
+#[macro_export]
+macro_rules! display_as_value_enum {
+    ($t:ty) => {
+        impl std::fmt::Display for $t {
+            fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+                let value = clap::ValueEnum::to_possible_value(self)
+                    .expect("every value of a volgrad enum has a name");
+                f.write_str(value.get_name())
+            }
+        }
+    };
+}
+
 /// Nothing the user had is overwritten without being asked.
 pub fn refuse_overwrite(path: &Path, overwrite: bool) -> anyhow::Result<()> {
     if path.exists() && !overwrite {

@@ -8,20 +8,20 @@ use anyhow::{bail, Context, Result};
 use clap::{Args, Parser, Subcommand, ValueEnum};
 
 use glam::IVec3;
-use volgrad::gradient::adjoint::{AdjointOptions, Estimator, Suffix};
-use volgrad::volume::brickmap::BRICK_VOXELS;
 use volgrad::compare;
+use volgrad::gradient::adjoint::{AdjointOptions, Estimator, Suffix};
 use volgrad::gradient::fd::{self, FdOptions};
-use volgrad::gradient::passes::{derivative_image, gradient, GradOptions};
 use volgrad::gradient::gradcheck::{gradcheck, GradcheckOptions, Z_LIMIT};
+use volgrad::gradient::loss::Loss;
+use volgrad::gradient::passes::{derivative_image, gradient, GradOptions};
 use volgrad::io::gradient_files::{self, Provenance};
 use volgrad::io::images;
-use volgrad::gradient::loss::Loss;
-use volgrad::volume::majorant::MajorantMode;
 use volgrad::io::make_grid::{make_grid, GridKind, GridSpec};
-use volgrad::render::image::{render, RenderOptions, RenderStats};
-use volgrad::render::scene::{MajorantName, Scene};
 use volgrad::io::vdb;
+use volgrad::render::image::{render, RenderOptions, RenderStats};
+use volgrad::render::scene::Scene;
+use volgrad::volume::brickmap::BRICK_VOXELS;
+use volgrad::volume::majorant::{Majorant, MajorantMode};
 
 #[derive(Parser)]
 #[command(
@@ -182,14 +182,6 @@ struct GradcheckArgs {
     adjoint: AdjointArgs,
 }
 
-#[derive(Clone, Copy, PartialEq, Eq, ValueEnum)]
-enum MajorantArg {
-    /// One majorant per coarse cell of the grid (fast).
-    Grid,
-    /// One majorant for the whole medium (the baseline).
-    Global,
-}
-
 #[derive(Args)]
 struct RenderArgs {
     /// The scene file (TOML).
@@ -211,7 +203,7 @@ struct RenderArgs {
     max_depth: Option<u32>,
     /// Majorant structure for tracking (overrides render.majorant).
     #[arg(long, value_enum)]
-    majorant: Option<MajorantArg>,
+    majorant: Option<MajorantMode>,
     /// Majorant cell edge in voxels (overrides render.majorant_cell).
     #[arg(long)]
     majorant_cell: Option<u32>,
@@ -492,7 +484,7 @@ fn set_threads(threads: Option<usize>) -> Result<()> {
 /// Applies the command-line overrides that change how the medium is tracked.
 fn load_scene(
     path: &Path,
-    majorant: Option<MajorantArg>,
+    majorant: Option<MajorantMode>,
     majorant_cell: Option<u32>,
 ) -> Result<Scene> {
     let mut scene = Scene::load(path)?;
@@ -501,13 +493,9 @@ fn load_scene(
         if cell == 0 || cell > 1024 {
             bail!("--majorant-cell must be between 1 and 1024 voxels (got {cell})");
         }
-        let global = majorant.map_or(scene.settings.majorant == MajorantName::Global, |m| {
-            m == MajorantArg::Global
-        });
-        scene.set_majorant(if global {
-            MajorantMode::Global
-        } else {
-            MajorantMode::Grid { cell_voxels: cell }
+        scene.set_majorant(Majorant {
+            mode: majorant.unwrap_or(scene.settings.majorant),
+            cell_voxels: cell,
         });
     }
     Ok(scene)
@@ -550,8 +538,8 @@ fn print_stats(scene: &Scene, stats: &RenderStats) {
     let m = &scene.medium;
     let t = &stats.tracking;
     let majorant = match scene.settings.majorant {
-        MajorantName::Global => "global".to_string(),
-        MajorantName::Grid => format!("grid, {}³-voxel cells", scene.settings.majorant_cell),
+        MajorantMode::Global => "global".to_string(),
+        MajorantMode::Grid => format!("grid, {}³-voxel cells", scene.settings.majorant_cell),
     };
     println!("wall time            {:.3} s", stats.wall.as_secs_f64());
     println!("paths                {}", stats.paths);
@@ -686,9 +674,9 @@ fn fd_options(
 /// The target image of a loss, checked against the scene's resolution.
 fn load_target(args: &GradArgs, scene: &Scene) -> Result<Option<images::RgbImage>> {
     let target = match (&args.target, &args.target_scene) {
-        (Some(path), _) => Some(
-            images::read_rgb(path).with_context(|| format!("--target '{}'", path.display()))?,
-        ),
+        (Some(path), _) => {
+            Some(images::read_rgb(path).with_context(|| format!("--target '{}'", path.display()))?)
+        }
         (None, Some(path)) => {
             let other = Scene::load(path)
                 .with_context(|| format!("--target-scene '{}'", path.display()))?;
@@ -705,7 +693,7 @@ fn load_target(args: &GradArgs, scene: &Scene) -> Result<Option<images::RgbImage
     if args.loss.needs_target() && target.is_none() {
         bail!(
             "--loss {} needs --target IMAGE or --target-scene SCENE",
-            args.loss.name()
+            args.loss
         );
     }
     if let Some(t) = &target {
@@ -783,7 +771,7 @@ fn grad_command(args: &GradArgs) -> Result<()> {
         .0;
         eprintln!(
             "loss ({}) = {:.6e}",
-            args.loss.name(),
+            args.loss,
             args.loss.evaluate(&primal, target.as_ref())
         );
         args.loss.adjoint(&primal, target.as_ref())
@@ -793,10 +781,10 @@ fn grad_command(args: &GradArgs) -> Result<()> {
     };
     let run = gradient(&scene, &adjoint, &options);
     let provenance = Provenance {
-        estimator: format!("{estimator:?}").to_lowercase(),
+        estimator: estimator.to_string(),
         spp: options.spp as u64,
         seed: options.seed.to_string(),
-        loss: args.loss.name().into(),
+        loss: args.loss.to_string(),
         scene: args.scene.display().to_string(),
     };
     let grid = gradient_files::gradient_grid(
@@ -906,9 +894,7 @@ fn fd_command(args: &GradArgs, scene: &Scene, target: Option<&images::RgbImage>)
     )?;
     println!(
         "finite differences of {} ({} spp × {} repeats, common random numbers)",
-        args.loss.name(),
-        options.spp,
-        options.repeats
+        args.loss, options.spp, options.repeats
     );
     let bar = volgrad::io::progress::bar(!args.adjoint.quiet, directions.len() as u64, "fd");
     for (name, direction) in directions {
@@ -1178,10 +1164,8 @@ fn compare_equal_time(
         progress,
     };
     let mut rows = compare::gradient_sweeps(&scene, estimators, &reference, &sweep);
-    let names: Vec<&str> = estimators
-        .iter()
-        .map(|&e| compare::estimator_name(e))
-        .collect();
+    let names: Vec<String> = estimators.iter().map(|e| e.to_string()).collect();
+    let names: Vec<&str> = names.iter().map(|s| s.as_str()).collect();
     let mut summary = format!(
         "### `volgrad compare {}`\n\nBudget {:.0} s per estimator; reference: {} runs × {} spp (joint and drt alternating); {} threads.\n\n#### Reference against finite differences\n\n{check_table}\n",
         path.display(),

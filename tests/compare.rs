@@ -7,12 +7,12 @@ mod common;
 use std::time::Duration;
 
 use common::*;
-use volgrad::gradient::adjoint::Estimator;
 use volgrad::compare::{self, Reference, ReferenceOptions, Row, StabilityOptions, SweepOptions};
+use volgrad::gradient::adjoint::Estimator;
 use volgrad::gradient::fd::FdOptions;
 use volgrad::gradient::loss::Loss;
-use volgrad::volume::medium::Filter;
 use volgrad::render::scene::Scene;
+use volgrad::volume::medium::Filter;
 
 const N: i32 = 6;
 

@@ -6,15 +6,15 @@ mod common;
 use common::*;
 use glam::{DMat3, DVec3, IVec3, Vec3};
 use rand::Rng;
-use volgrad::render::lights::{DirectionalLight, EnvMap, Environment};
-use volgrad::volume::majorant::MajorantMode;
-use volgrad::volume::medium::Filter;
 use volgrad::render::image::{render, RenderOptions};
+use volgrad::render::lights::{DirectionalLight, EnvMap, Environment};
 use volgrad::render::sampling::pixel_rng;
+use volgrad::volume::majorant::Majorant;
+use volgrad::volume::medium::Filter;
 use volgrad::volume::tracking::{transmittance, TrackingStats};
 
-const GRID8: MajorantMode = MajorantMode::Grid { cell_voxels: 8 };
-const GRID4: MajorantMode = MajorantMode::Grid { cell_voxels: 4 };
+const GRID8: Majorant = Majorant::grid(8);
+const GRID4: Majorant = Majorant::grid(4);
 
 fn options(spp: u32, max_depth: u32) -> RenderOptions {
     RenderOptions {
@@ -44,9 +44,9 @@ fn white_furnace_every_pixel_sees_the_environment() {
     let radiance = Vec3::new(0.7, 0.5, 0.3);
     for (density, filter, majorant) in [
         (0.05, Filter::Trilinear, GRID8),
-        (0.6, Filter::Trilinear, MajorantMode::Global),
+        (0.6, Filter::Trilinear, Majorant::global()),
         (0.6, Filter::Nearest, GRID4),
-        (2.0, Filter::Nearest, MajorantMode::Global),
+        (2.0, Filter::Nearest, Majorant::global()),
         (2.0, Filter::Trilinear, GRID4),
     ] {
         let scene = SceneBuilder::new(30.0, 40.0, 8)
@@ -450,7 +450,7 @@ fn majorant_grid_tracks_more_efficiently_than_a_global_majorant() {
             )
     };
     let (_, grid_stats) = render(&make(GRID4), &options(16, 64));
-    let (_, global_stats) = render(&make(MajorantMode::Global), &options(16, 64));
+    let (_, global_stats) = render(&make(Majorant::global()), &options(16, 64));
     assert!(grid_stats.tracking_efficiency() <= 1.0);
     assert!(
         grid_stats.tracking_efficiency() > 1.3 * global_stats.tracking_efficiency(),

@@ -11,12 +11,12 @@ use common::*;
 use glam::{IVec3, Vec3};
 use volgrad::gradient::adjoint::{Estimator, Suffix};
 use volgrad::gradient::fd::{self, FdOptions};
-use volgrad::gradient::passes::{derivative_image, gradient, GradOptions};
 use volgrad::gradient::grid::GradientGrid;
 use volgrad::gradient::loss::Loss;
-use volgrad::volume::majorant::MajorantMode;
-use volgrad::volume::medium::Filter;
+use volgrad::gradient::passes::{derivative_image, gradient, GradOptions};
 use volgrad::render::scene::Scene;
+use volgrad::volume::majorant::Majorant;
+use volgrad::volume::medium::Filter;
 
 const N: i32 = 6;
 
@@ -197,7 +197,7 @@ fn homogeneous_absorber_matches_the_closed_form() {
             Vec3::ZERO,
             0.0,
             Filter::Nearest,
-            MajorantMode::Grid { cell_voxels: 4 },
+            Majorant::grid(4),
         );
     let expected = -(l * s * n as f32 * (-s * theta * n as f32).exp()) as f64;
     for estimator in [Estimator::Joint, Estimator::Drt, Estimator::Naive] {
@@ -263,7 +263,7 @@ fn gradients_stay_finite_in_extreme_media() {
                 Vec3::splat(0.9),
                 0.5,
                 filter,
-                MajorantMode::Grid { cell_voxels: 4 },
+                Majorant::grid(4),
             )
     };
     let dense = make(grid(N, |_| 1.0), 1e4, Filter::Trilinear);

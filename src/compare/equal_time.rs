@@ -8,31 +8,23 @@ use std::time::{Duration, Instant};
 use anyhow::{Context, Result};
 use glam::{IVec3, Vec3};
 
-use crate::gradient::adjoint::Estimator;
 use crate::compare::Reference;
-use crate::volume::brickmap::BrickMap;
-use crate::io::chart::{Chart, Series};
+use crate::gradient::adjoint::Estimator;
 use crate::gradient::fd;
-use crate::gradient::passes::{gradient, GradOptions};
 use crate::gradient::grid::GradientGrid;
-use crate::io::images::RgbImage;
 use crate::gradient::loss::Loss;
-use crate::volume::majorant::MajorantMode;
+use crate::gradient::passes::{gradient, GradOptions};
+use crate::io::chart::{Chart, Series};
+use crate::io::images::RgbImage;
 use crate::render::image::{render, RenderOptions};
 use crate::render::scene::Scene;
+use crate::volume::brickmap::BrickMap;
+use crate::volume::majorant::Majorant;
 
 /// Reference runs use seeds far from the compared runs' (seed, seed + 1, …) so that no compared
 /// run shares random numbers with the reference it is scored against.
 pub(super) const REFERENCE_SEED_OFFSET: u64 = 1 << 20;
 pub(super) const SWEEP_SEED_OFFSET: u64 = 1 << 10;
-
-pub fn estimator_name(e: Estimator) -> &'static str {
-    match e {
-        Estimator::Joint => "joint",
-        Estimator::Drt => "drt",
-        Estimator::Naive => "naive",
-    }
-}
 
 /// ∂(mean pixel)/∂pixel: the adjoint of loss `mean`.
 pub(super) fn mean_adjoint(scene: &Scene) -> Vec<Vec3> {
@@ -193,8 +185,8 @@ pub fn gradient_sweeps(
     let adjoint = mean_adjoint(scene);
     let mut rows = Vec::new();
     for &estimator in estimators {
-        let name = estimator_name(estimator);
-        let bar = budget_bar(o, name);
+        let name = estimator.to_string();
+        let bar = budget_bar(o, &name);
         rows.extend(sweep(o.budget, o.max_spp, &bar, |spp| {
             let seed = o.seed.wrapping_add(SWEEP_SEED_OFFSET + spp as u64);
             let run = gradient(
@@ -203,7 +195,7 @@ pub fn gradient_sweeps(
                 &GradOptions::new(estimator, spp, seed, o.max_depth),
             );
             let seconds = run.stats.wall.as_secs_f64();
-            score(name, spp, seconds, &run.gradient, r, &scene.medium.grid)
+            score(&name, spp, seconds, &run.gradient, r, &scene.medium.grid)
         }));
         bar.finish_and_clear();
     }
@@ -286,14 +278,14 @@ pub fn render_sweeps(scene: &Scene, r: &ImageReference, o: &SweepOptions) -> Vec
     let cell = scene.settings.majorant_cell;
     let mut rows = Vec::new();
     for (name, mode) in [
-        (RENDER_GRID, MajorantMode::Grid { cell_voxels: cell }),
-        (RENDER_GLOBAL, MajorantMode::Global),
+        (RENDER_GRID, Majorant::grid(cell)),
+        (RENDER_GLOBAL, Majorant::global()),
     ] {
         let mut s = scene.clone();
         s.set_majorant(mode);
         let bar = budget_bar(
             o,
-            if mode == MajorantMode::Global {
+            if mode == Majorant::global() {
                 "global"
             } else {
                 "grid"

@@ -9,13 +9,13 @@ use glam::IVec3;
 use super::{mean_adjoint, mean_and_se, REFERENCE_SEED_OFFSET};
 use crate::gradient::adjoint::Estimator;
 use crate::gradient::fd::{self, FdOptions};
-use crate::gradient::passes::{gradient, GradOptions};
 use crate::gradient::gradcheck::Check;
 use crate::gradient::grid::GradientGrid;
-use crate::io::gradient_files::{self, Provenance};
 use crate::gradient::loss::Loss;
-use crate::render::scene::Scene;
+use crate::gradient::passes::{gradient, GradOptions};
+use crate::io::gradient_files::{self, Provenance};
 use crate::io::vdb::{self, meta, GridSelector};
+use crate::render::scene::Scene;
 
 pub struct Reference {
     pub mean: GradientGrid,
@@ -94,7 +94,7 @@ fn reference_provenance(scene: &Scene, r: &Reference) -> Provenance {
         estimator: "joint+drt".into(),
         spp: r.spp_per_run as u64 * r.runs as u64,
         seed: format!("{} runs of {} spp", r.runs, r.spp_per_run),
-        loss: Loss::Mean.name().into(),
+        loss: Loss::Mean.to_string(),
         scene: scene.path.display().to_string(),
     }
 }
@@ -141,7 +141,7 @@ pub fn load_reference(path: &Path, scene: &Scene) -> Result<Reference> {
             .find(|e| e.name == key)
             .map(|e| e.value.clone())
     };
-    if get("volgrad_loss").as_deref() != Some(Loss::Mean.name()) {
+    if get("volgrad_loss") != Some(Loss::Mean.to_string()) {
         bail!(
             "the reference '{}' is not the gradient of loss \"mean\"",
             path.display()

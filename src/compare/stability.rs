@@ -8,18 +8,18 @@ use std::fmt::Write as _;
 use anyhow::Result;
 use glam::{DMat3, DVec3, IVec3, Vec3};
 
-use super::{estimator_name, mean_adjoint, mean_and_se, SWEEP_SEED_OFFSET};
+use super::{mean_adjoint, mean_and_se, SWEEP_SEED_OFFSET};
 use crate::gradient::adjoint::Estimator;
-use crate::volume::brickmap::BrickMap;
-use crate::render::camera::Camera;
 use crate::gradient::fd::{self, FdOptions, FdResult};
-use crate::gradient::passes::{gradient, GradOptions};
 use crate::gradient::gradcheck::Check;
-use crate::render::lights::{DirectionalLight, Environment, Lights};
 use crate::gradient::loss::Loss;
-use crate::volume::majorant::MajorantMode;
-use crate::volume::medium::{Filter, Medium};
+use crate::gradient::passes::{gradient, GradOptions};
+use crate::render::camera::Camera;
+use crate::render::lights::{DirectionalLight, Environment, Lights};
 use crate::render::scene::{RenderFile, Scene};
+use crate::volume::brickmap::BrickMap;
+use crate::volume::majorant::Majorant;
+use crate::volume::medium::{Filter, Medium};
 use crate::volume::transform::IndexTransform;
 
 pub struct StabilityScene {
@@ -40,13 +40,7 @@ fn suite_scene(
     g: f32,
     filter: Filter,
 ) -> Scene {
-    let mut medium = Medium::new(
-        grid,
-        transform,
-        density_scale,
-        filter,
-        MajorantMode::Grid { cell_voxels: 4 },
-    );
+    let mut medium = Medium::new(grid, transform, density_scale, filter, Majorant::grid(4));
     medium.albedo = Vec3::splat(albedo);
     medium.phase_g = g;
     let mut lights = Lights {
@@ -293,7 +287,7 @@ pub fn stability(
                 let naive = estimator == Estimator::Naive;
                 rows.push(StabilityRow {
                     scene: s.name.into(),
-                    estimator: estimator_name(estimator).into(),
+                    estimator: estimator.to_string(),
                     check: (*check).into(),
                     estimate: mean,
                     estimate_se: se,

@@ -19,14 +19,17 @@
 use glam::{IVec3, Vec3};
 use rand::Rng;
 
-use crate::volume::brickmap::{corner, floor_ivec3};
 use crate::render::lights::luminance;
-use crate::volume::medium::{Filter, Medium};
 use crate::render::path::{direct_light, trace, LightSample, PathRecord, PathState};
 use crate::render::scene::Scene;
+use crate::volume::brickmap::{corner, floor_ivec3};
+use crate::volume::medium::{Filter, Medium};
 use crate::volume::tracking::{sample_transmittance_distance, TrackingStats};
 
-#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+#[derive(
+    Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum, serde::Deserialize, serde::Serialize,
+)]
+#[serde(rename_all = "kebab-case")]
 pub enum Estimator {
     /// Sample matching: scattering and transmittance parts at one shared probe per segment.
     Joint,
@@ -36,13 +39,20 @@ pub enum Estimator {
     Naive,
 }
 
-#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+crate::display_as_value_enum!(Estimator);
+
+#[derive(
+    Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum, serde::Deserialize, serde::Serialize,
+)]
+#[serde(rename_all = "kebab-case")]
 pub enum Suffix {
     /// One suffix path per camera path, on a segment chosen by a reservoir (linear cost).
     PerPath,
     /// A suffix path on every segment (quadratic cost).
     PerSegment,
 }
+
+crate::display_as_value_enum!(Suffix);
 
 /// Receives one sample of ∂pixel/∂θ_k (RGB) for voxel k.
 pub trait GradientSink {
@@ -177,8 +187,9 @@ fn replay(
         };
         scratch.carried[j] = deeper;
     }
-    let in_medium =
-        |seg: &crate::render::path::Segment| (seg.collision.unwrap_or(seg.t_exit) - seg.t_enter).max(0.0);
+    let in_medium = |seg: &crate::render::path::Segment| {
+        (seg.collision.unwrap_or(seg.t_exit) - seg.t_enter).max(0.0)
+    };
 
     // Which segment gets the suffix path (per path), and with what weight.
     let mut chosen = usize::MAX;

@@ -17,13 +17,13 @@
 use glam::IVec3;
 use rand::Rng;
 
-use crate::volume::brickmap::BrickMap;
-use crate::io::images::RgbImage;
 use crate::gradient::loss::Loss;
-use crate::volume::majorant::MajorantGrid;
+use crate::io::images::RgbImage;
 use crate::render::image::{render, RenderOptions};
 use crate::render::sampling::pixel_rng;
 use crate::render::scene::Scene;
+use crate::volume::brickmap::BrickMap;
+use crate::volume::majorant::MajorantGrid;
 
 /// A sparse direction in parameter space.
 pub type Direction = Vec<(IVec3, f32)>;
@@ -163,7 +163,7 @@ pub fn directional_derivative(
             .map(|&(v, d)| (v, reach * eps * d.abs()))
             .collect::<Vec<_>>(),
     );
-    let mode = scene.settings.majorant_mode();
+    let mode = scene.settings.majorant();
     let majorant = MajorantGrid::build(
         &upper,
         scene.medium.bounds,

@@ -6,8 +6,8 @@ use glam::{IVec3, Vec3};
 use rand::seq::SliceRandom;
 
 use crate::gradient::fd::{self, Direction, FdOptions, FdResult};
-use crate::gradient::passes::{gradient, GradOptions};
 use crate::gradient::grid::GradientGrid;
+use crate::gradient::passes::{gradient, GradOptions};
 use crate::render::sampling::pixel_rng;
 use crate::render::scene::Scene;
 

@@ -5,7 +5,10 @@ use glam::Vec3;
 
 use crate::io::images::RgbImage;
 
-#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+#[derive(
+    Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum, serde::Deserialize, serde::Serialize,
+)]
+#[serde(rename_all = "kebab-case")]
 pub enum Loss {
     /// mean (I − T)²
     L2,
@@ -18,20 +21,13 @@ pub enum Loss {
     Mean,
 }
 
+crate::display_as_value_enum!(Loss);
+
 const RELATIVE_EPSILON: f32 = 0.01;
 
 impl Loss {
     pub fn needs_target(self) -> bool {
         self != Loss::Mean
-    }
-
-    pub fn name(self) -> &'static str {
-        match self {
-            Loss::L2 => "l2",
-            Loss::L1 => "l1",
-            Loss::RelativeL2 => "relative-l2",
-            Loss::Mean => "mean",
-        }
     }
 
     /// The loss of `image` against `target` (ignored by `Mean`).

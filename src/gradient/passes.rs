@@ -10,12 +10,12 @@ use rayon::prelude::*;
 use crate::gradient::adjoint::{
     camera_path_gradient, AdjointOptions, Estimator, GradientSink, Scratch, Suffix,
 };
-use crate::volume::brickmap::BrickMap;
 use crate::gradient::grid::GradientGrid;
 use crate::io::images::RgbImage;
 use crate::render::image::RenderStats;
 use crate::render::sampling::{sample_rng, Pass};
 use crate::render::scene::Scene;
+use crate::volume::brickmap::BrickMap;
 use crate::volume::tracking::TrackingStats;
 
 #[derive(Debug, Clone, Copy)]

@@ -7,12 +7,12 @@ use std::path::Path;
 use anyhow::{bail, Context, Result};
 use glam::IVec3;
 
-use crate::volume::brickmap::BrickMapBuilder;
+use crate::gradient::grid::GradientGrid;
 use crate::io::bridge::MetaEntry;
 use crate::io::colormap::write_signed_png;
-use crate::gradient::grid::GradientGrid;
-use crate::volume::transform::IndexTransform;
 use crate::io::vdb::{self, meta, Grid, GridSelector};
+use crate::volume::brickmap::BrickMapBuilder;
+use crate::volume::transform::IndexTransform;
 
 /// Provenance stored with a gradient grid.
 #[derive(Debug, Clone)]

@@ -2,9 +2,9 @@
 
 use glam::{DMat3, DVec3, IVec3};
 
+use crate::io::vdb::{meta, Grid};
 use crate::volume::brickmap::BrickMapBuilder;
 use crate::volume::transform::IndexTransform;
-use crate::io::vdb::{meta, Grid};
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
 pub enum GridKind {

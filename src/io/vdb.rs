@@ -5,9 +5,9 @@ use std::path::Path;
 use anyhow::{anyhow, bail, Result};
 use glam::IVec3;
 
-use crate::volume::brickmap::{BrickMap, Leaf, Tile, BRICK_VOXELS};
 use crate::io::bridge::ffi;
 use crate::io::bridge::{FloatGridData, GridSummary, MetaEntry};
+use crate::volume::brickmap::{BrickMap, Leaf, Tile, BRICK_VOXELS};
 use crate::volume::transform::IndexTransform;
 
 /// Which grid of a file to read.

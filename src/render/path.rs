@@ -284,4 +284,3 @@ pub fn trace_path(
         None,
     )
 }
-

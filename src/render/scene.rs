@@ -7,12 +7,12 @@ use anyhow::{bail, Context, Result};
 use glam::Vec3;
 use serde::Deserialize;
 
-use crate::render::camera::Camera;
 use crate::io::images;
-use crate::render::lights::{DirectionalLight, EnvMap, Environment, Lights};
-use crate::volume::majorant::MajorantMode;
-use crate::volume::medium::{Filter, Medium};
 use crate::io::vdb::{self, GridSelector};
+use crate::render::camera::Camera;
+use crate::render::lights::{DirectionalLight, EnvMap, Environment, Lights};
+use crate::volume::majorant::{Majorant, MajorantGrid, MajorantMode};
+use crate::volume::medium::{Filter, Medium};
 
 /// A grey value or an RGB triple.
 #[derive(Debug, Clone, Copy, Deserialize)]
@@ -59,14 +59,6 @@ fn default_up() -> [f32; 3] {
     [0.0, 1.0, 0.0]
 }
 
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize, Default)]
-#[serde(rename_all = "lowercase")]
-pub enum FilterName {
-    Nearest,
-    #[default]
-    Trilinear,
-}
-
 #[derive(Debug, Clone, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct MediumFile {
@@ -80,7 +72,7 @@ pub struct MediumFile {
     #[serde(default)]
     pub phase_g: f32,
     #[serde(default)]
-    pub filter: FilterName,
+    pub filter: Filter,
 }
 
 fn one() -> f32 {
@@ -110,14 +102,6 @@ pub enum LightFile {
     },
 }
 
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize, Default)]
-#[serde(rename_all = "lowercase")]
-pub enum MajorantName {
-    #[default]
-    Grid,
-    Global,
-}
-
 #[derive(Debug, Clone, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct RenderFile {
@@ -131,7 +115,7 @@ pub struct RenderFile {
     #[serde(default = "one")]
     pub exposure: f32,
     #[serde(default)]
-    pub majorant: MajorantName,
+    pub majorant: MajorantMode,
     /// Edge of a majorant cell, in voxels.
     #[serde(default = "default_majorant_cell")]
     pub majorant_cell: u32,
@@ -154,12 +138,10 @@ fn default_majorant_cell() -> u32 {
 
 impl RenderFile {
     /// The tracking structure these settings ask for.
-    pub fn majorant_mode(&self) -> MajorantMode {
-        match self.majorant {
-            MajorantName::Grid => MajorantMode::Grid {
-                cell_voxels: self.majorant_cell,
-            },
-            MajorantName::Global => MajorantMode::Global,
+    pub fn majorant(&self) -> Majorant {
+        Majorant {
+            mode: self.majorant,
+            cell_voxels: self.majorant_cell,
         }
     }
 }
@@ -171,7 +153,7 @@ impl Default for RenderFile {
             max_depth: default_max_depth(),
             seed: default_seed(),
             exposure: 1.0,
-            majorant: MajorantName::Grid,
+            majorant: MajorantMode::Grid,
             majorant_cell: DEFAULT_MAJORANT_CELL,
         }
     }
@@ -349,11 +331,8 @@ impl Scene {
             c.width,
             c.height,
         );
-        let filter = match file.medium.filter {
-            FilterName::Nearest => Filter::Nearest,
-            FilterName::Trilinear => Filter::Trilinear,
-        };
-        let mode = file.render.majorant_mode();
+        let filter = file.medium.filter;
+        let mode = file.render.majorant();
         if grid.bricks.min_value() < 0.0 {
             bail!(
                 "grid '{}' in '{}' has negative values (min {}): extinction must be ≥ 0",
@@ -384,16 +363,13 @@ impl Scene {
     }
 
     /// Rebuilds the majorant structure (e.g. for `--majorant global` from the command line).
-    pub fn set_majorant(&mut self, mode: MajorantMode) {
+    pub fn set_majorant(&mut self, majorant: Majorant) {
         let m = &mut self.medium;
-        m.majorant = crate::volume::majorant::MajorantGrid::build(&m.grid, m.bounds, m.density_scale, mode);
-        self.settings.majorant = match mode {
-            MajorantMode::Global => MajorantName::Global,
-            MajorantMode::Grid { cell_voxels } => {
-                self.settings.majorant_cell = cell_voxels;
-                MajorantName::Grid
-            }
-        };
+        m.majorant = MajorantGrid::build(&m.grid, m.bounds, m.density_scale, majorant);
+        self.settings.majorant = majorant.mode;
+        if majorant.mode == MajorantMode::Grid {
+            self.settings.majorant_cell = majorant.cell_voxels;
+        }
     }
 }
 
@@ -405,8 +381,7 @@ fn load_lights(files: &[LightFile], dir: &Path) -> Result<Lights> {
             LightFile::Constant { radiance } => environment.constant += radiance.rgb(),
             LightFile::Envmap { file, scale } => {
                 let path = dir.join(file);
-                let image =
-                    images::read_rgb(&path).with_context(|| format!("light[{i}].file"))?;
+                let image = images::read_rgb(&path).with_context(|| format!("light[{i}].file"))?;
                 if image
                     .pixels
                     .iter()
@@ -462,7 +437,7 @@ vdb = "x.vdb"
     fn minimal_scene_has_defaults() {
         let f = parse("").unwrap();
         assert_eq!(f.render.spp, 64);
-        assert_eq!(f.medium.filter, FilterName::Trilinear);
+        assert_eq!(f.medium.filter, Filter::Trilinear);
         assert!(f.light.is_empty());
     }
 

@@ -10,12 +10,49 @@ use glam::{IVec3, Vec3};
 
 use crate::volume::brickmap::{leaf_offset, BrickMap, BRICK_VOXELS};
 
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(
+    Debug,
+    Clone,
+    Copy,
+    PartialEq,
+    Eq,
+    Default,
+    clap::ValueEnum,
+    serde::Deserialize,
+    serde::Serialize,
+)]
+#[serde(rename_all = "kebab-case")]
 pub enum MajorantMode {
-    /// One majorant per coarse cell (the default).
-    Grid { cell_voxels: u32 },
-    /// One majorant for the whole medium: the baseline for speed comparisons.
+    /// One majorant per coarse cell of the grid (fast; the default).
+    #[default]
+    Grid,
+    /// One majorant for the whole medium (the baseline for speed comparisons).
     Global,
+}
+
+crate::display_as_value_enum!(MajorantMode);
+
+/// How a medium is tracked: the majorant mode and, for the grid, its cell edge in voxels.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Majorant {
+    pub mode: MajorantMode,
+    pub cell_voxels: u32,
+}
+
+impl Majorant {
+    pub const fn grid(cell_voxels: u32) -> Self {
+        Majorant {
+            mode: MajorantMode::Grid,
+            cell_voxels,
+        }
+    }
+
+    pub const fn global() -> Self {
+        Majorant {
+            mode: MajorantMode::Global,
+            cell_voxels: 0,
+        }
+    }
 }
 
 #[derive(Clone)]
@@ -43,9 +80,9 @@ impl MajorantGrid {
         bricks: &BrickMap,
         bounds: (Vec3, Vec3),
         density_scale: f32,
-        mode: MajorantMode,
+        majorant: Majorant,
     ) -> Self {
-        match mode {
+        match majorant.mode {
             MajorantMode::Global => {
                 let extent = (bounds.1 - bounds.0).max(Vec3::splat(1e-6));
                 MajorantGrid {
@@ -56,9 +93,12 @@ impl MajorantGrid {
                     sigma_max: vec![bricks.max_value().max(0.0) * density_scale],
                 }
             }
-            MajorantMode::Grid { cell_voxels } => {
-                Self::build_cells(bricks, bounds, density_scale, cell_voxels.max(1) as i32)
-            }
+            MajorantMode::Grid => Self::build_cells(
+                bricks,
+                bounds,
+                density_scale,
+                majorant.cell_voxels.max(1) as i32,
+            ),
         }
     }
 
@@ -231,7 +271,7 @@ mod tests {
         }
         let m = b.build();
         let bounds = (Vec3::splat(-0.5), Vec3::splat(23.5));
-        let grid = MajorantGrid::build(&m, bounds, 2.0, MajorantMode::Grid { cell_voxels: 8 });
+        let grid = MajorantGrid::build(&m, bounds, 2.0, Majorant::grid(8));
         assert_eq!(grid.dims, IVec3::splat(3));
         let mut state = 12345u64;
         for _ in 0..20000 {
@@ -284,7 +324,7 @@ mod tests {
             &m,
             (Vec3::new(2.5, 3.5, 4.5), Vec3::new(30.5, 4.5, 5.5)),
             0.5,
-            MajorantMode::Global,
+            Majorant::global(),
         );
         assert_eq!(grid.cell_count(), 1);
         let segs: Vec<_> = grid

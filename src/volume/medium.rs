@@ -5,14 +5,31 @@
 use glam::Vec3;
 
 use crate::volume::brickmap::BrickMap;
-use crate::volume::majorant::{MajorantGrid, MajorantMode};
+use crate::volume::majorant::{Majorant, MajorantGrid};
 use crate::volume::transform::IndexTransform;
 
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+/// How σt is looked up between voxel centres.
+#[derive(
+    Debug,
+    Clone,
+    Copy,
+    PartialEq,
+    Eq,
+    Default,
+    clap::ValueEnum,
+    serde::Deserialize,
+    serde::Serialize,
+)]
+#[serde(rename_all = "kebab-case")]
 pub enum Filter {
+    /// The value of the voxel containing the point.
     Nearest,
+    /// OpenVDB's box sampler: interpolation between the eight surrounding voxel centres.
+    #[default]
     Trilinear,
 }
+
+crate::display_as_value_enum!(Filter);
 
 /// A ray in index space; `t` is a world distance (see `transform`).
 #[derive(Debug, Clone, Copy)]
@@ -47,7 +64,7 @@ impl Medium {
         transform: IndexTransform,
         density_scale: f32,
         filter: Filter,
-        majorant: MajorantMode,
+        majorant: Majorant,
     ) -> Self {
         let bounds = match grid.active_bounds() {
             Some((lo, hi)) => (lo.as_vec3() - 0.5, hi.as_vec3() + 0.5),

@@ -4,12 +4,12 @@
 use std::path::PathBuf;
 
 use glam::{DMat3, DVec3, IVec3, Vec3};
-use volgrad::volume::brickmap::BrickMap;
 use volgrad::render::camera::Camera;
 use volgrad::render::lights::{DirectionalLight, Environment, Lights};
-use volgrad::volume::majorant::MajorantMode;
-use volgrad::volume::medium::{Filter, Medium};
 use volgrad::render::scene::{RenderFile, Scene};
+use volgrad::volume::brickmap::BrickMap;
+use volgrad::volume::majorant::Majorant;
+use volgrad::volume::medium::{Filter, Medium};
 use volgrad::volume::transform::IndexTransform;
 
 /// A grid of `n`³ voxels (0..n) whose values come from `f`.
@@ -65,7 +65,7 @@ impl SceneBuilder {
         albedo: Vec3,
         g: f32,
         filter: Filter,
-        majorant: MajorantMode,
+        majorant: Majorant,
     ) -> Scene {
         let mut medium = Medium::new(grid, transform, density_scale, filter, majorant);
         medium.albedo = albedo;
@@ -102,7 +102,7 @@ pub fn lumpy_block_scene(filter: Filter, empty_voxels: bool, albedo: f32) -> Sce
             Vec3::splat(albedo),
             0.3,
             filter,
-            MajorantMode::Grid { cell_voxels: 4 },
+            Majorant::grid(4),
         );
     s.lights.directional.push(DirectionalLight {
         to_light: Vec3::new(0.4, 1.0, 0.3).normalize(),
