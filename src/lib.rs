@@ -10,8 +10,6 @@ pub mod io;
 pub mod render;
 pub mod volume;
 
-use std::path::Path;
-
 /// `Display` for an enum that derives `clap::ValueEnum`: its command-line name, which is also its
 /// name in scene files (serde kebab-case) and in outputs. One spelling per value, written once.
 #[macro_export]
@@ -25,15 +23,4 @@ macro_rules! display_as_value_enum {
             }
         }
     };
-}
-
-/// Nothing the user had is overwritten without being asked.
-pub fn refuse_overwrite(path: &Path, overwrite: bool) -> anyhow::Result<()> {
-    if path.exists() && !overwrite {
-        anyhow::bail!(
-            "'{}' already exists: pass --force to overwrite it",
-            path.display()
-        );
-    }
-    Ok(())
 }

@@ -339,3 +339,49 @@ fn derivative_image_sums_to_the_gradient_of_the_mean() {
     let se = (values.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / 12.0).sqrt();
     assert!(z((mean, se), &fd).abs() < 4.5, "{mean} ± {se} vs {fd:?}");
 }
+
+#[test]
+fn adjoint_image_comes_from_a_primal_render_at_the_pass_settings() {
+    use volgrad::gradient::objective::{adjoint_image, render_target};
+    use volgrad::io::images::RgbImage;
+    use volgrad::render::image::{render, RenderOptions};
+    let scene = scene(Filter::Trilinear, true, 0.8);
+    let options = options(&scene, Estimator::Joint, 4, 21);
+    let pixels = (scene.camera.width * scene.camera.height) as usize;
+
+    // mean: δ = 1/(3 · pixels) everywhere, no render and no loss value.
+    let mean = adjoint_image(&scene, Loss::Mean, None, &options).unwrap();
+    assert!(mean.loss.is_none());
+    assert!(mean
+        .delta
+        .iter()
+        .all(|d| *d == Vec3::splat(1.0 / (3 * pixels) as f32)));
+
+    // l2 against the very image the primal render must produce (same spp, seed, depth): δ = 0.
+    let primal = render(
+        &scene,
+        &RenderOptions {
+            spp: 4,
+            seed: 21,
+            max_depth: scene.settings.max_depth,
+            progress: false,
+        },
+    )
+    .0;
+    let same = adjoint_image(&scene, Loss::L2, Some(&primal), &options).unwrap();
+    assert_eq!(same.loss, Some(0.0));
+    assert!(same.delta.iter().all(|d| *d == Vec3::ZERO));
+
+    // The target render is seeded apart from the pass, so its noise differs from the primal's.
+    let target = render_target(&scene, 4, 21, false);
+    let other = adjoint_image(&scene, Loss::L2, Some(&target), &options).unwrap();
+    assert!(other.loss.unwrap() > 0.0);
+
+    // A target of another size, or none at all for a loss that needs one, is an error.
+    let small = RgbImage::new(2, 2);
+    let err = adjoint_image(&scene, Loss::L2, Some(&small), &options)
+        .err()
+        .unwrap();
+    assert!(err.to_string().contains("target is 2×2"), "{err}");
+    assert!(adjoint_image(&scene, Loss::L1, None, &options).is_err());
+}

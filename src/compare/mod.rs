@@ -17,7 +17,9 @@
 mod equal_time;
 mod reference;
 mod stability;
+mod study;
 
 pub use equal_time::*;
 pub use reference::*;
 pub use stability::*;
+pub use study::*;

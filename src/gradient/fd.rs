@@ -96,8 +96,13 @@ pub fn auto_eps(scene: &Scene, direction: &Direction) -> f32 {
         .fold(0.0f32, f32::max)
         .max(1e-6);
     let by_depth = 0.05 / (scene.medium.density_scale as f64 * chord * magnitude as f64).max(1e-12);
-    let cap = 0.15 * scene.medium.grid.max_value().max(1e-3);
-    (by_depth as f32).min(cap)
+    (by_depth as f32).min(max_eps(&scene.medium.grid))
+}
+
+/// The largest step `auto_eps` takes, and the step when none is chosen per direction: 15 % of the
+/// grid's largest value, so that a step is never a large change of the medium itself.
+pub fn max_eps(grid: &BrickMap) -> f32 {
+    0.15 * grid.max_value().max(1e-3)
 }
 
 #[derive(Debug, Clone, Copy)]

@@ -6,4 +6,5 @@ pub mod fd;
 pub mod gradcheck;
 pub mod grid;
 pub mod loss;
+pub mod objective;
 pub mod passes;

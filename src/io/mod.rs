@@ -7,5 +7,6 @@ pub mod colormap;
 pub mod gradient_files;
 pub mod images;
 pub mod make_grid;
+pub mod output;
 pub mod progress;
 pub mod vdb;

@@ -67,7 +67,7 @@ pub fn read_grid(path: &Path, selector: &GridSelector) -> Result<Grid> {
 
 /// Writes grids to `path`. Refuses to replace an existing file unless `overwrite`.
 pub fn write_grids(path: &Path, grids: &[&Grid], save_half: bool, overwrite: bool) -> Result<()> {
-    crate::refuse_overwrite(path, overwrite)?;
+    crate::io::output::refuse_overwrite(path, overwrite)?;
     let data: Vec<FloatGridData> = grids.iter().map(|g| g.to_data()).collect();
     ffi::write_float_grids(path_str(path)?, &data, save_half).map_err(|e| anyhow!("{}", e.what()))
 }

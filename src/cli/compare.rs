@@ -1,0 +1,152 @@
+//! `volgrad compare`: speed against accuracy (the equal-time study of one scene) or the stability
+//! suite. The studies themselves live in the library (`volgrad::compare`).
+
+use std::path::PathBuf;
+use std::time::Duration;
+
+use anyhow::{bail, Result};
+use clap::ValueEnum;
+
+use super::{set_threads, values};
+use volgrad::compare::{self, EqualTimeOptions, StabilityOptions};
+use volgrad::gradient::adjoint::Estimator;
+use volgrad::render::scene::Scene;
+
+#[derive(Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum Suite {
+    /// Error against time for each estimator and for the renderer's majorants, on SCENE.
+    EqualTime,
+    /// Scenes built in memory to break estimators: bias, variance, non-finite values.
+    Stability,
+}
+
+#[derive(clap::Args)]
+pub struct Args {
+    /// The scene file (TOML); not needed for --suite stability.
+    #[arg(required_unless_present = "suite")]
+    pub scene: Option<PathBuf>,
+    #[arg(long, value_enum, default_value = "equal-time")]
+    pub suite: Suite,
+    /// Estimators to compare, comma-separated.
+    #[arg(
+        long,
+        value_enum,
+        value_delimiter = ',',
+        default_value = "joint,drt,naive"
+    )]
+    pub estimators: Vec<Estimator>,
+    /// Wall time per estimator (and per majorant mode for the renderer), e.g. 120s, 2m.
+    #[arg(long, default_value = "120s", value_parser = values::duration)]
+    pub budget: Duration,
+    /// Wall time per majorant mode of the forward-renderer comparison (default: budget / 4; 0s
+    /// skips it).
+    #[arg(long, value_parser = values::duration)]
+    pub render_budget: Option<Duration>,
+    /// A reference gradient written by an earlier `volgrad compare` (reference.vdb).
+    #[arg(long)]
+    pub reference: Option<PathBuf>,
+    /// Samples per pixel of each reference run.
+    #[arg(long, default_value_t = 64)]
+    pub reference_spp: u32,
+    /// Runs of each of joint and drt averaged into the reference.
+    #[arg(long, default_value_t = 8)]
+    pub reference_seeds: u32,
+    /// Use the reference even if finite differences disagree with it (|z| > 4).
+    #[arg(long)]
+    pub force_reference: bool,
+    /// Largest spp of a sweep.
+    #[arg(long, default_value_t = 4096)]
+    pub max_spp: u32,
+    /// Voxels (of largest |gradient|) checked against finite differences.
+    #[arg(long, default_value_t = 3)]
+    pub fd_voxels: usize,
+    /// Samples per pixel of each finite-difference render (default: 16; 4096 for the suite).
+    #[arg(long)]
+    pub fd_spp: Option<u32>,
+    /// Finite-difference repetitions (default: 8).
+    #[arg(long)]
+    pub repeats: Option<u32>,
+    /// Stability suite: independent runs per estimator and scene (for the standard error).
+    #[arg(long, default_value_t = 8)]
+    pub suite_runs: u32,
+    /// Stability suite: samples per pixel of each run.
+    #[arg(long, default_value_t = 64)]
+    pub suite_spp: u32,
+    /// Random seed (default: render.seed, or 1 for the suite).
+    #[arg(long)]
+    pub seed: Option<u64>,
+    /// Output directory (default: compare-<scene>/, or compare-stability/).
+    #[arg(long)]
+    pub out: Option<PathBuf>,
+    /// Worker threads (default: all cores).
+    #[arg(long)]
+    pub threads: Option<usize>,
+    /// No progress bars.
+    #[arg(long, short)]
+    pub quiet: bool,
+    /// Overwrite existing outputs.
+    #[arg(long)]
+    pub force: bool,
+}
+
+pub fn run(args: &Args) -> Result<()> {
+    set_threads(args.threads)?;
+    let mut estimators = args.estimators.clone();
+    estimators.dedup();
+    match (args.suite, &args.scene) {
+        (Suite::Stability, _) => stability(args, &estimators),
+        (Suite::EqualTime, None) => bail!("give a scene file, or --suite stability"),
+        (Suite::EqualTime, Some(path)) => {
+            let scene = Scene::load(path)?;
+            let name = path
+                .file_stem()
+                .map_or("scene".into(), |s| s.to_string_lossy().into_owned());
+            let out = args
+                .out
+                .clone()
+                .unwrap_or_else(|| PathBuf::from(format!("compare-{name}")));
+            let options = EqualTimeOptions {
+                estimators,
+                budget: args.budget,
+                render_budget: args.render_budget.unwrap_or(args.budget / 4),
+                reference: args.reference.clone(),
+                reference_spp: args.reference_spp,
+                reference_seeds: args.reference_seeds,
+                force_reference: args.force_reference,
+                max_spp: args.max_spp,
+                fd_voxels: args.fd_voxels,
+                fd_spp: args.fd_spp.unwrap_or(16).max(1),
+                fd_repeats: args.repeats.unwrap_or(8).max(2),
+                seed: args.seed.unwrap_or(scene.settings.seed),
+                progress: !args.quiet,
+                overwrite: args.force,
+            };
+            let summary = compare::equal_time(&scene, &name, &out, &options)?;
+            println!("{summary}");
+            eprintln!("wrote {}", out.display());
+            Ok(())
+        }
+    }
+}
+
+fn stability(args: &Args, estimators: &[Estimator]) -> Result<()> {
+    let out = args
+        .out
+        .clone()
+        .unwrap_or_else(|| PathBuf::from("compare-stability"));
+    let options = StabilityOptions {
+        runs: args.suite_runs.max(2),
+        spp: args.suite_spp.max(1),
+        fd_spp: args.fd_spp.unwrap_or(4096).max(1),
+        fd_repeats: args.repeats.unwrap_or(8).max(2),
+        seed: args.seed.unwrap_or(1),
+        max_depth: 16,
+        progress: !args.quiet,
+    };
+    let report = compare::stability_suite(estimators, &options, &out, args.force)?;
+    println!("{}", report.markdown);
+    match report.failure() {
+        Some(failure) => bail!(failure),
+        None => Ok(()),
+    }
+}

@@ -1,0 +1,299 @@
+//! `volgrad grad`: the gradient of a loss with respect to every voxel, as a VDB and a picture;
+//! optionally the derivative image of a box; with `--estimator fd`, finite differences instead.
+
+use std::path::{Path, PathBuf};
+
+use anyhow::{bail, Context, Result};
+use clap::builder::PossibleValue;
+use clap::ValueEnum;
+use glam::IVec3;
+
+use super::values::{self, FdDirection, IndexBox};
+use super::{set_threads, AdjointArgs, Domain, FdArgs};
+use volgrad::gradient::adjoint::Estimator;
+use volgrad::gradient::fd;
+use volgrad::gradient::loss::Loss;
+use volgrad::gradient::objective::{adjoint_image, check_target, render_target};
+use volgrad::gradient::passes::{derivative_image, gradient};
+use volgrad::io::gradient_files::{self, Provenance};
+use volgrad::io::images::{self, RgbImage};
+use volgrad::io::output::refuse_overwrite;
+use volgrad::io::progress;
+use volgrad::io::{colormap, vdb};
+use volgrad::render::lights::luminance;
+use volgrad::render::scene::Scene;
+
+/// What `grad` computes: an estimator's gradient of every voxel, or finite differences along
+/// directions. The names are the estimators' own, plus `fd`.
+#[derive(Clone, Copy, PartialEq, Eq)]
+pub enum Method {
+    Estimator(Estimator),
+    FiniteDifferences,
+}
+
+impl ValueEnum for Method {
+    fn value_variants<'a>() -> &'a [Self] {
+        &[
+            Method::Estimator(Estimator::Joint),
+            Method::Estimator(Estimator::Drt),
+            Method::Estimator(Estimator::Naive),
+            Method::FiniteDifferences,
+        ]
+    }
+
+    fn to_possible_value(&self) -> Option<PossibleValue> {
+        match self {
+            Method::Estimator(e) => e.to_possible_value(),
+            Method::FiniteDifferences => Some(
+                PossibleValue::new("fd")
+                    .help("Finite differences along the direction given by --fd"),
+            ),
+        }
+    }
+}
+
+#[derive(clap::Args)]
+pub struct Args {
+    /// The scene file (TOML).
+    pub scene: PathBuf,
+    #[arg(long, value_enum, default_value = "joint")]
+    pub estimator: Method,
+    #[arg(long, value_enum, default_value_t = Loss::Mean)]
+    pub loss: Loss,
+    /// Target image (EXR, PNG, ...) for l2, l1 and relative-l2.
+    #[arg(long, conflicts_with = "target_scene")]
+    pub target: Option<PathBuf>,
+    /// A scene whose render (at --target-spp) is the target.
+    #[arg(long)]
+    pub target_scene: Option<PathBuf>,
+    /// Samples per pixel of the --target-scene render.
+    #[arg(long, default_value_t = 256)]
+    pub target_spp: u32,
+    /// Output gradient VDB (a picture of it goes beside it as .png). Default: <scene>.grad.vdb.
+    #[arg(short, long)]
+    pub output: Option<PathBuf>,
+    /// Also write d pixel / d ε for ε added to every voxel of an index box "x0,y0,z0,x1,y1,z1" (or
+    /// "all"), as <output>.dpixel.exr and .png.
+    #[arg(long)]
+    pub image_of: Option<String>,
+    /// With --estimator fd: "voxels:x,y,z;x,y,z", "box:x0,y0,z0,x1,y1,z1", "ones" or "random".
+    #[arg(long)]
+    pub fd: Option<String>,
+    #[command(flatten)]
+    pub fd_args: FdArgs,
+    #[command(flatten)]
+    pub adjoint: AdjointArgs,
+    /// Print wall time, ms per spp, paths/s and density lookups.
+    #[arg(long)]
+    pub stats: bool,
+    /// Overwrite existing outputs.
+    #[arg(long)]
+    pub force: bool,
+}
+
+/// What `grad` writes: the VDB, its picture, and with `--image-of` the derivative image as EXR and
+/// PNG. All are checked before any work so that a refusal to overwrite costs nothing.
+fn outputs(vdb: &Path, image_of: bool) -> Vec<PathBuf> {
+    let stem = vdb.with_extension("");
+    let mut paths = vec![vdb.to_path_buf(), vdb.with_extension("png")];
+    if image_of {
+        paths.extend([
+            stem.with_extension("dpixel.exr"),
+            stem.with_extension("dpixel.png"),
+        ]);
+    }
+    paths
+}
+
+/// An index box resolved against the scene: "all" is the whole gradient domain.
+fn resolve_box(b: IndexBox, scene: &Scene) -> Result<(IVec3, IVec3)> {
+    match b {
+        IndexBox::All => fd::domain_bounds(&scene.medium.grid).context("the grid is empty"),
+        IndexBox::Voxels(lo, hi) => Ok((lo, hi)),
+    }
+}
+
+/// The target image of a loss, from --target or --target-scene, checked against the scene.
+fn load_target(args: &Args, scene: &Scene) -> Result<Option<RgbImage>> {
+    let target = match (&args.target, &args.target_scene) {
+        (Some(path), _) => {
+            Some(images::read_rgb(path).with_context(|| format!("--target '{}'", path.display()))?)
+        }
+        (None, Some(path)) => {
+            let other = Scene::load(path)
+                .with_context(|| format!("--target-scene '{}'", path.display()))?;
+            Some(render_target(
+                &other,
+                args.target_spp,
+                scene.settings.seed,
+                !args.adjoint.quiet,
+            ))
+        }
+        (None, None) => None,
+    };
+    if args.loss.needs_target() && target.is_none() {
+        bail!(
+            "--loss {} needs --target IMAGE or --target-scene SCENE",
+            args.loss
+        );
+    }
+    if let Some(t) = &target {
+        check_target(t, scene)?;
+    }
+    Ok(target)
+}
+
+pub fn run(args: &Args) -> Result<()> {
+    set_threads(args.adjoint.threads)?;
+    let vdb_out = args.output.clone().unwrap_or_else(|| {
+        PathBuf::from(format!(
+            "{}.grad.vdb",
+            args.scene.file_stem().unwrap_or_default().to_string_lossy()
+        ))
+    });
+    if args.estimator != Method::FiniteDifferences {
+        if vdb_out.extension().and_then(|e| e.to_str()) != Some("vdb") {
+            bail!("--output must end in .vdb (got '{}')", vdb_out.display());
+        }
+        for path in outputs(&vdb_out, args.image_of.is_some()) {
+            refuse_overwrite(&path, args.force)?;
+        }
+    }
+    let scene = Scene::load(&args.scene)?;
+    let image_box = match &args.image_of {
+        Some(spec) => Some(resolve_box(values::index_box(spec, "--image-of")?, &scene)?),
+        None => None,
+    };
+    let target = load_target(args, &scene)?;
+    let estimator = match args.estimator {
+        Method::Estimator(e) => e,
+        Method::FiniteDifferences => return finite_differences(args, &scene, target.as_ref()),
+    };
+    let options = args.adjoint.options(&scene, estimator)?;
+    let adjoint = adjoint_image(&scene, args.loss, target.as_ref(), &options)?;
+    if let Some(loss) = adjoint.loss {
+        eprintln!("loss ({}) = {loss:.6e}", args.loss);
+    }
+    let run = gradient(&scene, &adjoint.delta, &options);
+    let provenance = Provenance {
+        estimator: estimator.to_string(),
+        spp: options.spp as u64,
+        seed: options.seed.to_string(),
+        loss: args.loss.to_string(),
+        scene: args.scene.display().to_string(),
+    };
+    let grid = gradient_files::gradient_grid(
+        &run.gradient,
+        &scene.grid_name,
+        scene.medium.transform,
+        &provenance,
+    );
+    vdb::write_grids(&vdb_out, &[&grid], false, args.force)?;
+    let png = vdb_out.with_extension("png");
+    let scale = gradient_files::write_projection_png(&png, &grid)?;
+    eprintln!(
+        "wrote {} (grid {}, {} voxels with gradient, ⟨g, 1⟩ = {:.6e}) and {} (sum along index z; full colour at ±{:.3e})",
+        vdb_out.display(),
+        grid.name,
+        grid.bricks.active_voxel_count(),
+        run.gradient.sum(),
+        png.display(),
+        scale.unwrap_or(0.0)
+    );
+    if let Some((lo, hi)) = image_box {
+        let (image, _) = derivative_image(&scene, lo, hi, &options);
+        let paths = outputs(&vdb_out, true);
+        let (exr, png) = (&paths[2], &paths[3]);
+        images::write_exr(exr, &image, false)?;
+        let luminance: Vec<f32> = image.pixels.iter().map(|&c| luminance(c)).collect();
+        let scale = colormap::write_signed_png(png, image.width, image.height, &luminance)?;
+        eprintln!(
+            "wrote {} and {} (d pixel / d ε for the box {lo}..{hi}; full colour at ±{scale:.3e})",
+            exr.display(),
+            png.display()
+        );
+    }
+    if args.stats {
+        let secs = run.stats.wall.as_secs_f64();
+        println!("estimator            {estimator}");
+        println!("wall time            {secs:.3} s");
+        println!(
+            "ms per spp           {:.2}",
+            1e3 * secs / options.spp as f64
+        );
+        println!("paths/s              {:.0}", run.stats.paths_per_second());
+        println!("lookups per path     {:.2}", run.stats.lookups_per_path());
+        println!("gradient bricks      {}", run.gradient.brick_count());
+    }
+    Ok(())
+}
+
+/// The finite-difference directions `--fd` names, each with a label.
+fn fd_directions(
+    spec: &str,
+    scene: &Scene,
+    active_only: bool,
+    seed: u64,
+    floor: f32,
+) -> Result<Vec<(String, fd::Direction)>> {
+    let grid = &scene.medium.grid;
+    let (lo, hi) = fd::domain_bounds(grid).context("the grid is empty")?;
+    let domain = || fd::box_voxels(grid, lo, hi, active_only);
+    Ok(match values::fd_direction(spec)? {
+        FdDirection::Voxels(voxels) => voxels
+            .into_iter()
+            .map(|v| (format!("voxel [{}, {}, {}]", v.x, v.y, v.z), vec![(v, 1.0)]))
+            .collect(),
+        FdDirection::Box(b) => {
+            let (a, c) = resolve_box(b, scene)?;
+            vec![(
+                format!("box {a}..{c}"),
+                fd::ones(&fd::box_voxels(grid, a, c, active_only)),
+            )]
+        }
+        FdDirection::Ones => vec![("⟨g, 1⟩".into(), fd::ones(&domain()))],
+        FdDirection::Random => vec![(
+            format!("random ±1 (seed {seed})"),
+            fd::random_signs(grid, &domain(), seed, floor),
+        )],
+    })
+}
+
+fn finite_differences(args: &Args, scene: &Scene, target: Option<&RgbImage>) -> Result<()> {
+    let spec = args
+        .fd
+        .as_deref()
+        .context("--estimator fd needs --fd (voxels:..., box:..., ones or random)")?;
+    let seed = args.adjoint.seed.unwrap_or(scene.settings.seed);
+    let max_depth = args.adjoint.max_depth.unwrap_or(scene.settings.max_depth);
+    let options = args.fd_args.options(scene, args.loss, seed, max_depth)?;
+    let active_only = args.adjoint.domain == Domain::Active;
+    let directions = fd_directions(spec, scene, active_only, seed, 3.0 * options.eps)?;
+    println!(
+        "finite differences of {} ({} spp × {} repeats, common random numbers)",
+        args.loss, options.spp, options.repeats
+    );
+    let bar = progress::bar(!args.adjoint.quiet, directions.len() as u64, "fd");
+    for (name, direction) in directions {
+        let mut options = options;
+        options.eps = args
+            .fd_args
+            .eps
+            .unwrap_or_else(|| fd::auto_eps(scene, &direction));
+        let r = fd::directional_derivative(scene, target, &direction, &options)?;
+        let one_sided = if r.one_sided {
+            "  (one-sided: empty voxels)"
+        } else {
+            ""
+        };
+        bar.suspend(|| {
+            println!(
+                "{name:<32} {:>14.6e} ± {:.2e}  (ε = {:.3e}){one_sided}",
+                r.value, r.std_err, options.eps
+            )
+        });
+        bar.inc(1);
+    }
+    bar.finish_and_clear();
+    Ok(())
+}

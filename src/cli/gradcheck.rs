@@ -1,0 +1,82 @@
+//! `volgrad gradcheck`: an estimator against finite differences (z-scores) on a small render of the
+//! scene, before its gradients are trusted.
+
+use std::path::PathBuf;
+
+use anyhow::{bail, Result};
+
+use super::{set_threads, AdjointArgs, FdArgs};
+use volgrad::gradient::adjoint::Estimator;
+use volgrad::gradient::gradcheck::{gradcheck, GradcheckOptions, Z_LIMIT};
+use volgrad::gradient::loss::Loss;
+use volgrad::render::scene::Scene;
+
+#[derive(clap::Args)]
+pub struct Args {
+    pub scene: PathBuf,
+    #[arg(long, value_enum, default_value_t = Estimator::Joint)]
+    pub estimator: Estimator,
+    /// Number of random voxels to check.
+    #[arg(long, default_value_t = 4)]
+    pub voxels: usize,
+    /// Image width for the check (the height follows the scene's aspect ratio): finite differences
+    /// render the image many times, so a small one keeps the check quick.
+    #[arg(long, default_value_t = 32)]
+    pub width: u32,
+    #[command(flatten)]
+    pub fd_args: FdArgs,
+    #[command(flatten)]
+    pub adjoint: AdjointArgs,
+}
+
+pub fn run(args: &Args) -> Result<()> {
+    set_threads(args.adjoint.threads)?;
+    let mut scene = Scene::load(&args.scene)?;
+    if args.width == 0 {
+        bail!("--width must be at least 1");
+    }
+    let c = scene.camera;
+    let height = ((args.width as u64 * c.height as u64) / c.width as u64).max(1) as u32;
+    scene.camera = c.with_resolution(args.width, height);
+    let grad = args.adjoint.options(&scene, args.estimator)?;
+    let fd = args
+        .fd_args
+        .options(&scene, Loss::Mean, grad.seed, grad.adjoint.max_depth)?;
+    let options = GradcheckOptions {
+        grad,
+        repeats: args.fd_args.repeats,
+        voxels: args.voxels,
+        fd,
+        fixed_eps: args.fd_args.eps.is_some(),
+        progress: !args.adjoint.quiet,
+    };
+    let eps = match args.fd_args.eps {
+        Some(e) => e.to_string(),
+        None => "automatic".into(),
+    };
+    eprintln!("checking {:?} ({} spp × {} runs) against finite differences (ε {eps}, {} spp × {} repeats) on d(mean pixel)/dθ", args.estimator, grad.spp, options.repeats, fd.spp, fd.repeats);
+    let checks = gradcheck(&scene, &options)?;
+    println!(
+        "{:<40} {:>24} {:>24} {:>8}",
+        "check", "estimator", "finite differences", "z"
+    );
+    let mut failed = 0;
+    for c in &checks {
+        let verdict = if c.passed() { "" } else { "  FAIL" };
+        failed += usize::from(!c.passed());
+        println!(
+            "{:<40} {:>12.4e} ± {:<9.2e} {:>12.4e} ± {:<9.2e} {:>8.2}{verdict}",
+            c.name,
+            c.estimate,
+            c.estimate_se,
+            c.fd.value,
+            c.fd.std_err,
+            c.z()
+        );
+    }
+    if failed > 0 {
+        bail!("{failed} of {} checks beyond |z| = {Z_LIMIT}", checks.len());
+    }
+    println!("all {} checks within |z| < {Z_LIMIT}", checks.len());
+    Ok(())
+}

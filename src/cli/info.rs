@@ -1,0 +1,96 @@
+//! `volgrad info`: every grid in a .vdb file, and the brick map volgrad would build for it.
+
+use std::path::PathBuf;
+
+use anyhow::Result;
+
+use super::bytes;
+use volgrad::io::vdb;
+use volgrad::volume::brickmap::BRICK_VOXELS;
+
+#[derive(clap::Args)]
+pub struct Args {
+    /// The .vdb file.
+    pub file: PathBuf,
+}
+
+pub fn run(args: &Args) -> Result<()> {
+    let file = &args.file;
+    let grids = vdb::list_grids(file)?;
+    println!(
+        "{}: {} grid{}",
+        file.display(),
+        grids.len(),
+        if grids.len() == 1 { "" } else { "s" }
+    );
+    for (i, g) in grids.iter().enumerate() {
+        println!("\n[{i}] {}", g.name);
+        println!(
+            "  value type     {}{}",
+            g.value_type,
+            if g.saved_as_half {
+                " (saved as half)"
+            } else {
+                ""
+            }
+        );
+        println!("  class          {}", g.grid_class);
+        let v = g.voxel_size;
+        let kind = match (g.linear, g.axis_aligned) {
+            (false, _) => "non-linear map (not renderable)",
+            (true, true) => "scale + translation",
+            (true, false) => "general affine (rotated or sheared)",
+        };
+        println!(
+            "  voxel size     {:.6} × {:.6} × {:.6}  ({kind})",
+            v[0], v[1], v[2]
+        );
+        let m = g.index_to_world;
+        for r in 0..3 {
+            println!(
+                "  {}   [{:>10.5} {:>10.5} {:>10.5} | {:>10.5}]",
+                if r == 0 {
+                    "index→world"
+                } else {
+                    "           "
+                },
+                m[4 * r],
+                m[4 * r + 1],
+                m[4 * r + 2],
+                m[4 * r + 3]
+            );
+        }
+        println!("  active voxels  {}", g.active_voxels);
+        println!("  leaves         {}", g.leaf_count);
+        println!("  active tiles   {}", g.active_tiles);
+        if g.index_min.iter().zip(&g.index_max).all(|(a, b)| a <= b) {
+            println!("  index bbox     {:?} .. {:?}", g.index_min, g.index_max);
+            println!(
+                "  world bbox     {:?} .. {:?}",
+                g.world_min.map(|x| (x * 1e4).round() / 1e4),
+                g.world_max.map(|x| (x * 1e4).round() / 1e4)
+            );
+        } else {
+            println!("  index bbox     (empty)");
+        }
+        if g.value_type == "float" {
+            let grid = vdb::read_grid(file, &vdb::GridSelector::Index(i))?;
+            let b = &grid.bricks;
+            let leaf_bytes = b.leaves().len() * BRICK_VOXELS * 4;
+            println!(
+                "  brick map      {} ({:.3} × the {} of leaf values, {} tiles kept as constants)",
+                bytes(b.memory_bytes()),
+                b.memory_bytes() as f64 / leaf_bytes.max(1) as f64,
+                bytes(leaf_bytes),
+                b.tiles().len()
+            );
+        }
+        if !g.metadata.is_empty() {
+            println!("  metadata");
+            for e in &g.metadata {
+                println!("    {:<24} {:<8} {}", e.name, e.type_name, e.value);
+            }
+        }
+    }
+    Ok(())
+}

@@ -1,0 +1,28 @@
+//! `volgrad merge`: gradient VDBs of runs with different seeds, combined weighted by their spp.
+
+use std::path::{Path, PathBuf};
+
+use anyhow::Result;
+
+use volgrad::io::{gradient_files, vdb};
+
+#[derive(clap::Args)]
+pub struct Args {
+    /// Gradient VDBs written by `volgrad grad`.
+    #[arg(required = true)]
+    pub inputs: Vec<PathBuf>,
+    #[arg(short, long)]
+    pub output: PathBuf,
+    /// Overwrite an existing output.
+    #[arg(long)]
+    pub force: bool,
+}
+
+pub fn run(args: &Args) -> Result<()> {
+    let (inputs, output, force) = (&args.inputs, &args.output, args.force);
+    let paths: Vec<&Path> = inputs.iter().map(|p| p.as_path()).collect();
+    let grid = gradient_files::merge(&paths)?;
+    vdb::write_grids(output, &[&grid], false, force)?;
+    eprintln!("wrote {} ({} inputs)", output.display(), inputs.len());
+    Ok(())
+}

@@ -1,0 +1,142 @@
+//! The `volgrad` subcommands, a file each: its `Args` next to its `run()`. Options that several
+//! commands share live here; the hand-written value formats (durations, index boxes, voxel
+//! lists) live in `values`.
+
+pub mod compare;
+pub mod grad;
+pub mod gradcheck;
+pub mod info;
+pub mod make_grid;
+pub mod merge;
+pub mod render;
+pub mod values;
+
+use anyhow::{bail, Context, Result};
+use clap::{Args, ValueEnum};
+
+use volgrad::gradient::adjoint::{AdjointOptions, Estimator, Suffix};
+use volgrad::gradient::fd::{self, FdOptions};
+use volgrad::gradient::loss::Loss;
+use volgrad::gradient::passes::GradOptions;
+use volgrad::render::scene::Scene;
+
+/// Which voxels are parameters.
+#[derive(Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum Domain {
+    /// Every voxel a ray can reach inside the medium's bounds, empty ones included.
+    All,
+    /// Only the grid's active voxels.
+    Active,
+}
+
+/// Options of the gradient pass, shared by `grad` and `gradcheck`.
+#[derive(Args)]
+pub struct AdjointArgs {
+    /// Samples per pixel of the gradient pass (default: render.spp).
+    #[arg(long)]
+    pub spp: Option<u32>,
+    /// Random seed (default: render.seed).
+    #[arg(long)]
+    pub seed: Option<u64>,
+    /// Maximum scattering events per path (default: render.max_depth).
+    #[arg(long)]
+    pub max_depth: Option<u32>,
+    /// Where the indirect part of ĥ at a probe comes from.
+    #[arg(long, value_enum, default_value_t = Suffix::PerPath)]
+    pub suffix: Suffix,
+    /// Which voxels are parameters.
+    #[arg(long, value_enum, default_value = "all")]
+    pub domain: Domain,
+    /// Worker threads (default: all cores).
+    #[arg(long)]
+    pub threads: Option<usize>,
+    /// No progress bar.
+    #[arg(long, short)]
+    pub quiet: bool,
+}
+
+impl AdjointArgs {
+    /// The gradient pass these flags ask for, with the scene's settings as defaults.
+    pub fn options(&self, scene: &Scene, estimator: Estimator) -> Result<GradOptions> {
+        let spp = self.spp.unwrap_or(scene.settings.spp);
+        if spp == 0 {
+            bail!("--spp must be at least 1");
+        }
+        Ok(GradOptions {
+            adjoint: AdjointOptions {
+                estimator,
+                suffix: self.suffix,
+                max_depth: self.max_depth.unwrap_or(scene.settings.max_depth),
+            },
+            spp,
+            seed: self.seed.unwrap_or(scene.settings.seed),
+            active_only: self.domain == Domain::Active,
+            progress: !self.quiet,
+        })
+    }
+}
+
+/// Finite-difference options, shared by `grad --estimator fd` and `gradcheck`.
+#[derive(Args)]
+pub struct FdArgs {
+    /// Finite-difference step, in grid-value units (default: per direction, a step that changes the
+    /// optical depth along the direction's longest chord by about 0.05).
+    #[arg(long)]
+    pub eps: Option<f32>,
+    /// Samples per pixel of each finite-difference render.
+    #[arg(long, default_value_t = 256)]
+    pub fd_spp: u32,
+    /// Independent finite-difference repetitions, for the standard error.
+    #[arg(long, default_value_t = 8)]
+    pub repeats: u32,
+}
+
+impl FdArgs {
+    pub fn options(
+        &self,
+        scene: &Scene,
+        loss: Loss,
+        seed: u64,
+        max_depth: u32,
+    ) -> Result<FdOptions> {
+        // Without --eps, callers pick fd::auto_eps per direction; this is the cap it never exceeds.
+        let eps = self.eps.unwrap_or(fd::max_eps(&scene.medium.grid));
+        if !(eps > 0.0 && eps.is_finite()) {
+            bail!("--eps must be a positive number (got {eps})");
+        }
+        if self.fd_spp == 0 || self.repeats < 2 {
+            bail!("--fd-spp must be at least 1 and --repeats at least 2");
+        }
+        Ok(FdOptions {
+            loss,
+            eps,
+            spp: self.fd_spp,
+            repeats: self.repeats,
+            seed,
+            max_depth,
+        })
+    }
+}
+
+/// `--threads T`: a global pool of T workers (default: all cores).
+pub fn set_threads(threads: Option<usize>) -> Result<()> {
+    if let Some(t) = threads {
+        if t == 0 {
+            bail!("--threads must be at least 1");
+        }
+        rayon::ThreadPoolBuilder::new()
+            .num_threads(t)
+            .build_global()
+            .context("cannot start the thread pool")?;
+    }
+    Ok(())
+}
+
+/// A byte count as people read it.
+pub fn bytes(n: usize) -> String {
+    if n >= 1 << 20 {
+        format!("{:.2} MiB", n as f64 / (1u64 << 20) as f64)
+    } else {
+        format!("{:.1} KiB", n as f64 / 1024.0)
+    }
+}

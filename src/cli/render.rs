@@ -1,0 +1,140 @@
+//! `volgrad render`: a scene to a linear EXR and a tonemapped PNG beside it.
+
+use std::path::{Path, PathBuf};
+
+use anyhow::{bail, Result};
+
+use super::{bytes, set_threads};
+use volgrad::io::images;
+use volgrad::io::output::refuse_overwrite;
+use volgrad::render::image::{render, RenderOptions, RenderStats};
+use volgrad::render::scene::Scene;
+use volgrad::volume::brickmap::BRICK_VOXELS;
+use volgrad::volume::majorant::{Majorant, MajorantMode};
+
+#[derive(clap::Args)]
+pub struct Args {
+    /// The scene file (TOML).
+    pub scene: PathBuf,
+    /// Output EXR; the PNG goes beside it. Default: <scene name>.exr in the current directory.
+    #[arg(short, long)]
+    pub output: Option<PathBuf>,
+    /// Samples per pixel (overrides render.spp).
+    #[arg(long)]
+    pub spp: Option<u32>,
+    /// Random seed (overrides render.seed); the same seed gives the same image on any thread count.
+    #[arg(long)]
+    pub seed: Option<u64>,
+    /// Worker threads (default: all cores).
+    #[arg(long)]
+    pub threads: Option<usize>,
+    /// Maximum number of scattering events per path (overrides render.max_depth).
+    #[arg(long)]
+    pub max_depth: Option<u32>,
+    /// Majorant structure for tracking (overrides render.majorant).
+    #[arg(long, value_enum)]
+    pub majorant: Option<MajorantMode>,
+    /// Majorant cell edge in voxels (overrides render.majorant_cell).
+    #[arg(long)]
+    pub majorant_cell: Option<u32>,
+    /// Store the EXR as half floats.
+    #[arg(long)]
+    pub half: bool,
+    /// Print paths/s, density lookups per path, tracking efficiency and memory.
+    #[arg(long)]
+    pub stats: bool,
+    /// Overwrite existing output files.
+    #[arg(long)]
+    pub force: bool,
+    /// No progress bar.
+    #[arg(long, short)]
+    pub quiet: bool,
+}
+
+/// Applies the command-line overrides that change how the medium is tracked.
+fn load_scene(
+    path: &Path,
+    majorant: Option<MajorantMode>,
+    majorant_cell: Option<u32>,
+) -> Result<Scene> {
+    let mut scene = Scene::load(path)?;
+    if majorant.is_some() || majorant_cell.is_some() {
+        let cell = majorant_cell.unwrap_or(scene.settings.majorant_cell);
+        if cell == 0 || cell > 1024 {
+            bail!("--majorant-cell must be between 1 and 1024 voxels (got {cell})");
+        }
+        scene.set_majorant(Majorant {
+            mode: majorant.unwrap_or(scene.settings.majorant),
+            cell_voxels: cell,
+        });
+    }
+    Ok(scene)
+}
+
+pub fn run(args: &Args) -> Result<()> {
+    set_threads(args.threads)?;
+    let exr = args.output.clone().unwrap_or_else(|| {
+        PathBuf::from(args.scene.file_stem().unwrap_or_default()).with_extension("exr")
+    });
+    if exr.extension().and_then(|e| e.to_str()) != Some("exr") {
+        bail!(
+            "--output must end in .exr (got '{}'); the PNG is written beside it",
+            exr.display()
+        );
+    }
+    let png = exr.with_extension("png");
+    refuse_overwrite(&exr, args.force)?;
+    refuse_overwrite(&png, args.force)?;
+    let scene = load_scene(&args.scene, args.majorant, args.majorant_cell)?;
+    let mut options = RenderOptions::from_scene(&scene);
+    options.spp = args.spp.unwrap_or(options.spp);
+    options.seed = args.seed.unwrap_or(options.seed);
+    options.max_depth = args.max_depth.unwrap_or(options.max_depth);
+    options.progress = !args.quiet;
+    if options.spp == 0 {
+        bail!("--spp must be at least 1");
+    }
+    let (image, stats) = render(&scene, &options);
+    images::write_exr(&exr, &image, args.half)?;
+    images::write_png(&png, &image, scene.settings.exposure)?;
+    eprintln!("wrote {} and {}", exr.display(), png.display());
+    if args.stats {
+        print_stats(&scene, &stats);
+    }
+    Ok(())
+}
+
+fn print_stats(scene: &Scene, stats: &RenderStats) {
+    let m = &scene.medium;
+    let t = &stats.tracking;
+    let majorant = match scene.settings.majorant {
+        MajorantMode::Global => "global".to_string(),
+        MajorantMode::Grid => format!("grid, {}³-voxel cells", scene.settings.majorant_cell),
+    };
+    println!("wall time            {:.3} s", stats.wall.as_secs_f64());
+    println!("paths                {}", stats.paths);
+    println!("paths/s              {:.0}", stats.paths_per_second());
+    println!(
+        "majorant             {majorant} ({} cells)",
+        m.majorant.cell_count()
+    );
+    println!(
+        "lookups per path     {:.2} ({:.2} free-flight + {:.2} shadow)",
+        stats.lookups_per_path(),
+        t.lookups as f64 / stats.paths as f64,
+        t.shadow_lookups as f64 / stats.paths as f64
+    );
+    println!(
+        "tracking efficiency  {:.3} (real collisions / free-flight lookups)",
+        stats.tracking_efficiency()
+    );
+    let leaf_bytes = m.grid.leaves().len() * BRICK_VOXELS * 4;
+    println!(
+        "memory               brick map {} = {:.3} × leaf values ({} leaves, {} tiles); majorant {}",
+        bytes(m.grid.memory_bytes()),
+        m.grid.memory_bytes() as f64 / leaf_bytes.max(1) as f64,
+        m.grid.leaves().len(),
+        m.grid.tiles().len(),
+        bytes(m.majorant.memory_bytes())
+    );
+}
