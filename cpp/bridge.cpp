@@ -24,7 +24,7 @@
 //    is detected: io::File::write never checks the stream.
 
 #include "volgrad/cpp/bridge.h"
-#include "volgrad/src/bridge.rs.h"
+#include "volgrad/src/io/bridge.rs.h"
 
 #include <openvdb/Grid.h>
 #include <openvdb/Metadata.h>

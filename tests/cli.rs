@@ -2,14 +2,9 @@
 //! error and a non-zero exit (never a panic or an abort).
 
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
 
-fn volgrad(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_volgrad"))
-        .args(args)
-        .output()
-        .expect("runs volgrad")
-}
+mod common;
+use common::*;
 
 fn assets() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/assets")
@@ -17,33 +12,6 @@ fn assets() -> PathBuf {
 
 fn asset(name: &str) -> String {
     assets().join(name).to_str().unwrap().to_string()
-}
-
-fn stdout(o: &Output) -> String {
-    String::from_utf8_lossy(&o.stdout).into_owned()
-}
-
-fn stderr(o: &Output) -> String {
-    String::from_utf8_lossy(&o.stderr).into_owned()
-}
-
-/// Fails unless the command failed cleanly with a message containing every `needle`.
-fn assert_clean_error(o: &Output, needles: &[&str]) {
-    let err = stderr(o);
-    assert!(
-        !o.status.success(),
-        "expected failure, got success; stderr: {err}"
-    );
-    assert_eq!(
-        o.status.code(),
-        Some(1),
-        "exit code (an abort or a signal is not a clean error): {err}"
-    );
-    assert!(!err.contains("panicked"), "panic: {err}");
-    assert!(err.starts_with("error: "), "stderr: {err}");
-    for n in needles {
-        assert!(err.contains(n), "error does not mention {n:?}: {err}");
-    }
 }
 
 /// A small scene around a `make-grid` grid, written into `dir`.

@@ -1,39 +1,13 @@
 //! `volgrad grad`, `merge` and `gradcheck` end to end, and their bad inputs.
 
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
+use std::process::Command;
+
+mod common;
+use common::*;
 
 use glam::IVec3;
 use volgrad::io::vdb::{self, GridSelector};
-
-fn volgrad(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_volgrad"))
-        .args(args)
-        .output()
-        .expect("runs volgrad")
-}
-
-fn stderr(o: &Output) -> String {
-    String::from_utf8_lossy(&o.stderr).into_owned()
-}
-
-fn stdout(o: &Output) -> String {
-    String::from_utf8_lossy(&o.stdout).into_owned()
-}
-
-fn ok(o: Output) -> Output {
-    assert!(o.status.success(), "failed: {}{}", stdout(&o), stderr(&o));
-    o
-}
-
-fn assert_clean_error(o: &Output, needles: &[&str]) {
-    let err = stderr(o);
-    assert_eq!(o.status.code(), Some(1), "expected a clean failure: {err}");
-    assert!(!err.contains("panicked"), "{err}");
-    for n in needles {
-        assert!(err.contains(n), "error does not mention {n:?}: {err}");
-    }
-}
 
 fn s(p: &Path) -> &str {
     p.to_str().unwrap()

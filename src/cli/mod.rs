@@ -11,6 +11,9 @@ pub mod merge;
 pub mod render;
 pub mod values;
 
+#[cfg(test)]
+mod parse_tests;
+
 use anyhow::{bail, Context, Result};
 use clap::{Args, ValueEnum};
 

@@ -10,7 +10,7 @@
 //! the noise where the second-order one visibly biased ⟨g, 1⟩ (empty apron voxels make every
 //! all-ones direction one-sided). Repeating with several seeds gives the standard error.
 //!
-//! Finite differences estimate d E[loss(Î)]/dε; for the mean loss that is d loss(E[Î])/dε, what the
+//! Finite differences estimate d E\[loss(Î)\]/dε; for the mean loss that is d loss(E\[Î\])/dε, what the
 //! gradient estimators compute. For l2-type losses the two differ by d Var(Î)/dε, which shrinks as
 //! 1/spp: compare them with the mean loss, or at high spp.
 

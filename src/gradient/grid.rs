@@ -197,8 +197,8 @@ mod tests {
         for base in [IVec3::new(1, 2, 3), IVec3::new(7, 7, 7)] {
             let mut a = g.empty_like();
             a.add_cell(base, &weights, 2.0);
-            for k in 0..8 {
-                assert!((a.get(base + corner(k)) - 2.0 * weights[k] as f64).abs() < 1e-7);
+            for (k, &w) in weights.iter().enumerate() {
+                assert!((a.get(base + corner(k)) - 2.0 * w as f64).abs() < 1e-7);
             }
         }
         assert_eq!(h.sum(), 0.5);

@@ -38,7 +38,7 @@ mod tests {
         let err = prepare_out_dir(&out, &[file.clone(), out.join("b.csv")], false).unwrap_err();
         assert!(err.to_string().contains("--force"), "{err}");
         assert!(!out.exists(), "refused before creating anything");
-        prepare_out_dir(&out, &[file.clone()], true).unwrap();
+        prepare_out_dir(&out, std::slice::from_ref(&file), true).unwrap();
         assert!(out.is_dir());
         assert_eq!(std::fs::read_to_string(&file).unwrap(), "mine");
     }

@@ -83,13 +83,16 @@ impl Grid {
         {
             bail!("grid '{}' holds NaN or infinite values", d.name);
         }
-        let leaves = (0..n)
-            .map(|i| Leaf {
-                origin: IVec3::from_slice(&d.leaf_origins[3 * i..3 * i + 3]),
-                values: d.leaf_values[i * BRICK_VOXELS..(i + 1) * BRICK_VOXELS]
-                    .try_into()
-                    .unwrap(),
-                active: d.leaf_active[i * 8..(i + 1) * 8].try_into().unwrap(),
+        // The lengths were checked above, so every chunk has exactly a leaf's worth.
+        let leaves = d
+            .leaf_origins
+            .chunks_exact(3)
+            .zip(d.leaf_values.chunks_exact(BRICK_VOXELS))
+            .zip(d.leaf_active.chunks_exact(8))
+            .map(|((origin, values), active)| Leaf {
+                origin: IVec3::from_slice(origin),
+                values: values.try_into().expect("chunks_exact gives whole leaves"),
+                active: active.try_into().expect("chunks_exact gives whole masks"),
             })
             .collect();
         let tiles = (0..d.tile_values.len())

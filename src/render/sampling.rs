@@ -128,7 +128,8 @@ impl Distribution1D {
         Distribution1D { cdf, total }
     }
 
-    pub fn len(&self) -> usize {
+    /// The number of bins.
+    pub fn bins(&self) -> usize {
         self.cdf.len() - 1
     }
 
@@ -141,7 +142,7 @@ impl Distribution1D {
     /// A bin with probability ∝ weight, and `u` rescaled to [0, 1) inside it.
     #[inline]
     pub fn sample(&self, u: f32) -> (usize, f32) {
-        let i = self.cdf.partition_point(|&c| c <= u).clamp(1, self.len()) - 1;
+        let i = self.cdf.partition_point(|&c| c <= u).clamp(1, self.bins()) - 1;
         let p = self.bin_probability(i);
         let du = if p > 0.0 {
             ((u - self.cdf[i]) / p).clamp(0.0, 0.99999994)

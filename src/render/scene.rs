@@ -231,7 +231,7 @@ impl SceneFile {
         if !(albedo.cmpge(Vec3::ZERO).all() && albedo.cmple(Vec3::ONE).all()) {
             bail!("medium.albedo must lie in [0, 1] (got {albedo})");
         }
-        if !(m.phase_g.abs() < 1.0) {
+        if m.phase_g.is_nan() || m.phase_g.abs() >= 1.0 {
             bail!("medium.phase_g must satisfy |g| < 1 (got {})", m.phase_g);
         }
         let mut envmaps = 0;

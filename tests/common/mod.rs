@@ -1,6 +1,10 @@
 //! Scenes built in memory for the renderer's tests.
 #![allow(dead_code)]
 
+mod process;
+#[allow(unused_imports)] // not every test file runs the binary
+pub use process::*;
+
 use std::path::PathBuf;
 
 use glam::{DMat3, DVec3, IVec3, Vec3};

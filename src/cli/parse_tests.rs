@@ -1,0 +1,51 @@
+//! The command line as clap sees it: well-formed, and flags parsed into the library's types.
+
+use crate::{Cli, Command};
+use clap::CommandFactory;
+use clap::Parser;
+
+#[test]
+fn the_command_line_is_well_formed() {
+    Cli::command().debug_assert();
+}
+
+#[test]
+fn flags_parse_into_the_library_types() {
+    use volgrad::gradient::adjoint::Estimator;
+    use volgrad::gradient::loss::Loss;
+    let parse = |line: &str| Cli::try_parse_from(line.split_whitespace());
+    match parse("volgrad grad s.toml --estimator fd --loss relative-l2")
+        .unwrap()
+        .command
+    {
+        Command::Grad(a) => {
+            assert!(a.estimator == crate::cli::grad::Method::FiniteDifferences);
+            assert_eq!(a.loss, Loss::RelativeL2);
+        }
+        _ => panic!("not grad"),
+    }
+    match parse("volgrad grad s.toml --estimator drt")
+        .unwrap()
+        .command
+    {
+        Command::Grad(a) => {
+            assert!(a.estimator == crate::cli::grad::Method::Estimator(Estimator::Drt))
+        }
+        _ => panic!("not grad"),
+    }
+    match parse("volgrad compare s.toml --estimators drt,joint --budget 2m")
+        .unwrap()
+        .command
+    {
+        Command::Compare(a) => {
+            assert_eq!(a.estimators, [Estimator::Drt, Estimator::Joint]);
+            assert_eq!(a.budget, std::time::Duration::from_secs(120));
+        }
+        _ => panic!("not compare"),
+    }
+    // fd is a grad method, not an estimator that compare or gradcheck could run.
+    assert!(parse("volgrad compare s.toml --estimators fd").is_err());
+    assert!(parse("volgrad gradcheck s.toml --estimator fd").is_err());
+    assert!(parse("volgrad compare s.toml --budget 3 fortnights").is_err());
+    assert!(parse("volgrad render s.toml --majorant sparse").is_err());
+}

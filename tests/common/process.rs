@@ -1,0 +1,44 @@
+//! The `volgrad` binary as a process: run it, read what it said, check how it failed.
+
+use std::process::{Command, Output};
+
+pub fn volgrad(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_volgrad"))
+        .args(args)
+        .output()
+        .expect("runs volgrad")
+}
+
+pub fn stdout(o: &Output) -> String {
+    String::from_utf8_lossy(&o.stdout).into_owned()
+}
+
+pub fn stderr(o: &Output) -> String {
+    String::from_utf8_lossy(&o.stderr).into_owned()
+}
+
+/// The output of a command that must have succeeded.
+pub fn ok(o: Output) -> Output {
+    assert!(o.status.success(), "failed: {}{}", stdout(&o), stderr(&o));
+    o
+}
+
+/// Fails unless the command failed cleanly (exit status 1, no panic, one `error: ` message)
+/// with a message containing every `needle`.
+pub fn assert_clean_error(o: &Output, needles: &[&str]) {
+    let err = stderr(o);
+    assert!(
+        !o.status.success(),
+        "expected failure, got success; stderr: {err}"
+    );
+    assert_eq!(
+        o.status.code(),
+        Some(1),
+        "exit code (an abort or a signal is not a clean error): {err}"
+    );
+    assert!(!err.contains("panicked"), "panic: {err}");
+    assert!(err.starts_with("error: "), "stderr: {err}");
+    for n in needles {
+        assert!(err.contains(n), "error does not mention {n:?}: {err}");
+    }
+}
