@@ -126,7 +126,7 @@ fn load_target(args: &Args, scene: &Scene) -> Result<Option<RgbImage>> {
                 &other,
                 args.target_spp,
                 scene.settings.seed,
-                !args.adjoint.quiet,
+                !args.adjoint.sampling.quiet,
             ))
         }
         (None, None) => None,
@@ -144,7 +144,7 @@ fn load_target(args: &Args, scene: &Scene) -> Result<Option<RgbImage>> {
 }
 
 pub fn run(args: &Args) -> Result<()> {
-    set_threads(args.adjoint.threads)?;
+    set_threads(args.adjoint.sampling.threads)?;
     let vdb_out = args.output.clone().unwrap_or_else(|| {
         PathBuf::from(format!(
             "{}.grad.vdb",
@@ -264,8 +264,8 @@ fn finite_differences(args: &Args, scene: &Scene, target: Option<&RgbImage>) -> 
         .fd
         .as_deref()
         .context("--estimator fd needs --fd (voxels:..., box:..., ones or random)")?;
-    let seed = args.adjoint.seed.unwrap_or(scene.settings.seed);
-    let max_depth = args.adjoint.max_depth.unwrap_or(scene.settings.max_depth);
+    let seed = args.adjoint.sampling.seed(scene);
+    let max_depth = args.adjoint.sampling.max_depth(scene);
     let options = args.fd_args.options(scene, args.loss, seed, max_depth)?;
     let active_only = args.adjoint.domain == Domain::Active;
     let directions = fd_directions(spec, scene, active_only, seed, 3.0 * options.eps)?;
@@ -273,7 +273,7 @@ fn finite_differences(args: &Args, scene: &Scene, target: Option<&RgbImage>) -> 
         "finite differences of {} ({} spp × {} repeats, common random numbers)",
         args.loss, options.spp, options.repeats
     );
-    let bar = progress::bar(!args.adjoint.quiet, directions.len() as u64, "fd");
+    let bar = progress::bar(!args.adjoint.sampling.quiet, directions.len() as u64, "fd");
     for (name, direction) in directions {
         let mut options = options;
         options.eps = args

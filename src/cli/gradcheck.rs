@@ -30,7 +30,7 @@ pub struct Args {
 }
 
 pub fn run(args: &Args) -> Result<()> {
-    set_threads(args.adjoint.threads)?;
+    set_threads(args.adjoint.sampling.threads)?;
     let mut scene = Scene::load(&args.scene)?;
     if args.width == 0 {
         bail!("--width must be at least 1");
@@ -48,7 +48,7 @@ pub fn run(args: &Args) -> Result<()> {
         voxels: args.voxels,
         fd,
         fixed_eps: args.fd_args.eps.is_some(),
-        progress: !args.adjoint.quiet,
+        progress: !args.adjoint.sampling.quiet,
     };
     let eps = match args.fd_args.eps {
         Some(e) => e.to_string(),

@@ -32,24 +32,19 @@ pub enum Domain {
     Active,
 }
 
-/// Options of the gradient pass, shared by `grad` and `gradcheck`.
+/// How many paths, from which random streams, how deep, on how many threads: every command that
+/// traces paths takes these, each overriding the scene's `[render]` value.
 #[derive(Args)]
-pub struct AdjointArgs {
-    /// Samples per pixel of the gradient pass (default: render.spp).
+pub struct SamplingArgs {
+    /// Samples per pixel (default: render.spp).
     #[arg(long)]
     pub spp: Option<u32>,
-    /// Random seed (default: render.seed).
+    /// Random seed (default: render.seed); the same seed gives the same result on any thread count.
     #[arg(long)]
     pub seed: Option<u64>,
     /// Maximum scattering events per path (default: render.max_depth).
     #[arg(long)]
     pub max_depth: Option<u32>,
-    /// Where the indirect part of ĥ at a probe comes from.
-    #[arg(long, value_enum, default_value_t = Suffix::PerPath)]
-    pub suffix: Suffix,
-    /// Which voxels are parameters.
-    #[arg(long, value_enum, default_value = "all")]
-    pub domain: Domain,
     /// Worker threads (default: all cores).
     #[arg(long)]
     pub threads: Option<usize>,
@@ -58,23 +53,51 @@ pub struct AdjointArgs {
     pub quiet: bool,
 }
 
+impl SamplingArgs {
+    /// Samples per pixel: the flag or the scene's, at least 1.
+    pub fn spp(&self, scene: &Scene) -> Result<u32> {
+        match self.spp.unwrap_or(scene.settings.spp) {
+            0 => bail!("--spp must be at least 1"),
+            spp => Ok(spp),
+        }
+    }
+
+    pub fn seed(&self, scene: &Scene) -> u64 {
+        self.seed.unwrap_or(scene.settings.seed)
+    }
+
+    pub fn max_depth(&self, scene: &Scene) -> u32 {
+        self.max_depth.unwrap_or(scene.settings.max_depth)
+    }
+}
+
+/// Options of the gradient pass, shared by `grad` and `gradcheck`.
+#[derive(Args)]
+pub struct AdjointArgs {
+    #[command(flatten)]
+    pub sampling: SamplingArgs,
+    /// Where the indirect part of ĥ at a probe comes from.
+    #[arg(long, value_enum, default_value_t = Suffix::PerPath)]
+    pub suffix: Suffix,
+    /// Which voxels are parameters.
+    #[arg(long, value_enum, default_value = "all")]
+    pub domain: Domain,
+}
+
 impl AdjointArgs {
     /// The gradient pass these flags ask for, with the scene's settings as defaults.
     pub fn options(&self, scene: &Scene, estimator: Estimator) -> Result<GradOptions> {
-        let spp = self.spp.unwrap_or(scene.settings.spp);
-        if spp == 0 {
-            bail!("--spp must be at least 1");
-        }
+        let s = &self.sampling;
         Ok(GradOptions {
             adjoint: AdjointOptions {
                 estimator,
                 suffix: self.suffix,
-                max_depth: self.max_depth.unwrap_or(scene.settings.max_depth),
+                max_depth: s.max_depth(scene),
             },
-            spp,
-            seed: self.seed.unwrap_or(scene.settings.seed),
+            spp: s.spp(scene)?,
+            seed: s.seed(scene),
             active_only: self.domain == Domain::Active,
-            progress: !self.quiet,
+            progress: !s.quiet,
         })
     }
 }

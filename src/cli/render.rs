@@ -4,7 +4,7 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Result};
 
-use super::{bytes, set_threads};
+use super::{bytes, set_threads, SamplingArgs};
 use volgrad::io::images;
 use volgrad::io::output::refuse_overwrite;
 use volgrad::render::image::{render, RenderOptions, RenderStats};
@@ -19,18 +19,8 @@ pub struct Args {
     /// Output EXR; the PNG goes beside it. Default: <scene name>.exr in the current directory.
     #[arg(short, long)]
     pub output: Option<PathBuf>,
-    /// Samples per pixel (overrides render.spp).
-    #[arg(long)]
-    pub spp: Option<u32>,
-    /// Random seed (overrides render.seed); the same seed gives the same image on any thread count.
-    #[arg(long)]
-    pub seed: Option<u64>,
-    /// Worker threads (default: all cores).
-    #[arg(long)]
-    pub threads: Option<usize>,
-    /// Maximum number of scattering events per path (overrides render.max_depth).
-    #[arg(long)]
-    pub max_depth: Option<u32>,
+    #[command(flatten)]
+    pub sampling: SamplingArgs,
     /// Majorant structure for tracking (overrides render.majorant).
     #[arg(long, value_enum)]
     pub majorant: Option<MajorantMode>,
@@ -46,9 +36,6 @@ pub struct Args {
     /// Overwrite existing output files.
     #[arg(long)]
     pub force: bool,
-    /// No progress bar.
-    #[arg(long, short)]
-    pub quiet: bool,
 }
 
 /// Applies the command-line overrides that change how the medium is tracked.
@@ -72,7 +59,8 @@ fn load_scene(
 }
 
 pub fn run(args: &Args) -> Result<()> {
-    set_threads(args.threads)?;
+    let sampling = &args.sampling;
+    set_threads(sampling.threads)?;
     let exr = args.output.clone().unwrap_or_else(|| {
         PathBuf::from(args.scene.file_stem().unwrap_or_default()).with_extension("exr")
     });
@@ -86,14 +74,12 @@ pub fn run(args: &Args) -> Result<()> {
     refuse_overwrite(&exr, args.force)?;
     refuse_overwrite(&png, args.force)?;
     let scene = load_scene(&args.scene, args.majorant, args.majorant_cell)?;
-    let mut options = RenderOptions::from_scene(&scene);
-    options.spp = args.spp.unwrap_or(options.spp);
-    options.seed = args.seed.unwrap_or(options.seed);
-    options.max_depth = args.max_depth.unwrap_or(options.max_depth);
-    options.progress = !args.quiet;
-    if options.spp == 0 {
-        bail!("--spp must be at least 1");
-    }
+    let options = RenderOptions {
+        spp: sampling.spp(&scene)?,
+        seed: sampling.seed(&scene),
+        max_depth: sampling.max_depth(&scene),
+        progress: !sampling.quiet,
+    };
     let (image, stats) = render(&scene, &options);
     images::write_exr(&exr, &image, args.half)?;
     images::write_png(&png, &image, scene.settings.exposure)?;

@@ -23,8 +23,8 @@ pub fn ok(o: Output) -> Output {
     o
 }
 
-/// Fails unless the command failed cleanly (exit status 1, no panic, one `error: ` message)
-/// with a message containing every `needle`.
+/// Fails unless the command failed cleanly (exit status 1, no panic, one `error: ` message, which
+/// may go on over a few lines such as a TOML diagnostic) with a message containing every `needle`.
 pub fn assert_clean_error(o: &Output, needles: &[&str]) {
     let err = stderr(o);
     assert!(
@@ -37,7 +37,8 @@ pub fn assert_clean_error(o: &Output, needles: &[&str]) {
         "exit code (an abort or a signal is not a clean error): {err}"
     );
     assert!(!err.contains("panicked"), "panic: {err}");
-    assert!(err.starts_with("error: "), "stderr: {err}");
+    let errors = err.lines().filter(|l| l.starts_with("error: ")).count();
+    assert_eq!(errors, 1, "one error message: {err}");
     for n in needles {
         assert!(err.contains(n), "error does not mention {n:?}: {err}");
     }
