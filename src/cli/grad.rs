@@ -183,7 +183,7 @@ pub fn run(args: &Args) -> Result<()> {
         scene: args.scene.display().to_string(),
     };
     let grid = gradient_files::gradient_grid(
-        &run.gradient,
+        run.gradient.to_brickmap(),
         &scene.grid_name,
         scene.medium.transform,
         &provenance,

@@ -108,9 +108,19 @@ pub fn save_reference(path: &Path, scene: &Scene, r: &Reference, overwrite: bool
         meta("volgrad_reference_runs", "int64", r.runs),
         meta("volgrad_reference_spp", "int64", r.spp_per_run),
     ];
-    let mut mean = gradient_files::gradient_grid(&r.mean, &scene.grid_name, transform, &provenance);
+    let mut mean = gradient_files::gradient_grid(
+        r.mean.to_brickmap(),
+        &scene.grid_name,
+        transform,
+        &provenance,
+    );
     mean.metadata.extend(extra.iter().cloned());
-    let mut se = gradient_files::gradient_grid(&r.stderr, &scene.grid_name, transform, &provenance);
+    let mut se = gradient_files::gradient_grid(
+        r.stderr.to_brickmap(),
+        &scene.grid_name,
+        transform,
+        &provenance,
+    );
     se.name = format!("grad_{}_stderr", scene.grid_name);
     se.metadata.extend(extra.iter().cloned());
     vdb::write_grids(path, &[&mean, &se], false, overwrite)

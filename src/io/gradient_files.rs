@@ -7,11 +7,10 @@ use std::path::Path;
 use anyhow::{bail, Context, Result};
 use glam::IVec3;
 
-use crate::gradient::grid::GradientGrid;
 use crate::io::bridge::MetaEntry;
 use crate::io::colormap::write_signed_png;
 use crate::io::vdb::{self, meta, Grid, GridSelector};
-use crate::volume::brickmap::BrickMapBuilder;
+use crate::volume::brickmap::{BrickMap, BrickMapBuilder};
 use crate::volume::transform::IndexTransform;
 
 /// Provenance stored with a gradient grid.
@@ -60,9 +59,9 @@ impl Provenance {
     }
 }
 
-/// The gradient as a float grid named `grad_<grid_name>`.
+/// The gradient (as bricks: `GradientGrid::to_brickmap`) as a float grid named `grad_<grid_name>`.
 pub fn gradient_grid(
-    gradient: &GradientGrid,
+    gradient: BrickMap,
     grid_name: &str,
     transform: IndexTransform,
     provenance: &Provenance,
@@ -71,7 +70,7 @@ pub fn gradient_grid(
         name: format!("grad_{grid_name}"),
         grid_class: "fog volume".into(),
         transform,
-        bricks: gradient.to_brickmap(),
+        bricks: gradient,
         saved_as_half: false,
         metadata: provenance.metadata(),
     }
