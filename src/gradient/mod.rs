@@ -7,3 +7,4 @@ pub mod gradcheck;
 pub mod grid;
 pub mod loss;
 pub mod passes;
+pub mod runs;

@@ -8,4 +8,5 @@ pub mod gradient_files;
 pub mod images;
 pub mod make_grid;
 pub mod progress;
+pub mod table;
 pub mod vdb;
