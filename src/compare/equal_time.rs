@@ -14,8 +14,10 @@ use crate::gradient::fd;
 use crate::gradient::grid::GradientGrid;
 use crate::gradient::loss::Loss;
 use crate::gradient::passes::{gradient, GradOptions};
+use crate::gradient::runs::{seeded_runs, MeanAndError};
 use crate::io::chart::{Chart, Series};
 use crate::io::images::RgbImage;
+use crate::io::table::{Align, Table};
 use crate::render::image::{render, RenderOptions};
 use crate::render::scene::Scene;
 use crate::volume::brickmap::BrickMap;
@@ -45,17 +47,6 @@ pub(super) fn for_domain(grid: &BrickMap, mut f: impl FnMut(IVec3)) {
             }
         }
     }
-}
-
-/// Mean and standard error of the mean.
-pub(super) fn mean_and_se(values: &[f64]) -> (f64, f64) {
-    let n = values.len() as f64;
-    if n == 0.0 {
-        return (f64::NAN, f64::NAN);
-    }
-    let mean = values.iter().sum::<f64>() / n;
-    let var = values.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / (n - 1.0).max(1.0);
-    (mean, (var / n).sqrt())
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -223,28 +214,27 @@ pub fn build_image_reference(
 ) -> ImageReference {
     let seeds = seeds.max(2);
     let bar = crate::io::progress::bar(progress, seeds as u64, "image ref");
-    let images: Vec<RgbImage> = (0..seeds)
-        .map(|s| {
-            let options = RenderOptions {
-                spp,
-                seed: seed.wrapping_add(REFERENCE_SEED_OFFSET + s as u64),
-                max_depth,
-                progress: false,
-            };
-            let image = render(scene, &options).0;
-            bar.inc(1);
-            image
-        })
-        .collect();
+    let first_seed = seed.wrapping_add(REFERENCE_SEED_OFFSET);
+    let images: Vec<RgbImage> = seeded_runs(first_seed, seeds, |_, seed| {
+        let options = RenderOptions {
+            spp,
+            seed,
+            max_depth,
+            progress: false,
+        };
+        let image = render(scene, &options).0;
+        bar.inc(1);
+        image
+    });
     bar.finish_and_clear();
     let mut mean = RgbImage::new(scene.camera.width, scene.camera.height);
     let mut variance_sum = 0.0;
     for i in 0..mean.pixels.len() {
         for c in 0..3 {
             let values: Vec<f64> = images.iter().map(|im| im.pixels[i][c] as f64).collect();
-            let (m, se) = mean_and_se(&values);
-            mean.pixels[i][c] = m as f32;
-            variance_sum += se * se;
+            let m = MeanAndError::of(&values);
+            mean.pixels[i][c] = m.mean as f32;
+            variance_sum += m.se * m.se;
         }
     }
     ImageReference {
@@ -328,26 +318,34 @@ fn cell(v: f64) -> String {
     }
 }
 
+/// runs.csv: one row per run.
 pub fn csv(rows: &[Row]) -> String {
-    let mut s = String::from(
-        "estimator,spp,seconds,rel_rmse,empty_rmse,cosine,bias,bias_se,rel_rmse_raw\n",
-    );
+    use Align::{Left, Right};
+    let mut table = Table::new([
+        ("estimator", Left),
+        ("spp", Right),
+        ("seconds", Right),
+        ("rel_rmse", Right),
+        ("empty_rmse", Right),
+        ("cosine", Right),
+        ("bias", Right),
+        ("bias_se", Right),
+        ("rel_rmse_raw", Right),
+    ]);
     for r in rows {
-        let _ = writeln!(
-            s,
-            "{},{},{:.6},{},{},{},{},{},{}",
-            r.method,
-            r.spp,
-            r.seconds,
+        table.push([
+            r.method.clone(),
+            r.spp.to_string(),
+            format!("{:.6}", r.seconds),
             cell(r.rel_rmse),
             cell(r.empty_rmse),
             cell(r.cosine),
             cell(r.bias),
             cell(r.bias_se),
-            cell(r.rel_rmse_raw)
-        );
+            cell(r.rel_rmse_raw),
+        ]);
     }
-    s
+    table.csv()
 }
 
 /// Error against time, one line per method, in the order the methods first appear.
@@ -463,38 +461,49 @@ pub fn summary(
     contender: &str,
     what: &str,
 ) -> String {
-    let mut s = String::new();
+    use Align::{Left, Right};
+    let mut s = format!("#### {what}: final runs\n\n");
     let gradients = rows.iter().any(|r| r.cosine.is_finite());
-    let _ = writeln!(s, "#### {what}: final runs\n");
-    if gradients {
-        s += "| estimator | spp | time (s) | rel. RMSE | rel. RMSE (raw) | empty-voxel RMSE | cosine | bias ± se |\n|---|---:|---:|---:|---:|---:|---:|---:|\n";
+    let mut finals = if gradients {
+        Table::new([
+            ("estimator", Left),
+            ("spp", Right),
+            ("time (s)", Right),
+            ("rel. RMSE", Right),
+            ("rel. RMSE (raw)", Right),
+            ("empty-voxel RMSE", Right),
+            ("cosine", Right),
+            ("bias ± se", Right),
+        ])
     } else {
-        s += "| method | spp | time (s) | rel. RMSE | rel. RMSE (raw) |\n|---|---:|---:|---:|---:|\n";
-    }
+        Table::new([
+            ("method", Left),
+            ("spp", Right),
+            ("time (s)", Right),
+            ("rel. RMSE", Right),
+            ("rel. RMSE (raw)", Right),
+        ])
+    };
     for m in methods {
         if let Some(r) = rows.iter().rfind(|r| &r.method == m) {
+            let mut cells = vec![
+                m.to_string(),
+                r.spp.to_string(),
+                format!("{:.2}", r.seconds),
+                format!("{:.4}", r.rel_rmse),
+                format!("{:.4}", r.rel_rmse_raw),
+            ];
             if gradients {
-                let _ = writeln!(
-                    s,
-                    "| {m} | {} | {:.2} | {:.4} | {:.4} | {:.3e} | {:.4} | {:.2e} ± {:.1e} |",
-                    r.spp,
-                    r.seconds,
-                    r.rel_rmse,
-                    r.rel_rmse_raw,
-                    r.empty_rmse,
-                    r.cosine,
-                    r.bias,
-                    r.bias_se
-                );
-            } else {
-                let _ = writeln!(
-                    s,
-                    "| {m} | {} | {:.2} | {:.4} | {:.4} |",
-                    r.spp, r.seconds, r.rel_rmse, r.rel_rmse_raw
-                );
+                cells.extend([
+                    format!("{:.3e}", r.empty_rmse),
+                    format!("{:.4}", r.cosine),
+                    format!("{:.2e} ± {:.1e}", r.bias, r.bias_se),
+                ]);
             }
+            finals.push(cells);
         }
     }
+    s += &finals.markdown();
     let curves: Vec<(&str, Vec<(f64, f64)>)> = methods
         .iter()
         .map(|m| (*m, points(&curve(rows, m))))
@@ -509,31 +518,42 @@ pub fn summary(
         .find(|(m, _)| *m == baseline)
         .and_then(|(_, p)| p.last().map(|l| l.1));
     if equal_time.is_finite() {
-        let _ = writeln!(
-            s,
-            "\n#### {what}: equal time\n\n| method | rel. RMSE at {equal_time:.2} s | time to rel. RMSE {} (s) |\n|---|---:|---:|",
-            target.map_or("—".into(), |t| format!("{t:.4}"))
-        );
+        let target_text = target.map_or("—".into(), |t| format!("{t:.4}"));
+        let mut at_equal_time = Table::new([
+            ("method".to_string(), Left),
+            (format!("rel. RMSE at {equal_time:.2} s"), Right),
+            (format!("time to rel. RMSE {target_text} (s)"), Right),
+        ]);
         for (m, p) in &curves {
             let at = error_at(p, equal_time).map_or("—".into(), |(e, x)| approx(e, x));
             let reach = target
                 .and_then(|t| time_to_reach(p, t))
                 .map_or("—".into(), |(t, x)| approx(t, x));
-            let _ = writeln!(s, "| {m} | {at} | {reach} |");
+            at_equal_time.push([m.to_string(), at, reach]);
         }
-        s += "\n(~ marks values extrapolated along error ∝ 1/√time beyond the measured runs.)\n";
+        let _ = write!(
+            s,
+            "\n#### {what}: equal time\n\n{}\n(~ marks values extrapolated along error ∝ 1/√time beyond the measured runs.)\n",
+            at_equal_time.markdown()
+        );
     }
-    let _ = writeln!(
-        s,
-        "\n| method | error² × time (median over runs ≥ {EFFICIENCY_MIN_SPP} spp) | relative to {baseline} |\n|---|---:|---:|"
-    );
+    let mut efficiency = Table::new([
+        ("method".to_string(), Left),
+        (
+            format!("error² × time (median over runs ≥ {EFFICIENCY_MIN_SPP} spp)"),
+            Right,
+        ),
+        (format!("relative to {baseline}"), Right),
+    ]);
     let base = inefficiency(rows, baseline);
     for m in methods {
         if let Some(e) = inefficiency(rows, m) {
             let rel = base.map_or("—".into(), |b| format!("{:.3}", e / b));
-            let _ = writeln!(s, "| {m} | {e:.4e} | {rel} |");
+            efficiency.push([m.to_string(), format!("{e:.4e}"), rel]);
         }
     }
+    s += "\n";
+    s += &efficiency.markdown();
     match speedup(rows, baseline, contender) {
         Some((factor, target, t, extrapolated)) => {
             let _ = writeln!(
@@ -567,6 +587,13 @@ pub fn write_chart(dir: &Path, stem: &str, chart: &Chart) -> Result<()> {
         );
     }
     Ok(())
+}
+
+/// How long something took, for messages.
+pub fn timed<T>(f: impl FnOnce() -> T) -> (T, f64) {
+    let start = Instant::now();
+    let v = f();
+    (v, start.elapsed().as_secs_f64())
 }
 
 #[cfg(test)]
@@ -619,11 +646,4 @@ mod tests {
         let (factor, _, _, _) = speedup(&zigzag, "drt", "joint").unwrap();
         assert!((factor - 0.5).abs() < 1e-9, "{factor}");
     }
-}
-
-/// How long something took, for messages.
-pub fn timed<T>(f: impl FnOnce() -> T) -> (T, f64) {
-    let start = Instant::now();
-    let v = f();
-    (v, start.elapsed().as_secs_f64())
 }

@@ -6,13 +6,14 @@ use std::path::Path;
 use anyhow::{bail, Context, Result};
 use glam::IVec3;
 
-use super::{mean_adjoint, mean_and_se, REFERENCE_SEED_OFFSET};
+use super::{mean_adjoint, REFERENCE_SEED_OFFSET};
 use crate::gradient::adjoint::Estimator;
 use crate::gradient::fd::{self, FdOptions};
 use crate::gradient::gradcheck::Check;
 use crate::gradient::grid::GradientGrid;
 use crate::gradient::loss::Loss;
 use crate::gradient::passes::{gradient, GradOptions};
+use crate::gradient::runs::{seeded_runs, MeanAndError};
 use crate::io::gradient_files::{self, Provenance};
 use crate::io::vdb::{self, meta, GridSelector};
 use crate::render::scene::Scene;
@@ -42,16 +43,16 @@ pub fn build_reference(scene: &Scene, o: &ReferenceOptions) -> Reference {
     let adjoint = mean_adjoint(scene);
     let mut sum = GradientGrid::for_grid(&scene.medium.grid);
     let mut squares = sum.empty_like();
-    let mut totals = Vec::new();
     let runs = 2 * o.seeds.max(1);
     let bar = crate::io::progress::bar(o.progress, runs as u64, "reference");
-    for r in 0..runs {
+    // Each run is folded into the sums as it ends: a reference keeps two grids, not one per run.
+    let first_seed = o.seed.wrapping_add(REFERENCE_SEED_OFFSET);
+    let totals = seeded_runs(first_seed, runs, |r, seed| {
         let estimator = if r % 2 == 0 {
             Estimator::Joint
         } else {
             Estimator::Drt
         };
-        let seed = o.seed.wrapping_add(REFERENCE_SEED_OFFSET + r as u64);
         let g = gradient(
             scene,
             &adjoint,
@@ -64,9 +65,9 @@ pub fn build_reference(scene: &Scene, o: &ReferenceOptions) -> Reference {
                 squares.add(v, x * x);
             }
         }
-        totals.push(g.sum());
         bar.inc(1);
-    }
+        g.sum()
+    });
     bar.finish_and_clear();
     let n = runs as f64;
     let mut mean = sum;
@@ -79,11 +80,10 @@ pub fn build_reference(scene: &Scene, o: &ReferenceOptions) -> Reference {
             stderr.add(v, (variance / n).sqrt());
         }
     }
-    let (_, sum_se) = mean_and_se(&totals);
     Reference {
         mean,
         stderr,
-        sum_se,
+        sum_se: MeanAndError::of(&totals).se,
         spp_per_run: o.spp,
         runs,
     }

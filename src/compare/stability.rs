@@ -3,17 +3,17 @@
 //! scattering), each estimator's ⟨g, 1⟩ against finite differences, its spread, and a count of
 //! non-finite values. Expected failures are marked, not hidden.
 
-use std::fmt::Write as _;
-
 use anyhow::Result;
 use glam::{DMat3, DVec3, IVec3, Vec3};
 
-use super::{mean_adjoint, mean_and_se, SWEEP_SEED_OFFSET};
+use super::{mean_adjoint, SWEEP_SEED_OFFSET};
 use crate::gradient::adjoint::Estimator;
 use crate::gradient::fd::{self, FdOptions, FdResult};
 use crate::gradient::gradcheck::Check;
 use crate::gradient::loss::Loss;
 use crate::gradient::passes::{gradient, GradOptions};
+use crate::gradient::runs::{seeded_runs, MeanAndError};
+use crate::io::table::{Align, Table};
 use crate::render::camera::Camera;
 use crate::render::lights::{DirectionalLight, Environment, Lights};
 use crate::render::scene::{RenderFile, Scene};
@@ -267,9 +267,9 @@ pub fn stability(
         let adjoint = mean_adjoint(scene);
         for &estimator in estimators {
             let mut non_finite = 0;
-            let mut sums = vec![Vec::new(); checks.len()];
-            for r in 0..o.runs.max(2) {
-                let seed = o.seed.wrapping_add(SWEEP_SEED_OFFSET + r as u64);
+            // Per run, ⟨g, 1⟩ over each check's voxels: runs[r][k].
+            let first_seed = o.seed.wrapping_add(SWEEP_SEED_OFFSET);
+            let runs = seeded_runs(first_seed, o.runs.max(2), |_, seed| {
                 let g = gradient(
                     scene,
                     &adjoint,
@@ -277,12 +277,14 @@ pub fn stability(
                 )
                 .gradient;
                 non_finite += g.voxels().filter(|(_, x)| !x.is_finite()).count();
-                for (k, (_, voxels)) in checks.iter().enumerate() {
-                    sums[k].push(voxels.iter().map(|&v| g.get(v)).sum::<f64>());
-                }
-            }
+                checks
+                    .iter()
+                    .map(|(_, voxels)| voxels.iter().map(|&v| g.get(v)).sum::<f64>())
+                    .collect::<Vec<f64>>()
+            });
             for (k, (check, _)) in checks.iter().enumerate() {
-                let (mean, se) = mean_and_se(&sums[k]);
+                let sums: Vec<f64> = runs.iter().map(|run| run[k]).collect();
+                let MeanAndError { mean, se } = MeanAndError::of(&sums);
                 let fd = fds[k];
                 let naive = estimator == Estimator::Naive;
                 rows.push(StabilityRow {
@@ -292,7 +294,7 @@ pub fn stability(
                     estimate: mean,
                     estimate_se: se,
                     fd,
-                    relative_sd: se * (sums[k].len() as f64).sqrt() / fd.value.abs().max(1e-300),
+                    relative_sd: se * (sums.len() as f64).sqrt() / fd.value.abs().max(1e-300),
                     non_finite,
                     expected_failure: naive && (has_empty || s.name == "thin"),
                 });
@@ -304,39 +306,60 @@ pub fn stability(
     Ok(rows)
 }
 
+/// stability.csv: one row per scene, estimator and check, full precision.
 pub fn stability_csv(rows: &[StabilityRow]) -> String {
-    let mut s = String::from("scene,estimator,check,estimate,estimate_se,fd,fd_se,z,unbiased,relative_sd,non_finite,expected_failure\n");
+    use Align::{Left, Right};
+    let mut table = Table::new([
+        ("scene", Left),
+        ("estimator", Left),
+        ("check", Left),
+        ("estimate", Right),
+        ("estimate_se", Right),
+        ("fd", Right),
+        ("fd_se", Right),
+        ("z", Right),
+        ("unbiased", Left),
+        ("relative_sd", Right),
+        ("non_finite", Right),
+        ("expected_failure", Left),
+    ]);
     for r in rows {
-        let _ = writeln!(
-            s,
-            "{},{},{},{:.6e},{:.6e},{:.6e},{:.6e},{:.3},{},{:.4e},{},{}",
-            r.scene,
-            r.estimator,
-            r.check,
-            r.estimate,
-            r.estimate_se,
-            r.fd.value,
-            r.fd.std_err,
-            r.z(),
-            r.unbiased(),
-            r.relative_sd,
-            r.non_finite,
-            r.expected_failure
-        );
+        table.push([
+            r.scene.clone(),
+            r.estimator.clone(),
+            r.check.clone(),
+            format!("{:.6e}", r.estimate),
+            format!("{:.6e}", r.estimate_se),
+            format!("{:.6e}", r.fd.value),
+            format!("{:.6e}", r.fd.std_err),
+            format!("{:.3}", r.z()),
+            r.unbiased().to_string(),
+            format!("{:.4e}", r.relative_sd),
+            r.non_finite.to_string(),
+            r.expected_failure.to_string(),
+        ]);
     }
-    s
+    table.csv()
 }
 
+/// stability.md: the options, the checks with their verdicts, and what each scene is built to break.
 pub fn stability_markdown(
     scenes: &[StabilityScene],
     rows: &[StabilityRow],
     o: &StabilityOptions,
 ) -> String {
-    let mut s = format!(
-        "Each estimator: {} runs × {} spp on an 8×8 image of a 6³ grid (trilinear lookups, nearest in empty-voxels); finite differences: {} spp × {} repeats, step {FD_OPTICAL_STEP} optical depth across the block. A check passes when |z| < {STABILITY_Z}.\n\n",
-        o.runs.max(2), o.spp, o.fd_spp, o.fd_repeats.max(2)
-    );
-    s += "| scene | estimator | ⟨g, 1⟩ over | estimate ± se | fd ± se | z | verdict | sd per run / \\|fd\\| | non-finite |\n|---|---|---|---:|---:|---:|---|---:|---:|\n";
+    use Align::{Left, Right};
+    let mut checks = Table::new([
+        ("scene", Left),
+        ("estimator", Left),
+        ("⟨g, 1⟩ over", Left),
+        ("estimate ± se", Right),
+        ("fd ± se", Right),
+        ("z", Right),
+        ("verdict", Left),
+        ("sd per run / |fd|", Right),
+        ("non-finite", Right),
+    ]);
     for r in rows {
         let verdict = match (r.unbiased(), r.expected_failure) {
             (true, _) if r.weak() => "ok (weak check: fd noisy)",
@@ -344,24 +367,29 @@ pub fn stability_markdown(
             (false, true) => "**biased (expected)**",
             (false, false) => "**BIASED**",
         };
-        let _ = writeln!(
-            s,
-            "| {} | {} | {} | {:.4e} ± {:.1e} | {:.4e} ± {:.1e} | {:.2} | {verdict} | {:.3} | {} |",
-            r.scene,
-            r.estimator,
-            r.check,
-            r.estimate,
-            r.estimate_se,
-            r.fd.value,
-            r.fd.std_err,
-            r.z(),
-            r.relative_sd,
-            r.non_finite
-        );
+        checks.push([
+            r.scene.clone(),
+            r.estimator.clone(),
+            r.check.clone(),
+            format!("{:.4e} ± {:.1e}", r.estimate, r.estimate_se),
+            format!("{:.4e} ± {:.1e}", r.fd.value, r.fd.std_err),
+            format!("{:.2}", r.z()),
+            verdict.to_string(),
+            format!("{:.3}", r.relative_sd),
+            r.non_finite.to_string(),
+        ]);
     }
-    s += "\n| scene | built to break |\n|---|---|\n";
+    let mut purposes = Table::new([("scene", Left), ("built to break", Left)]);
     for sc in scenes {
-        let _ = writeln!(s, "| {} | {} |", sc.name, sc.purpose);
+        purposes.push([sc.name, sc.purpose]);
     }
-    s
+    format!(
+        "Each estimator: {} runs × {} spp on an 8×8 image of a 6³ grid (trilinear lookups, nearest in empty-voxels); finite differences: {} spp × {} repeats, step {FD_OPTICAL_STEP} optical depth across the block. A check passes when |z| < {STABILITY_Z}.\n\n{}\n{}",
+        o.runs.max(2),
+        o.spp,
+        o.fd_spp,
+        o.fd_repeats.max(2),
+        checks.markdown(),
+        purposes.markdown()
+    )
 }

@@ -8,6 +8,8 @@ use rand::seq::SliceRandom;
 use crate::gradient::fd::{self, Direction, FdOptions, FdResult};
 use crate::gradient::grid::GradientGrid;
 use crate::gradient::passes::{gradient, GradOptions};
+use crate::gradient::runs::{seeded_runs, MeanAndError};
+use crate::io::table::{Align, Table};
 use crate::render::sampling::pixel_rng;
 use crate::render::scene::Scene;
 
@@ -39,6 +41,26 @@ impl Check {
     }
 }
 
+/// The checks as `check | estimate ± se | finite differences ± se | z`, one row per check in
+/// order: the `gradcheck` command's output and the reference check in `compare`'s summary.
+pub fn checks_table(checks: &[Check]) -> Table {
+    let mut table = Table::new([
+        ("check", Align::Left),
+        ("estimate ± se", Align::Right),
+        ("finite differences ± se", Align::Right),
+        ("z", Align::Right),
+    ]);
+    for c in checks {
+        table.push([
+            c.name.clone(),
+            format!("{:.4e} ± {:.1e}", c.estimate, c.estimate_se),
+            format!("{:.4e} ± {:.1e}", c.fd.value, c.fd.std_err),
+            format!("{:.2}", c.z()),
+        ]);
+    }
+    table
+}
+
 #[derive(Debug, Clone, Copy)]
 pub struct GradcheckOptions {
     pub grad: GradOptions,
@@ -50,14 +72,6 @@ pub struct GradcheckOptions {
     pub fixed_eps: bool,
     /// A progress bar on stderr (estimator runs, then checks).
     pub progress: bool,
-}
-
-fn mean_se(runs: &[GradientGrid], f: impl Fn(&GradientGrid) -> f64) -> (f64, f64) {
-    let values: Vec<f64> = runs.iter().map(f).collect();
-    let n = values.len() as f64;
-    let mean = values.iter().sum::<f64>() / n;
-    let var = values.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / (n - 1.0).max(1.0);
-    (mean, (var / n).sqrt())
 }
 
 pub fn gradcheck(scene: &Scene, options: &GradcheckOptions) -> anyhow::Result<Vec<Check>> {
@@ -73,21 +87,26 @@ pub fn gradcheck(scene: &Scene, options: &GradcheckOptions) -> anyhow::Result<Ve
         (repeats as usize + options.voxels + 2) as u64,
         "gradcheck",
     );
-    let runs: Vec<GradientGrid> = (0..repeats)
-        .map(|r| {
-            let mut o = options.grad;
-            o.seed = o.seed.wrapping_add(r as u64);
-            o.progress = false;
-            bar.inc(1);
-            gradient(scene, &adjoint, &o).gradient
-        })
-        .collect();
+    let runs: Vec<GradientGrid> = seeded_runs(options.grad.seed, repeats, |_, seed| {
+        let o = GradOptions {
+            seed,
+            progress: false,
+            ..options.grad
+        };
+        bar.inc(1);
+        gradient(scene, &adjoint, &o).gradient
+    });
     let domain = fd::box_voxels(grid, lo, hi, options.grad.active_only);
     let mut checks = Vec::new();
     let mut check = |name: String, direction: Direction| -> anyhow::Result<()> {
-        let (estimate, estimate_se) = mean_se(&runs, |g| {
-            direction.iter().map(|&(v, d)| d as f64 * g.get(v)).sum()
-        });
+        let along: Vec<f64> = runs
+            .iter()
+            .map(|g| direction.iter().map(|&(v, d)| d as f64 * g.get(v)).sum())
+            .collect();
+        let MeanAndError {
+            mean: estimate,
+            se: estimate_se,
+        } = MeanAndError::of(&along);
         let mut fd_options = options.fd;
         if !options.fixed_eps {
             fd_options.eps = fd::auto_eps(scene, &direction);
@@ -141,4 +160,34 @@ pub fn gradcheck(scene: &Scene, options: &GradcheckOptions) -> anyhow::Result<Ve
     check("⟨g, 1⟩ over the domain".into(), fd::ones(&domain))?;
     bar.finish_and_clear();
     Ok(checks)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn checks_table_has_a_row_per_check_with_errors_and_z() {
+        let check = Check {
+            name: "voxel [1, 2, 3]".into(),
+            estimate: 0.5,
+            estimate_se: 0.03,
+            fd: FdResult {
+                value: 0.46,
+                std_err: 0.04,
+                one_sided: false,
+            },
+        };
+        let table = checks_table(&[check]);
+        assert_eq!(table.header()[0], "check");
+        assert_eq!(
+            table.rows(),
+            [[
+                "voxel [1, 2, 3]",
+                "5.0000e-1 ± 3.0e-2",
+                "4.6000e-1 ± 4.0e-2",
+                "0.80"
+            ]]
+        );
+    }
 }

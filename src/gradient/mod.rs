@@ -8,3 +8,4 @@ pub mod grid;
 pub mod loss;
 pub mod objective;
 pub mod passes;
+pub mod runs;

@@ -1,16 +1,20 @@
-//! Log–log line charts, written as SVG (text) and as PNG (rasterised here, text drawn with a TTF
-//! font read at run time). One layout feeds both, so the two files show the same chart.
+//! Log–log line charts, written as SVG and as PNG by `plotters`: one drawing routine, generic over
+//! the backend, so the two files show the same chart.
 //!
-//! Why not a plotting crate: `plotters` 0.3.7 draws bitmap text only through `font-kit` (system
-//! fontconfig/freetype), which is fragile offline; lines, circles and a few labels are little code,
-//! and `ab_glyph` (pure Rust) rasterises the labels from DejaVu Sans (Debian: fonts-dejavu-core).
+//! PNG text is rasterised by plotters' pure-Rust `ab_glyph` backend from DejaVu Sans read at run
+//! time (Debian: fonts-dejavu-core, or `$VOLGRAD_FONT`). Nothing here asks plotters to measure
+//! text (no `caption`, no `series_labels`: both size their boxes from font metrics), so the SVG
+//! needs no font at all and, without one, the PNG is still drawn, only without its labels.
 
 use std::fs::File;
 use std::io::BufWriter;
 use std::path::{Path, PathBuf};
+use std::sync::OnceLock;
 
-use ab_glyph::{point, Font, FontVec, PxScale, ScaleFont};
-use anyhow::{bail, Context, Result};
+use anyhow::{anyhow, bail, Context, Result};
+use plotters::coord::Shift;
+use plotters::prelude::*;
+use plotters::style::text_anchor::{HPos, Pos, VPos};
 
 pub struct Series {
     pub name: String,
@@ -27,22 +31,33 @@ pub struct Chart {
 
 const WIDTH: u32 = 820;
 const HEIGHT: u32 = 520;
-const LEFT: f64 = 84.0;
-const RIGHT: f64 = 190.0; // room for the legend
-const TOP: f64 = 44.0;
-const BOTTOM: f64 = 62.0;
+/// The plot rectangle's distances to the image's edges; plotters puts the axis labels at the outer
+/// edge of the label areas, so a margin keeps their glyphs off the border.
+const LEFT: u32 = 84; // tick labels and the y-axis label
+const RIGHT: u32 = 190; // room for the legend
+const TOP: u32 = 44; // the title
+const BOTTOM: u32 = 62; // tick labels and the x-axis label
+const EDGE: u32 = 10;
 
 /// Colour-blind-safe (Okabe–Ito) line colours.
-const PALETTE: [[u8; 3]; 6] = [
-    [0, 114, 178],
-    [213, 94, 0],
-    [0, 158, 115],
-    [204, 121, 167],
-    [230, 159, 0],
-    [86, 180, 233],
+const PALETTE: [RGBColor; 6] = [
+    RGBColor(0, 114, 178),
+    RGBColor(213, 94, 0),
+    RGBColor(0, 158, 115),
+    RGBColor(204, 121, 167),
+    RGBColor(230, 159, 0),
+    RGBColor(86, 180, 233),
 ];
-const INK: [u8; 3] = [30, 30, 30];
-const GRID: [u8; 3] = [225, 225, 225];
+const INK: RGBColor = RGBColor(30, 30, 30);
+const DECADE_LINE: RGBColor = RGBColor(190, 190, 190);
+const MINOR_LINE: RGBColor = RGBColor(225, 225, 225);
+
+/// The family the SVG names and the PNG's font is registered under.
+const FAMILY: &str = "sans-serif";
+/// Text sizes in plotters' unit: the SVG's font-size is this / 1.24 (13 px for labels).
+const LABEL_SIZE: f64 = 16.0;
+const AXIS_SIZE: f64 = 17.5;
+const TITLE_SIZE: f64 = 20.0;
 
 /// Where the fonts of Debian's fonts-dejavu-core and a few other systems live.
 const FONT_PATHS: [&str; 4] = [
@@ -52,417 +67,169 @@ const FONT_PATHS: [&str; 4] = [
     "/usr/share/fonts/truetype/liberation/LiberationSans-Regular.ttf",
 ];
 
-/// Decade-aligned log10 ranges of the axes and the plot rectangle, in pixels.
-struct Layout {
-    x: (f64, f64),
-    y: (f64, f64),
-    plot: (f64, f64, f64, f64), // left, top, right, bottom
+/// Registers the first usable TTF (`$VOLGRAD_FONT`, then the usual system places) with plotters,
+/// once per process; false if there is none. plotters keeps fonts for the life of the process as
+/// `&'static [u8]`, so the bytes are leaked, once.
+fn font_registered() -> bool {
+    static REGISTERED: OnceLock<bool> = OnceLock::new();
+    *REGISTERED.get_or_init(|| {
+        let from_env = std::env::var_os("VOLGRAD_FONT").map(PathBuf::from);
+        from_env
+            .into_iter()
+            .chain(FONT_PATHS.iter().map(PathBuf::from))
+            .filter_map(|path| std::fs::read(path).ok())
+            .any(|bytes| {
+                let bytes: &'static [u8] = Box::leak(bytes.into_boxed_slice());
+                plotters::style::register_font(FAMILY, FontStyle::Normal, bytes).is_ok()
+            })
+    })
 }
 
 fn usable(p: &(f64, f64)) -> bool {
     p.0.is_finite() && p.1.is_finite() && p.0 > 0.0 && p.1 > 0.0
 }
 
-impl Layout {
-    fn new(chart: &Chart) -> Result<Layout> {
-        let points: Vec<(f64, f64)> = chart
-            .series
-            .iter()
-            .flat_map(|s| s.points.iter().copied().filter(usable))
-            .collect();
-        if points.is_empty() {
-            bail!(
-                "chart '{}' has no finite positive point to draw on log axes",
-                chart.title
-            );
-        }
-        let range = |f: &dyn Fn(&(f64, f64)) -> f64| {
-            let lo = points.iter().map(f).fold(f64::INFINITY, f64::min).log10();
-            let hi = points
-                .iter()
-                .map(f)
-                .fold(f64::NEG_INFINITY, f64::max)
-                .log10();
-            let (lo, mut hi) = (lo.floor(), hi.ceil());
-            if hi <= lo {
-                hi = lo + 1.0;
-            }
-            (lo, hi)
-        };
-        Ok(Layout {
-            x: range(&|p| p.0),
-            y: range(&|p| p.1),
-            plot: (LEFT, TOP, WIDTH as f64 - RIGHT, HEIGHT as f64 - BOTTOM),
-        })
+/// The whole decades that cover `values`, as a data range. The ends are widened by a relative
+/// 1e-9 because plotters finds the decade lines by `10^ceil(log10(start))` and repeated ×10, and
+/// rounding would otherwise drop the first or last decade (log10(0.1) is −0.99999…).
+fn decade_range(values: impl Iterator<Item = f64>) -> std::ops::Range<f64> {
+    let (lo, hi) = values.fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), v| {
+        (lo.min(v), hi.max(v))
+    });
+    let (lo, mut hi) = (lo.log10().floor(), hi.log10().ceil());
+    if hi <= lo {
+        hi = lo + 1.0;
     }
-
-    fn px(&self, x: f64) -> f64 {
-        let (l, _, r, _) = self.plot;
-        l + (x.log10() - self.x.0) / (self.x.1 - self.x.0) * (r - l)
-    }
-
-    fn py(&self, y: f64) -> f64 {
-        let (_, t, _, b) = self.plot;
-        b - (y.log10() - self.y.0) / (self.y.1 - self.y.0) * (b - t)
-    }
-
-    /// Every decade gets a line; labels thin out so they do not collide on wide ranges.
-    fn decades(range: (f64, f64)) -> Vec<(f64, bool)> {
-        let (lo, hi) = (range.0 as i32, range.1 as i32);
-        let step = ((hi - lo) / 6 + 1).max(1);
-        (lo..=hi)
-            .map(|k| (10f64.powi(k), (k - lo) % step == 0))
-            .collect()
-    }
-
-    /// 2·10^k … 9·10^k inside the range: the faint lines that make a log axis readable.
-    fn minor(range: (f64, f64)) -> Vec<f64> {
-        let (lo, hi) = (range.0 as i32, range.1 as i32);
-        (lo..hi)
-            .flat_map(|k| (2..10).map(move |m| m as f64 * 10f64.powi(k)))
-            .collect()
-    }
+    10f64.powf(lo) * (1.0 - 1e-9)..10f64.powf(hi) * (1.0 + 1e-9)
 }
 
+/// A decade's label: plain numbers near 1, powers of ten beyond.
 fn tick_label(v: f64) -> String {
     let k = v.log10().round() as i32;
     match k {
-        -3..=-1 => format!("{}", v),
-        0..=4 => format!("{}", v as i64),
+        -3..=-1 => format!("{:.*}", k.unsigned_abs() as usize, 10f64.powi(k)),
+        0..=4 => 10i64.pow(k as u32).to_string(),
         _ => format!("1e{k}"),
     }
 }
 
-fn rgb(c: [u8; 3]) -> String {
-    format!("rgb({},{},{})", c[0], c[1], c[2])
-}
+/// Decades get labels; between 1 and 7 decades every one is labelled, beyond that plotters
+/// thins them. Fewer than 8 labels also keeps plotters' minor lines at 2…9 × 10^k.
+const MAX_DECADE_LABELS: usize = 7;
 
-fn escape(s: &str) -> String {
-    s.replace('&', "&amp;")
-        .replace('<', "&lt;")
-        .replace('>', "&gt;")
-}
-
-/// The chart as an SVG document: one `<polyline>` per series.
-pub fn to_svg(chart: &Chart) -> Result<String> {
-    let l = Layout::new(chart)?;
-    let (pl, pt, pr, pb) = l.plot;
-    let mut s = format!(
-        "<svg xmlns=\"http://www.w3.org/2000/svg\" width=\"{WIDTH}\" height=\"{HEIGHT}\" viewBox=\"0 0 {WIDTH} {HEIGHT}\" font-family=\"DejaVu Sans, Arial, sans-serif\">\n<rect width=\"100%\" height=\"100%\" fill=\"white\"/>\n"
-    );
-    for x in Layout::minor(l.x) {
-        let sx = l.px(x);
-        s += &format!("<line x1=\"{sx:.1}\" y1=\"{pt}\" x2=\"{sx:.1}\" y2=\"{pb}\" stroke=\"{}\" stroke-width=\"0.6\"/>\n", rgb(GRID));
-    }
-    for y in Layout::minor(l.y) {
-        let sy = l.py(y);
-        s += &format!("<line x1=\"{pl}\" y1=\"{sy:.1}\" x2=\"{pr}\" y2=\"{sy:.1}\" stroke=\"{}\" stroke-width=\"0.6\"/>\n", rgb(GRID));
-    }
-    for (x, labelled) in Layout::decades(l.x) {
-        let sx = l.px(x);
-        s += &format!("<line x1=\"{sx:.1}\" y1=\"{pt}\" x2=\"{sx:.1}\" y2=\"{pb}\" stroke=\"rgb(190,190,190)\" stroke-width=\"1\"/>\n");
-        if labelled {
-            s += &format!(
-                "<text x=\"{sx:.1}\" y=\"{:.1}\" font-size=\"13\" text-anchor=\"middle\">{}</text>\n",
-                pb + 18.0,
-                tick_label(x)
-            );
-        }
-    }
-    for (y, labelled) in Layout::decades(l.y) {
-        let sy = l.py(y);
-        s += &format!("<line x1=\"{pl}\" y1=\"{sy:.1}\" x2=\"{pr}\" y2=\"{sy:.1}\" stroke=\"rgb(190,190,190)\" stroke-width=\"1\"/>\n");
-        if labelled {
-            s += &format!(
-                "<text x=\"{:.1}\" y=\"{:.1}\" font-size=\"13\" text-anchor=\"end\">{}</text>\n",
-                pl - 6.0,
-                sy + 4.5,
-                tick_label(y)
-            );
-        }
-    }
-    s += &format!(
-        "<rect x=\"{pl}\" y=\"{pt}\" width=\"{:.1}\" height=\"{:.1}\" fill=\"none\" stroke=\"{}\"/>\n",
-        pr - pl,
-        pb - pt,
-        rgb(INK)
-    );
-    s += &format!(
-        "<text x=\"{:.1}\" y=\"26\" font-size=\"16\" text-anchor=\"middle\">{}</text>\n",
-        (pl + pr) / 2.0,
-        escape(&chart.title)
-    );
-    s += &format!(
-        "<text x=\"{:.1}\" y=\"{:.1}\" font-size=\"14\" text-anchor=\"middle\">{}</text>\n",
-        (pl + pr) / 2.0,
-        HEIGHT as f64 - 16.0,
-        escape(&chart.x_label)
-    );
-    s += &format!(
-        "<text transform=\"translate(22,{:.1}) rotate(-90)\" font-size=\"14\" text-anchor=\"middle\">{}</text>\n",
-        (pt + pb) / 2.0,
-        escape(&chart.y_label)
-    );
-    for (i, series) in chart.series.iter().enumerate() {
-        let c = rgb(PALETTE[i % PALETTE.len()]);
-        let pts: Vec<(f64, f64)> = series
-            .points
+/// Draws `chart` on `root` (WIDTH × HEIGHT). Text is drawn in `ink`: transparent when the backend
+/// has no font to draw it with (plotters then skips it instead of failing).
+fn draw<DB: DrawingBackend>(
+    root: &DrawingArea<DB, Shift>,
+    chart: &Chart,
+    ink: RGBAColor,
+) -> Result<(), DrawingAreaErrorKind<DB::ErrorType>> {
+    let text = |size: f64| TextStyle::from((FAMILY, size).into_font()).color(&ink);
+    root.fill(&WHITE)?;
+    let usable_points = || {
+        chart
+            .series
             .iter()
-            .filter(|p| usable(p))
-            .map(|&(x, y)| (l.px(x), l.py(y)))
-            .collect();
-        let list: Vec<String> = pts.iter().map(|(x, y)| format!("{x:.1},{y:.1}")).collect();
-        s += &format!(
-            "<polyline points=\"{}\" fill=\"none\" stroke=\"{c}\" stroke-width=\"2.2\"/>\n",
-            list.join(" ")
+            .flat_map(|s| s.points.iter().copied().filter(usable))
+    };
+    let x_range = decade_range(usable_points().map(|p| p.0));
+    let y_range = decade_range(usable_points().map(|p| p.1));
+    let mut plot = ChartBuilder::on(root)
+        .margin_top(TOP)
+        .margin_right(RIGHT)
+        .margin_left(EDGE)
+        .margin_bottom(EDGE)
+        .x_label_area_size(BOTTOM - EDGE)
+        .y_label_area_size(LEFT - EDGE)
+        .build_cartesian_2d(x_range.log_scale(), y_range.log_scale())?;
+    plot.configure_mesh()
+        .x_labels(MAX_DECADE_LABELS)
+        .y_labels(MAX_DECADE_LABELS)
+        .x_label_formatter(&|v| tick_label(*v))
+        .y_label_formatter(&|v| tick_label(*v))
+        .bold_line_style(DECADE_LINE.stroke_width(1))
+        .light_line_style(MINOR_LINE.stroke_width(1))
+        .axis_style(INK.stroke_width(1))
+        .label_style(text(LABEL_SIZE))
+        .axis_desc_style(text(AXIS_SIZE))
+        .x_desc(chart.x_label.as_str())
+        .y_desc(chart.y_label.as_str())
+        .draw()?;
+    // The mesh draws the left and bottom axes only: close the frame.
+    let (xs, ys) = plot.plotting_area().get_pixel_range();
+    root.draw(&Rectangle::new(
+        [(xs.start, ys.start), (xs.end - 1, ys.end - 1)],
+        INK.stroke_width(1),
+    ))?;
+    root.draw_text(
+        &chart.title,
+        &text(TITLE_SIZE).pos(Pos::new(HPos::Center, VPos::Center)),
+        ((xs.start + xs.end) / 2, TOP as i32 / 2),
+    )?;
+    for (i, series) in chart.series.iter().enumerate() {
+        let colour = PALETTE[i % PALETTE.len()];
+        let points: Vec<(f64, f64)> = series.points.iter().copied().filter(usable).collect();
+        plot.draw_series(LineSeries::new(points, colour.filled().stroke_width(2)).point_size(3))?;
+        // The legend, by hand (plotters' own measures text): a short bar and the name, in the
+        // right margin. A bar is a rect, so each series has one polyline of its colour in the SVG.
+        let (x, y) = (xs.end + 14, ys.start + 12 + 22 * i as i32);
+        root.draw(&Rectangle::new(
+            [(x, y - 1), (x + 26, y + 1)],
+            colour.filled(),
+        ))?;
+        root.draw_text(
+            &series.name,
+            &text(LABEL_SIZE).pos(Pos::new(HPos::Left, VPos::Center)),
+            (x + 32, y),
+        )?;
+    }
+    root.present()
+}
+
+fn check_drawable(chart: &Chart) -> Result<()> {
+    if !chart.series.iter().any(|s| s.points.iter().any(usable)) {
+        bail!(
+            "chart '{}' has no finite positive point to draw on log axes",
+            chart.title
         );
-        for (x, y) in &pts {
-            s += &format!("<circle cx=\"{x:.1}\" cy=\"{y:.1}\" r=\"3.2\" fill=\"{c}\"/>\n");
-        }
-        let ly = pt + 12.0 + 22.0 * i as f64;
-        s += &format!(
-            "<line x1=\"{:.1}\" y1=\"{ly:.1}\" x2=\"{:.1}\" y2=\"{ly:.1}\" stroke=\"{c}\" stroke-width=\"2.2\"/>\n<text x=\"{:.1}\" y=\"{:.1}\" font-size=\"13\">{}</text>\n",
-            pr + 14.0,
-            pr + 40.0,
-            pr + 46.0,
-            ly + 4.5,
-            escape(&series.name)
-        );
     }
-    s += "</svg>\n";
-    Ok(s)
+    Ok(())
 }
 
-/// An RGB8 image with anti-aliased drawing by coverage (distance to the shape, one pixel ramp).
-struct Canvas {
-    width: u32,
-    height: u32,
-    data: Vec<u8>,
-}
-
-impl Canvas {
-    fn new(width: u32, height: u32) -> Self {
-        Canvas {
-            width,
-            height,
-            data: vec![255; (width * height * 3) as usize],
-        }
+/// The chart as an SVG document: each series a `<polyline>` in its colour (the axes are ink
+/// polylines), its points `<circle>`s, every label a `<text>`.
+pub fn to_svg(chart: &Chart) -> Result<String> {
+    check_drawable(chart)?;
+    let mut svg = String::new();
+    {
+        let root = SVGBackend::with_string(&mut svg, (WIDTH, HEIGHT)).into_drawing_area();
+        draw(&root, chart, INK.to_rgba()).map_err(|e| anyhow!("drawing the SVG chart: {e}"))?;
     }
-
-    fn blend(&mut self, x: i64, y: i64, c: [u8; 3], coverage: f64) {
-        if x < 0 || y < 0 || x >= self.width as i64 || y >= self.height as i64 || coverage <= 0.0 {
-            return;
-        }
-        let a = coverage.min(1.0);
-        let i = ((y as u32 * self.width + x as u32) * 3) as usize;
-        for (channel, &target) in self.data[i..i + 3].iter_mut().zip(&c) {
-            let old = *channel as f64;
-            *channel = (old + (target as f64 - old) * a).round() as u8;
-        }
-    }
-
-    /// A segment of width `2·half` with round caps.
-    fn line(&mut self, a: (f64, f64), b: (f64, f64), half: f64, c: [u8; 3]) {
-        let pad = half + 1.0;
-        let (x0, x1) = (a.0.min(b.0) - pad, a.0.max(b.0) + pad);
-        let (y0, y1) = (a.1.min(b.1) - pad, a.1.max(b.1) + pad);
-        let (dx, dy) = (b.0 - a.0, b.1 - a.1);
-        let len2 = dx * dx + dy * dy;
-        for y in y0.floor() as i64..=y1.ceil() as i64 {
-            for x in x0.floor() as i64..=x1.ceil() as i64 {
-                let (px, py) = (x as f64 + 0.5, y as f64 + 0.5);
-                let t = if len2 > 0.0 {
-                    (((px - a.0) * dx + (py - a.1) * dy) / len2).clamp(0.0, 1.0)
-                } else {
-                    0.0
-                };
-                let d = ((px - a.0 - t * dx).powi(2) + (py - a.1 - t * dy).powi(2)).sqrt();
-                self.blend(x, y, c, half + 0.5 - d);
-            }
-        }
-    }
-
-    fn disc(&mut self, centre: (f64, f64), r: f64, c: [u8; 3]) {
-        self.line(centre, centre, r, c);
-    }
-
-    /// Text with its baseline at `y`; `align` 0 = left, 0.5 = centred, 1 = right; `vertical`
-    /// turns it a quarter to read bottom to top (a y-axis label), centred on (x, y).
-    #[allow(clippy::too_many_arguments)]
-    fn text(
-        &mut self,
-        font: &FontVec,
-        s: &str,
-        x: f64,
-        y: f64,
-        size: f32,
-        align: f64,
-        vertical: bool,
-        c: [u8; 3],
-    ) {
-        let scaled = font.as_scaled(PxScale::from(size));
-        let mut glyphs = Vec::new();
-        let mut caret = 0.0f32;
-        let mut previous = None;
-        for ch in s.chars() {
-            let id = font.glyph_id(ch);
-            if let Some(p) = previous {
-                caret += scaled.kern(p, id);
-            }
-            glyphs.push(id.with_scale_and_position(size, point(caret, 0.0)));
-            caret += scaled.h_advance(id);
-            previous = Some(id);
-        }
-        let start = -(caret as f64) * align;
-        for g in glyphs {
-            if let Some(outline) = font.outline_glyph(g) {
-                let b = outline.px_bounds();
-                let mut pixels = Vec::new();
-                outline.draw(|gx, gy, cov| pixels.push((gx, gy, cov)));
-                for (gx, gy, cov) in pixels {
-                    // Offsets from the text origin (along the text, below the baseline).
-                    let u = start + b.min.x as f64 + gx as f64;
-                    let v = b.min.y as f64 + gy as f64;
-                    let (px, py) = if vertical {
-                        (x + v, y - u)
-                    } else {
-                        (x + u, y + v)
-                    };
-                    self.blend(px.floor() as i64, py.floor() as i64, c, cov as f64);
-                }
-            }
-        }
-    }
-
-    fn write_png(&self, path: &Path) -> Result<()> {
-        let file =
-            File::create(path).with_context(|| format!("cannot create '{}'", path.display()))?;
-        let mut encoder = png::Encoder::new(BufWriter::new(file), self.width, self.height);
-        encoder.set_color(png::ColorType::Rgb);
-        encoder.set_depth(png::BitDepth::Eight);
-        let mut writer = encoder
-            .write_header()
-            .with_context(|| format!("writing '{}'", path.display()))?;
-        writer
-            .write_image_data(&self.data)
-            .with_context(|| format!("writing '{}'", path.display()))?;
-        Ok(())
-    }
-}
-
-/// The first TTF found: `$VOLGRAD_FONT`, then the usual system places.
-pub fn find_font() -> Option<(PathBuf, FontVec)> {
-    let from_env = std::env::var_os("VOLGRAD_FONT").map(PathBuf::from);
-    from_env
-        .into_iter()
-        .chain(FONT_PATHS.iter().map(PathBuf::from))
-        .find_map(|p| {
-            let bytes = std::fs::read(&p).ok()?;
-            FontVec::try_from_vec(bytes).ok().map(|f| (p, f))
-        })
+    Ok(svg)
 }
 
 /// Draws the chart as a PNG. Returns false when no font was found: the lines are drawn, the
 /// labels are not (the SVG has them), and the caller should say so.
 pub fn write_png(chart: &Chart, path: &Path) -> Result<bool> {
-    let l = Layout::new(chart)?;
-    let (pl, pt, pr, pb) = l.plot;
-    let font = find_font().map(|(_, f)| f);
-    let mut c = Canvas::new(WIDTH, HEIGHT);
-    for x in Layout::minor(l.x) {
-        c.line((l.px(x), pt), (l.px(x), pb), 0.3, GRID);
+    check_drawable(chart)?;
+    let labelled = font_registered();
+    let ink = if labelled { INK.to_rgba() } else { TRANSPARENT };
+    let mut rgb = vec![0u8; (WIDTH * HEIGHT * 3) as usize];
+    {
+        let root = BitMapBackend::with_buffer(&mut rgb, (WIDTH, HEIGHT)).into_drawing_area();
+        draw(&root, chart, ink).map_err(|e| anyhow!("drawing the PNG chart: {e}"))?;
     }
-    for y in Layout::minor(l.y) {
-        c.line((pl, l.py(y)), (pr, l.py(y)), 0.3, GRID);
-    }
-    for (x, _) in Layout::decades(l.x) {
-        c.line((l.px(x), pt), (l.px(x), pb), 0.5, [190; 3]);
-    }
-    for (y, _) in Layout::decades(l.y) {
-        c.line((pl, l.py(y)), (pr, l.py(y)), 0.5, [190; 3]);
-    }
-    for (a, b) in [
-        ((pl, pt), (pr, pt)),
-        ((pr, pt), (pr, pb)),
-        ((pr, pb), (pl, pb)),
-        ((pl, pb), (pl, pt)),
-    ] {
-        c.line(a, b, 0.6, INK);
-    }
-    for (i, series) in chart.series.iter().enumerate() {
-        let colour = PALETTE[i % PALETTE.len()];
-        let pts: Vec<(f64, f64)> = series
-            .points
-            .iter()
-            .filter(|p| usable(p))
-            .map(|&(x, y)| (l.px(x), l.py(y)))
-            .collect();
-        for w in pts.windows(2) {
-            c.line(w[0], w[1], 1.1, colour);
-        }
-        for &p in &pts {
-            c.disc(p, 3.2, colour);
-        }
-        let ly = pt + 12.0 + 22.0 * i as f64;
-        c.line((pr + 14.0, ly), (pr + 40.0, ly), 1.1, colour);
-        if let Some(f) = &font {
-            c.text(f, &series.name, pr + 46.0, ly + 4.5, 13.0, 0.0, false, INK);
-        }
-    }
-    if let Some(f) = &font {
-        for (x, labelled) in Layout::decades(l.x) {
-            if labelled {
-                c.text(f, &tick_label(x), l.px(x), pb + 18.0, 13.0, 0.5, false, INK);
-            }
-        }
-        for (y, labelled) in Layout::decades(l.y) {
-            if labelled {
-                c.text(
-                    f,
-                    &tick_label(y),
-                    pl - 6.0,
-                    l.py(y) + 4.5,
-                    13.0,
-                    1.0,
-                    false,
-                    INK,
-                );
-            }
-        }
-        c.text(
-            f,
-            &chart.title,
-            (pl + pr) / 2.0,
-            26.0,
-            16.0,
-            0.5,
-            false,
-            INK,
-        );
-        let bottom = HEIGHT as f64 - 16.0;
-        c.text(
-            f,
-            &chart.x_label,
-            (pl + pr) / 2.0,
-            bottom,
-            14.0,
-            0.5,
-            false,
-            INK,
-        );
-        c.text(
-            f,
-            &chart.y_label,
-            22.0,
-            (pt + pb) / 2.0,
-            14.0,
-            0.5,
-            true,
-            INK,
-        );
-    }
-    c.write_png(path)?;
-    Ok(font.is_some())
+    // Encoded here rather than by plotters' `bitmap_encoder`, which would bring in a second
+    // `image` and `png` (and a JPEG decoder) for this one file.
+    let file = File::create(path).with_context(|| format!("cannot create '{}'", path.display()))?;
+    let mut encoder = png::Encoder::new(BufWriter::new(file), WIDTH, HEIGHT);
+    encoder.set_color(png::ColorType::Rgb);
+    encoder.set_depth(png::BitDepth::Eight);
+    encoder
+        .write_header()
+        .and_then(|mut w| w.write_image_data(&rgb))
+        .with_context(|| format!("writing '{}'", path.display()))?;
+    Ok(labelled)
 }
 
 #[cfg(test)]
@@ -489,20 +256,37 @@ mod tests {
 
     #[test]
     fn axes_cover_every_point_in_whole_decades() {
-        let l = Layout::new(&chart()).unwrap();
-        assert_eq!(l.x, (-1.0, 2.0));
-        assert_eq!(l.y, (-2.0, 1.0));
-        let (pl, pt, pr, pb) = l.plot;
-        assert!((l.px(0.1) - pl).abs() < 1e-9 && (l.px(100.0) - pr).abs() < 1e-9);
-        assert!((l.py(0.01) - pb).abs() < 1e-9 && (l.py(10.0) - pt).abs() < 1e-9);
+        let x = decade_range([0.1, 0.2, 0.4, 0.3, 30.0].into_iter());
+        assert!((x.start - 0.1).abs() < 1e-9 && (x.end - 100.0).abs() < 1e-6);
+        assert!(x.start < 0.1 && x.end > 100.0, "the end decades are inside");
+        let y = decade_range([2.0, 2.0].into_iter());
+        assert!((y.start - 1.0).abs() < 1e-9 && (y.end - 10.0).abs() < 1e-6);
+        let labels: Vec<String> = [1e-3, 0.1, 1.0, 1e4, 1e5, 1e-4]
+            .into_iter()
+            .map(tick_label)
+            .collect();
+        assert_eq!(labels, ["0.001", "0.1", "1", "10000", "1e5", "1e-4"]);
     }
 
     #[test]
-    fn svg_has_one_polyline_per_series_and_escapes_names() {
+    fn svg_has_one_polyline_per_series_a_label_per_decade_and_escapes_names() {
         let svg = to_svg(&chart()).unwrap();
-        assert_eq!(svg.matches("<polyline").count(), 2);
+        // The axes and tick marks are polylines too, in INK.
+        let series_lines = |colour: &str| {
+            svg.lines()
+                .filter(|l| l.starts_with("<polyline") && l.contains(colour))
+                .count()
+        };
+        assert_eq!(series_lines("stroke=\"#0072B2\""), 1);
+        assert_eq!(series_lines("stroke=\"#D55E00\""), 1);
         assert!(svg.contains("b&lt;c"));
         assert!(!svg.contains("NaN"));
+        for decade in ["0.1", "1", "10", "100", "0.01"] {
+            assert!(
+                svg.contains(&format!(">\n{decade}\n<")),
+                "no label {decade}"
+            );
+        }
     }
 
     #[test]

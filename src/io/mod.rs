@@ -9,4 +9,5 @@ pub mod images;
 pub mod make_grid;
 pub mod output;
 pub mod progress;
+pub mod table;
 pub mod vdb;
