@@ -298,22 +298,14 @@ fn stability_suite_is_finite_and_flags_naive_in_empty_voxels() {
 /// The command line refuses bad input before any work, with a message and exit status 1 or 2.
 #[test]
 fn command_line_refuses_bad_input_without_panicking() {
-    let exe = env!("CARGO_BIN_EXE_volgrad");
     let scene = concat!(env!("CARGO_MANIFEST_DIR"), "/scenes/box.toml");
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("out");
     std::fs::create_dir(&out).unwrap();
     std::fs::write(out.join("runs.csv"), "mine").unwrap();
     let run = |args: &[&str]| {
-        let o = std::process::Command::new(exe)
-            .arg("compare")
-            .args(args)
-            .output()
-            .unwrap();
-        (
-            o.status.code(),
-            String::from_utf8_lossy(&o.stderr).into_owned(),
-        )
+        let o = volgrad(&[&["compare"], args].concat());
+        (o.status.code(), stderr(&o))
     };
     let out_arg = out.to_str().unwrap();
     let (code, err) = run(&[scene, "--out", out_arg, "--budget", "1s"]);

@@ -14,6 +14,7 @@ use volgrad::gradient::fd::{self, FdOptions};
 use volgrad::gradient::grid::GradientGrid;
 use volgrad::gradient::loss::Loss;
 use volgrad::gradient::passes::{derivative_image, gradient, GradOptions};
+use volgrad::gradient::runs::MeanAndError;
 use volgrad::render::scene::Scene;
 use volgrad::volume::majorant::Majorant;
 use volgrad::volume::medium::Filter;
@@ -43,10 +44,8 @@ fn runs(scene: &Scene, estimator: Estimator, spp: u32, repeats: u64) -> Vec<Grad
 /// Mean and standard error of a linear functional over the runs.
 fn mean_se(runs: &[GradientGrid], f: impl Fn(&GradientGrid) -> f64) -> (f64, f64) {
     let values: Vec<f64> = runs.iter().map(f).collect();
-    let n = values.len() as f64;
-    let mean = values.iter().sum::<f64>() / n;
-    let var = values.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / (n - 1.0);
-    (mean, (var / n).sqrt())
+    let m = MeanAndError::of(&values);
+    (m.mean, m.se)
 }
 
 fn fd_along(scene: &Scene, direction: &fd::Direction) -> fd::FdResult {

@@ -7,7 +7,7 @@ use anyhow::{bail, Result};
 
 use super::{set_threads, AdjointArgs, FdArgs};
 use volgrad::gradient::adjoint::Estimator;
-use volgrad::gradient::gradcheck::{gradcheck, GradcheckOptions, Z_LIMIT};
+use volgrad::gradient::gradcheck::{checks_table, gradcheck, GradcheckOptions, Z_LIMIT};
 use volgrad::gradient::loss::Loss;
 use volgrad::render::scene::Scene;
 
@@ -56,24 +56,8 @@ pub fn run(args: &Args) -> Result<()> {
     };
     eprintln!("checking {:?} ({} spp × {} runs) against finite differences (ε {eps}, {} spp × {} repeats) on d(mean pixel)/dθ", args.estimator, grad.spp, options.repeats, fd.spp, fd.repeats);
     let checks = gradcheck(&scene, &options)?;
-    println!(
-        "{:<40} {:>24} {:>24} {:>8}",
-        "check", "estimator", "finite differences", "z"
-    );
-    let mut failed = 0;
-    for c in &checks {
-        let verdict = if c.passed() { "" } else { "  FAIL" };
-        failed += usize::from(!c.passed());
-        println!(
-            "{:<40} {:>12.4e} ± {:<9.2e} {:>12.4e} ± {:<9.2e} {:>8.2}{verdict}",
-            c.name,
-            c.estimate,
-            c.estimate_se,
-            c.fd.value,
-            c.fd.std_err,
-            c.z()
-        );
-    }
+    print!("{}", checks_table(&checks).markdown());
+    let failed = checks.iter().filter(|c| !c.passed()).count();
     if failed > 0 {
         bail!("{failed} of {} checks beyond |z| = {Z_LIMIT}", checks.len());
     }

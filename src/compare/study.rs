@@ -10,7 +10,7 @@ use anyhow::{bail, Result};
 use crate::compare::{self as c, Reference};
 use crate::gradient::adjoint::Estimator;
 use crate::gradient::fd::FdOptions;
-use crate::gradient::gradcheck::{Check, Z_LIMIT};
+use crate::gradient::gradcheck::{checks_table, Z_LIMIT};
 use crate::gradient::loss::Loss;
 use crate::io::output::prepare_out_dir;
 use crate::render::scene::Scene;
@@ -175,7 +175,7 @@ fn checked_reference_table(
         fd.spp, fd.repeats
     );
     let checks = c::check_reference(scene, reference, &fd, o.fd_voxels)?;
-    let table = checks_markdown(&checks);
+    let table = checks_table(&checks).markdown();
     for line in table.lines().skip(2) {
         eprintln!("  {line}");
     }
@@ -192,23 +192,6 @@ fn checked_reference_table(
         eprintln!("warning: the reference disagrees with finite differences (|z| = {worst:.1}); using it because of --force-reference");
     }
     Ok(table)
-}
-
-fn checks_markdown(checks: &[Check]) -> String {
-    let mut table =
-        String::from("| check | reference | finite differences | z |\n|---|---:|---:|---:|\n");
-    for c in checks {
-        table += &format!(
-            "| {} | {:.4e} ± {:.1e} | {:.4e} ± {:.1e} | {:.2} |\n",
-            c.name,
-            c.estimate,
-            c.estimate_se,
-            c.fd.value,
-            c.fd.std_err,
-            c.z()
-        );
-    }
-    table
 }
 
 /// What the stability suite found.

@@ -41,14 +41,16 @@ impl Check {
     }
 }
 
-/// The checks as `check | estimate ± se | finite differences ± se | z`, one row per check in
-/// order: the `gradcheck` command's output and the reference check in `compare`'s summary.
+/// The checks as `check | estimate ± se | finite differences ± se | z | verdict`, one row per
+/// check in order: the `gradcheck` command's output and the reference check in `compare`'s
+/// summary. A check fails at |z| ≥ `Z_LIMIT`.
 pub fn checks_table(checks: &[Check]) -> Table {
     let mut table = Table::new([
         ("check", Align::Left),
         ("estimate ± se", Align::Right),
         ("finite differences ± se", Align::Right),
         ("z", Align::Right),
+        ("verdict", Align::Left),
     ]);
     for c in checks {
         table.push([
@@ -56,6 +58,7 @@ pub fn checks_table(checks: &[Check]) -> Table {
             format!("{:.4e} ± {:.1e}", c.estimate, c.estimate_se),
             format!("{:.4e} ± {:.1e}", c.fd.value, c.fd.std_err),
             format!("{:.2}", c.z()),
+            (if c.passed() { "ok" } else { "FAIL" }).to_string(),
         ]);
     }
     table
@@ -178,16 +181,28 @@ mod tests {
                 one_sided: false,
             },
         };
-        let table = checks_table(&[check]);
+        let mut far = check.clone();
+        far.estimate = 0.8; // z = 6.8
+        let table = checks_table(&[check, far]);
         assert_eq!(table.header()[0], "check");
         assert_eq!(
             table.rows(),
-            [[
-                "voxel [1, 2, 3]",
-                "5.0000e-1 ± 3.0e-2",
-                "4.6000e-1 ± 4.0e-2",
-                "0.80"
-            ]]
+            [
+                [
+                    "voxel [1, 2, 3]",
+                    "5.0000e-1 ± 3.0e-2",
+                    "4.6000e-1 ± 4.0e-2",
+                    "0.80",
+                    "ok"
+                ],
+                [
+                    "voxel [1, 2, 3]",
+                    "8.0000e-1 ± 3.0e-2",
+                    "4.6000e-1 ± 4.0e-2",
+                    "6.80",
+                    "FAIL"
+                ]
+            ]
         );
     }
 }
