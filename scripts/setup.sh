@@ -4,7 +4,7 @@
 # present.
 set -euo pipefail
 
-# fonts-dejavu-core: the labels of the PNG charts of `volgrad compare` (src/chart.rs).
+# fonts-dejavu-core: the labels of the PNG charts of `volgrad compare` (src/io/chart.rs).
 packages=(libopenvdb-dev libopenimageio-dev libboost-dev libtbb-dev g++ libopenvdb-tools fonts-dejavu-core)
 missing=()
 for p in "${packages[@]}"; do
