@@ -1,8 +1,11 @@
-// Declarations of the C++ side of the cxx bridge declared in src/bridge.rs.
+// Declarations of the C++ side of the cxx bridge declared in src/io/bridge.rs.
 //
 // This header is included by the cxx-generated glue, so it deliberately pulls in no OpenVDB or
 // OpenImageIO header: the shared structs are only forward-declared here (cxx defines them in the
-// generated "volgrad/src/bridge.rs.h", which cpp/bridge.cpp includes).
+// generated "volgrad/src/io/bridge.rs.h", which the .cpp files that use them include).
+//
+// Defined in cpp/vdb_read.cpp (list_grids, read_float_grid), cpp/vdb_write.cpp (write_float_grids)
+// and cpp/images.cpp (read_image, write_image).
 #pragma once
 
 #include "rust/cxx.h"

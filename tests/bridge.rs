@@ -1,4 +1,4 @@
-//! Integration tests of the C++ bridge (`cpp/bridge.cpp`) through `volgrad::io::bridge::ffi`: the facts
+//! Integration tests of the C++ bridge (`cpp/`) through `volgrad::io::bridge::ffi`: the facts
 //! of the bundled OpenVDB assets, float-grid round trips, error messages, and images checked with
 //! independent pure-Rust decoders (`exr`, `image`).
 

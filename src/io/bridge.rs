@@ -1,4 +1,4 @@
-//! The cxx bridge to OpenVDB and OpenImageIO (implemented in `cpp/bridge.cpp`).
+//! The cxx bridge to OpenVDB and OpenImageIO (implemented in `cpp/`, declared in `cpp/bridge.h`).
 //!
 //! Everything crosses as plain data: the C++ side never hands out OpenVDB objects. Every function can
 //! throw (I/O, corrupt files, wrong types), so every one is declared `Result`: an exception escaping a

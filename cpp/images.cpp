@@ -1,0 +1,135 @@
+// Images for the cxx bridge declared in src/io/bridge.rs: read_image and write_image, OpenImageIO
+// (2.4) behind plain-data functions. Nothing OIIO-typed crosses the bridge; every error is a C++
+// exception whose what() names the file and the reason. No OpenVDB here.
+
+#include "volgrad/cpp/bridge.h"
+#include "volgrad/cpp/internal.h"
+#include "volgrad/src/io/bridge.rs.h"
+
+#include <OpenImageIO/imageio.h>
+
+#include <cstdint>
+#include <filesystem>
+#include <string>
+#include <system_error>
+#include <vector>
+
+namespace fs = std::filesystem;
+
+namespace volgrad {
+namespace {
+
+OIIO::TypeDesc pixel_type_desc(const std::string& t) {
+    if (t == "half") return OIIO::TypeDesc::HALF;
+    if (t == "float") return OIIO::TypeDesc::FLOAT;
+    if (t == "uint8") return OIIO::TypeDesc::UINT8;
+    fail("unknown pixel type '" + t + "' (expected half, float or uint8)");
+}
+
+std::string oiio_error(const std::string& specific) {
+    std::string e = specific.empty() ? OIIO::geterror() : specific;
+    while (!e.empty() && (e.back() == '\n' || e.back() == ' ')) e.pop_back();
+    return e.empty() ? "unknown OpenImageIO error" : e;
+}
+
+}  // namespace
+
+// ------------------------------------------------------------------------------------------------
+// The bridge functions
+
+ImageData read_image(rust::Str path_str) {
+    const std::string path = to_std(path_str);
+    check_readable(path);
+    // Return what the file stores: no (un)premultiplication of alpha.
+    OIIO::ImageSpec config;
+    config.attribute("oiio:UnassociatedAlpha", 1);
+    auto in = OIIO::ImageInput::open(path, &config);
+    if (!in) fail("cannot read image " + quoted(path) + ": " + oiio_error(""));
+    const OIIO::ImageSpec& spec = in->spec();
+    if (spec.width <= 0 || spec.height <= 0 || spec.nchannels <= 0 || spec.depth > 1) {
+        fail("cannot read image " + quoted(path) + ": unsupported size " +
+             std::to_string(spec.width) + "x" + std::to_string(spec.height) + "x" +
+             std::to_string(spec.depth) + " with " + std::to_string(spec.nchannels) + " channels");
+    }
+    ImageData img;
+    img.width = uint32_t(spec.width);
+    img.height = uint32_t(spec.height);
+    img.channels = uint32_t(spec.nchannels);
+    std::vector<float> data(size_t(spec.width) * size_t(spec.height) * size_t(spec.nchannels));
+    if (!in->read_image(0, 0, 0, spec.nchannels, OIIO::TypeDesc::FLOAT, data.data())) {
+        fail("cannot read image " + quoted(path) + ": " + oiio_error(in->geterror()));
+    }
+    in->close();
+    img.pixels.reserve(data.size());
+    for (float v : data) img.pixels.push_back(v);
+    return img;
+}
+
+void write_image(rust::Str path_str, const ImageData& image, rust::Str pixel_type) {
+    const std::string path = to_std(path_str);
+    const std::string what = "cannot write image " + quoted(path);
+    const OIIO::TypeDesc type = [&] {
+        try {
+            return pixel_type_desc(to_std(pixel_type));
+        } catch (const BridgeError& e) {
+            fail(what + ": " + e.what());
+        }
+    }();
+    if (image.width == 0 || image.height == 0 || image.channels == 0) {
+        fail(what + ": empty image (" + std::to_string(image.width) + "x" +
+             std::to_string(image.height) + " with " + std::to_string(image.channels) +
+             " channels)");
+    }
+    const size_t expected = size_t(image.width) * image.height * image.channels;
+    if (image.pixels.size() != expected) {
+        fail(what + ": " + std::to_string(image.pixels.size()) + " values for " +
+             std::to_string(image.width) + "x" + std::to_string(image.height) + "x" +
+             std::to_string(image.channels) + " (expected " + std::to_string(expected) + ")");
+    }
+    check_writable_target(path);
+    const fs::path p(path);
+    const std::string ext = p.extension().string();
+    if (ext.empty()) fail(what + ": no file extension to choose the image format from");
+
+    auto out = OIIO::ImageOutput::create(path);
+    if (!out) fail(what + ": unknown image format '" + ext + "' (" + oiio_error("") + ")");
+    OIIO::ImageSpec spec(int(image.width), int(image.height), int(image.channels), type);
+    // The values are stored as given: no (un)premultiplication of alpha.
+    spec.attribute("oiio:UnassociatedAlpha", 1);
+    if (std::string(out->format_name()) == "openexr") spec.attribute("compression", "zip");
+
+    // OIIO picks the format from the extension, so the temporary name keeps it.
+    const fs::path tmp = p.parent_path() / ("." + p.stem().string() + ".tmp" + ext);
+    auto cleanup = [&] {
+        std::error_code ignored;
+        fs::remove(tmp, ignored);
+    };
+    if (!out->open(tmp.string(), spec)) {
+        const std::string err = oiio_error(out->geterror());
+        cleanup();
+        fail(what + ": " + err);
+    }
+    const OIIO::TypeDesc stored = out->spec().format;  // what the format actually stores
+    if (!out->write_image(OIIO::TypeDesc::FLOAT, image.pixels.data())) {
+        const std::string err = oiio_error(out->geterror());
+        out->close();
+        cleanup();
+        fail(what + ": " + err);
+    }
+    if (!out->close()) {
+        const std::string err = oiio_error(out->geterror());
+        cleanup();
+        fail(what + ": " + err);
+    }
+    // Formats that cannot store the requested type silently fall back to another (PNG: uint8 for
+    // "float"); that would lose precision the caller asked for, so it is an error. (Checked after
+    // closing: closing an unwritten PNG makes libpng print to stderr.)
+    if (stored != type) {
+        cleanup();
+        fail(what + ": the " + out->format_name() + " format cannot store " +
+             to_std(pixel_type) + " pixels (it would store " + stored.c_str() + ")");
+    }
+    commit_file(tmp, path);
+}
+
+}  // namespace volgrad
