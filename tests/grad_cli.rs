@@ -224,6 +224,107 @@ fn merge_weights_runs_by_their_spp() {
     );
 }
 
+/// Merging averages runs of one computation; every way two files can differ in what they
+/// computed is refused with the field that differs, and so is a repeated seed.
+#[test]
+fn merge_refuses_runs_of_different_computations() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let scene = scene(d, "s.toml", 1.0);
+    let grad = |seed: &str, out: &str, extra: &[&str]| {
+        let out = d.join(out);
+        let mut args = vec![
+            "grad",
+            s(&scene),
+            "--spp",
+            "1",
+            "--seed",
+            seed,
+            "-o",
+            s(&out),
+            "-q",
+        ];
+        args.extend_from_slice(extra);
+        ok(volgrad(&args));
+        out
+    };
+    let merge =
+        |a: &Path, b: &Path| volgrad(&["merge", s(a), s(b), "-o", s(&d.join("m.vdb")), "--force"]);
+    let a = grad("1", "a.vdb", &[]);
+
+    // The same scene given once absolute and once relative (run from its folder) merges.
+    ok(volgrad_in(
+        d,
+        &[
+            "grad", "s.toml", "--spp", "1", "--seed", "2", "-o", "b.vdb", "-q",
+        ],
+    ));
+    ok(merge(&a, &d.join("b.vdb")));
+    // The same file twice is the same seed twice.
+    assert_clean_error(&merge(&a, &a), &["seed 1 is in both"]);
+
+    // Another scene that is also called s.toml, in another folder.
+    let other = d.join("other");
+    std::fs::create_dir(&other).unwrap();
+    let other_scene = self::scene(&other, "s.toml", 2.0);
+    let c = d.join("c.vdb");
+    ok(volgrad(&[
+        "grad",
+        s(&other_scene),
+        "--spp",
+        "1",
+        "--seed",
+        "3",
+        "-o",
+        s(&c),
+        "-q",
+    ]));
+    assert_clean_error(&merge(&a, &c), &["volgrad_scene_fingerprint", "c.vdb"]);
+
+    let depth = grad("4", "d.vdb", &["--max-depth", "1"]);
+    assert_clean_error(
+        &merge(&a, &depth),
+        &["volgrad_max_depth", "'16' there and '1' here"],
+    );
+    let active = grad("5", "e.vdb", &["--domain", "active"]);
+    assert_clean_error(&merge(&a, &active), &["volgrad_domain"]);
+    let drt = grad("6", "f.vdb", &["--estimator", "drt"]);
+    assert_clean_error(&merge(&a, &drt), &["volgrad_estimator"]);
+
+    // Gradients of one loss toward two different targets.
+    let target = |scale: f32, name: &str| {
+        let image = d.join(name);
+        let scene = scene_path_with_scale(d, scale);
+        ok(volgrad(&[
+            "render",
+            s(&scene),
+            "-o",
+            s(&image),
+            "--spp",
+            "1",
+            "-q",
+            "--force",
+        ]));
+        image
+    };
+    let (t1, t2) = (target(1.5, "t1.exr"), target(2.0, "t2.exr"));
+    let g1 = grad("7", "g1.vdb", &["--loss", "l2", "--target", s(&t1)]);
+    let g2 = grad("8", "g2.vdb", &["--loss", "l2", "--target", s(&t2)]);
+    assert_clean_error(&merge(&g1, &g2), &["volgrad_target_fingerprint"]);
+    assert_clean_error(&merge(&a, &g1), &["volgrad_target_fingerprint"]);
+
+    // A file that claims no samples.
+    let mut empty = vdb::read_grid(&a, &GridSelector::Index(0)).unwrap();
+    for entry in &mut empty.metadata {
+        if entry.name == "volgrad_spp" {
+            entry.value = "0".into();
+        }
+    }
+    let zero = d.join("zero.vdb");
+    vdb::write_grids(&zero, &[&empty], false, false).unwrap();
+    assert_clean_error(&merge(&zero, &a), &["volgrad_spp = 0"]);
+}
+
 #[test]
 fn gradcheck_passes_joint_and_catches_naive_in_empty_voxels() {
     let dir = tempfile::tempdir().unwrap();
@@ -375,6 +476,37 @@ fn bad_gradient_inputs_give_clear_errors() {
         ]),
         &["six integers"],
     );
+    // Boxes that are empty or miss the domain, and voxels that are not parameters, measure nothing.
+    for (flag, spec, needle) in [
+        ("--image-of", "3,3,3,1,1,1", "is empty"),
+        (
+            "--image-of",
+            "100,100,100,200,200,200",
+            "outside the gradient domain",
+        ),
+        (
+            "--fd",
+            "box:-50,-50,-50,-40,-40,-40",
+            "outside the gradient domain",
+        ),
+        ("--fd", "voxels:3,3,3;500,0,0", "is not a parameter"),
+    ] {
+        let mut args = vec![
+            "grad",
+            s(&scene),
+            flag,
+            spec,
+            "-o",
+            s(&out),
+            "-q",
+            "--spp",
+            "1",
+        ];
+        if flag == "--fd" {
+            args.extend(["--estimator", "fd"]);
+        }
+        assert_clean_error(&volgrad(&args), &[flag.trim_start_matches('-'), needle]);
+    }
     assert_clean_error(
         &volgrad(&[
             "grad",

@@ -15,11 +15,13 @@ use volgrad::gradient::fd;
 use volgrad::gradient::loss::Loss;
 use volgrad::gradient::objective::{adjoint_image, check_target, render_target};
 use volgrad::gradient::passes::{derivative_image, gradient};
+use volgrad::io::fingerprint::image as image_fingerprint;
 use volgrad::io::gradient_files::{self, Provenance};
 use volgrad::io::images::{self, RgbImage};
 use volgrad::io::output::refuse_overwrite;
 use volgrad::io::progress;
 use volgrad::io::{colormap, vdb};
+use volgrad::render::fingerprint;
 use volgrad::render::lights::luminance;
 use volgrad::render::scene::Scene;
 
@@ -105,12 +107,20 @@ fn outputs(vdb: &Path, image_of: bool) -> Vec<PathBuf> {
     paths
 }
 
-/// An index box resolved against the scene: "all" is the whole gradient domain.
-fn resolve_box(b: IndexBox, scene: &Scene) -> Result<(IVec3, IVec3)> {
-    match b {
-        IndexBox::All => fd::domain_bounds(&scene.medium.grid).context("the grid is empty"),
-        IndexBox::Voxels(lo, hi) => Ok((lo, hi)),
+/// An index box resolved against the scene: "all" is the whole gradient domain; a box must be
+/// ordered (x0 ≤ x1, …) and reach into the domain, or it would silently measure nothing.
+fn resolve_box(b: IndexBox, scene: &Scene, what: &str) -> Result<(IVec3, IVec3)> {
+    let (dlo, dhi) = fd::domain_bounds(&scene.medium.grid).context("the grid is empty")?;
+    let IndexBox::Voxels(lo, hi) = b else {
+        return Ok((dlo, dhi));
+    };
+    if lo.cmpgt(hi).any() {
+        bail!("{what}: the box {lo}..{hi} is empty (each of x0, y0, z0 must be ≤ x1, y1, z1)");
     }
+    if lo.cmpgt(dhi).any() || hi.cmplt(dlo).any() {
+        bail!("{what}: the box {lo}..{hi} lies outside the gradient domain {dlo}..{dhi}");
+    }
+    Ok((lo, hi))
 }
 
 /// The target image of a loss, from --target or --target-scene, checked against the scene.
@@ -161,7 +171,11 @@ pub fn run(args: &Args) -> Result<()> {
     }
     let scene = Scene::load(&args.scene)?;
     let image_box = match &args.image_of {
-        Some(spec) => Some(resolve_box(values::index_box(spec, "--image-of")?, &scene)?),
+        Some(spec) => Some(resolve_box(
+            values::index_box(spec, "--image-of")?,
+            &scene,
+            "--image-of",
+        )?),
         None => None,
     };
     let target = load_target(args, &scene)?;
@@ -181,6 +195,14 @@ pub fn run(args: &Args) -> Result<()> {
         seed: options.seed.to_string(),
         loss: args.loss.to_string(),
         scene: args.scene.display().to_string(),
+        scene_fingerprint: fingerprint::scene(&scene),
+        target_fingerprint: match (&target, args.loss.needs_target()) {
+            (Some(t), true) => image_fingerprint(t),
+            _ => "none".into(),
+        },
+        domain: args.adjoint.domain.to_string(),
+        max_depth: options.adjoint.max_depth,
+        suffix: options.adjoint.suffix.to_string(),
     };
     let grid = gradient_files::gradient_grid(
         run.gradient.to_brickmap(),
@@ -242,10 +264,23 @@ fn fd_directions(
     Ok(match values::fd_direction(spec)? {
         FdDirection::Voxels(voxels) => voxels
             .into_iter()
-            .map(|v| (format!("voxel [{}, {}, {}]", v.x, v.y, v.z), vec![(v, 1.0)]))
-            .collect(),
+            .map(|v| {
+                let outside = v.cmplt(lo).any() || v.cmpgt(hi).any();
+                if outside || (active_only && !grid.is_active(v)) {
+                    bail!(
+                        "--fd voxels: {v} is not a parameter (the domain is {lo}..{hi}{})",
+                        if active_only {
+                            ", active voxels only"
+                        } else {
+                            ""
+                        }
+                    );
+                }
+                Ok((format!("voxel [{}, {}, {}]", v.x, v.y, v.z), vec![(v, 1.0)]))
+            })
+            .collect::<Result<_>>()?,
         FdDirection::Box(b) => {
-            let (a, c) = resolve_box(b, scene)?;
+            let (a, c) = resolve_box(b, scene, "--fd box")?;
             vec![(
                 format!("box {a}..{c}"),
                 fd::ones(&fd::box_voxels(grid, a, c, active_only)),

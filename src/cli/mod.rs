@@ -32,6 +32,8 @@ pub enum Domain {
     Active,
 }
 
+volgrad::display_as_value_enum!(Domain);
+
 /// How many paths, from which random streams, how deep, on how many threads: every command that
 /// traces paths takes these, each overriding the scene's `[render]` value.
 #[derive(Args)]

@@ -7,7 +7,7 @@ use anyhow::{bail, Context, Result};
 use glam::IVec3;
 
 use super::{mean_adjoint, REFERENCE_SEED_OFFSET};
-use crate::gradient::adjoint::Estimator;
+use crate::gradient::adjoint::{Estimator, Suffix};
 use crate::gradient::fd::{self, FdOptions};
 use crate::gradient::gradcheck::Check;
 use crate::gradient::grid::GradientGrid;
@@ -16,6 +16,7 @@ use crate::gradient::passes::{gradient, GradOptions};
 use crate::gradient::runs::{seeded_runs, MeanAndError};
 use crate::io::gradient_files::{self, Provenance};
 use crate::io::vdb::{self, meta, GridSelector};
+use crate::render::fingerprint;
 use crate::render::scene::Scene;
 
 pub struct Reference {
@@ -96,6 +97,11 @@ fn reference_provenance(scene: &Scene, r: &Reference) -> Provenance {
         seed: format!("{} runs of {} spp", r.runs, r.spp_per_run),
         loss: Loss::Mean.to_string(),
         scene: scene.path.display().to_string(),
+        scene_fingerprint: fingerprint::scene(scene),
+        target_fingerprint: "none".into(),
+        domain: "all".into(),
+        max_depth: scene.settings.max_depth,
+        suffix: Suffix::PerPath.to_string(),
     }
 }
 

@@ -13,14 +13,26 @@ use crate::io::vdb::{self, meta, Grid, GridSelector};
 use crate::volume::brickmap::{BrickMap, BrickMapBuilder};
 use crate::volume::transform::IndexTransform;
 
-/// Provenance stored with a gradient grid.
-#[derive(Debug, Clone)]
+/// What a gradient file was computed from. `merge` combines only files whose computation fields
+/// are all equal, so that their mean is a better estimate of one gradient; `scene` (the path as
+/// given) is for people, the fingerprints are what is compared.
+#[derive(Debug, Clone, PartialEq, Eq)]
 pub struct Provenance {
     pub estimator: String,
     pub spp: u64,
+    /// The run's seed, or the comma-separated seeds of merged runs.
     pub seed: String,
     pub loss: String,
     pub scene: String,
+    /// `render::fingerprint::scene` of the scene.
+    pub scene_fingerprint: String,
+    /// `io::fingerprint::image` of the loss's target, or "none".
+    pub target_fingerprint: String,
+    /// "all" or "active".
+    pub domain: String,
+    pub max_depth: u32,
+    /// "per-path" or "per-segment".
+    pub suffix: String,
 }
 
 impl Provenance {
@@ -31,30 +43,76 @@ impl Provenance {
             meta("volgrad_seed", "string", &self.seed),
             meta("volgrad_loss", "string", &self.loss),
             meta("volgrad_scene", "string", &self.scene),
+            meta(
+                "volgrad_scene_fingerprint",
+                "string",
+                &self.scene_fingerprint,
+            ),
+            meta(
+                "volgrad_target_fingerprint",
+                "string",
+                &self.target_fingerprint,
+            ),
+            meta("volgrad_domain", "string", &self.domain),
+            meta("volgrad_max_depth", "int64", self.max_depth),
+            meta("volgrad_suffix", "string", &self.suffix),
+        ]
+    }
+
+    /// Every field that defines the computation, as (metadata name, value), in the order a
+    /// mismatch is reported.
+    fn computation(&self) -> [(&'static str, String); 7] {
+        [
+            ("volgrad_scene_fingerprint", self.scene_fingerprint.clone()),
+            (
+                "volgrad_target_fingerprint",
+                self.target_fingerprint.clone(),
+            ),
+            ("volgrad_loss", self.loss.clone()),
+            ("volgrad_estimator", self.estimator.clone()),
+            ("volgrad_domain", self.domain.clone()),
+            ("volgrad_max_depth", self.max_depth.to_string()),
+            ("volgrad_suffix", self.suffix.clone()),
         ]
     }
 
     fn from_metadata(entries: &[MetaEntry], file: &Path) -> Result<Self> {
-        let get = |name: &str| {
+        let get = |name: &str| -> Result<String> {
             entries
                 .iter()
                 .find(|e| e.name == name)
                 .map(|e| e.value.clone())
+                .with_context(|| {
+                    format!(
+                        "'{}' has no {name} metadata: not a gradient written by this volgrad (compute it again)",
+                        file.display()
+                    )
+                })
         };
-        let spp = get("volgrad_spp")
-            .and_then(|s| s.parse().ok())
-            .with_context(|| {
-                format!(
-                    "'{}' has no volgrad_spp metadata: not a volgrad gradient",
-                    file.display()
-                )
-            })?;
+        let number = |name: &str| -> Result<u64> {
+            let text = get(name)?;
+            text.parse()
+                .with_context(|| format!("'{}': {name} = '{text}' is not a count", file.display()))
+        };
+        let spp = number("volgrad_spp")?;
+        if spp == 0 {
+            bail!(
+                "'{}' has volgrad_spp = 0: it holds no samples",
+                file.display()
+            );
+        }
         Ok(Provenance {
-            estimator: get("volgrad_estimator").unwrap_or_default(),
+            estimator: get("volgrad_estimator")?,
             spp,
-            seed: get("volgrad_seed").unwrap_or_default(),
-            loss: get("volgrad_loss").unwrap_or_default(),
-            scene: get("volgrad_scene").unwrap_or_default(),
+            seed: get("volgrad_seed")?,
+            loss: get("volgrad_loss")?,
+            scene: get("volgrad_scene")?,
+            scene_fingerprint: get("volgrad_scene_fingerprint")?,
+            target_fingerprint: get("volgrad_target_fingerprint")?,
+            domain: get("volgrad_domain")?,
+            max_depth: u32::try_from(number("volgrad_max_depth")?)
+                .with_context(|| format!("'{}': volgrad_max_depth is too large", file.display()))?,
+            suffix: get("volgrad_suffix")?,
         })
     }
 }
@@ -110,7 +168,7 @@ pub fn merge(inputs: &[&Path]) -> Result<Grid> {
     let mut sums: HashMap<IVec3, f64> = HashMap::new();
     let mut first: Option<(Grid, Provenance)> = None;
     let mut total_spp = 0u64;
-    let mut seeds = Vec::new();
+    let mut seeds: Vec<(String, &Path)> = Vec::new();
     for &path in inputs {
         let summaries = vdb::list_grids(path)?;
         let index = summaries
@@ -128,9 +186,24 @@ pub fn merge(inputs: &[&Path]) -> Result<Grid> {
                     f.name
                 );
             }
-            if p.loss != provenance.loss || p.scene != provenance.scene {
-                bail!("'{}' was made with another loss or scene ({}, {}) than the first input ({}, {})", path.display(), provenance.loss, provenance.scene, p.loss, p.scene);
+            let mut differs = p.computation().into_iter().zip(provenance.computation());
+            if let Some(((field, first_value), (_, value))) = differs.find(|(a, b)| a != b) {
+                bail!(
+                    "'{}' is another computation than '{}': {field} is '{first_value}' there and '{value}' here (merge combines runs of one computation with different seeds)",
+                    path.display(),
+                    inputs[0].display(),
+                );
             }
+        }
+        for seed in provenance.seed.split(',') {
+            if let Some((_, other)) = seeds.iter().find(|(s, _)| s == seed) {
+                bail!(
+                    "seed {seed} is in both '{}' and '{}': the runs are not independent (give each run its own --seed)",
+                    other.display(),
+                    path.display()
+                );
+            }
+            seeds.push((seed.to_string(), path));
         }
         for leaf in grid.bricks.leaves() {
             for (o, &v) in leaf.values.iter().enumerate() {
@@ -142,7 +215,6 @@ pub fn merge(inputs: &[&Path]) -> Result<Grid> {
             }
         }
         total_spp += provenance.spp;
-        seeds.push(provenance.seed.clone());
         if first.is_none() {
             first = Some((grid, provenance));
         }
@@ -154,7 +226,11 @@ pub fn merge(inputs: &[&Path]) -> Result<Grid> {
     }
     grid.bricks = b.build();
     provenance.spp = total_spp;
-    provenance.seed = seeds.join(",");
+    provenance.seed = seeds
+        .iter()
+        .map(|(s, _)| s.as_str())
+        .collect::<Vec<_>>()
+        .join(",");
     grid.metadata = provenance.metadata();
     Ok(grid)
 }

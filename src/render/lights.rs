@@ -64,6 +64,11 @@ impl EnvMap {
         )
     }
 
+    /// Width, height and the texels, rows top to bottom.
+    pub fn texels(&self) -> (usize, usize, &[Vec3]) {
+        (self.width, self.height, &self.texels)
+    }
+
     pub fn eval(&self, dir: Vec3) -> Vec3 {
         let (x, y) = self.texel_of(dir);
         self.texels[y * self.width + x]

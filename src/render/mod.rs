@@ -2,6 +2,7 @@
 //! image loop (`image`). Uses `volume` and `io`.
 
 pub mod camera;
+pub mod fingerprint;
 pub mod image;
 pub mod lights;
 pub mod path;

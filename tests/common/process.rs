@@ -9,6 +9,15 @@ pub fn volgrad(args: &[&str]) -> Output {
         .expect("runs volgrad")
 }
 
+/// `volgrad` run from the folder `dir` (relative paths in `args` are relative to it).
+pub fn volgrad_in(dir: &std::path::Path, args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_volgrad"))
+        .current_dir(dir)
+        .args(args)
+        .output()
+        .expect("runs volgrad")
+}
+
 pub fn stdout(o: &Output) -> String {
     String::from_utf8_lossy(&o.stdout).into_owned()
 }
