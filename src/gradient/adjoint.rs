@@ -1,5 +1,5 @@
 //! Extinction gradients by path replay: a path is traced with the renderer's own sampling and
-//! recorded (`render::trace`), then each of its segments adds its share of ∂pixel/∂θ_k.
+//! recorded (`render::path::trace`), then each of its segments adds its share of ∂pixel/∂θ_k.
 //!
 //! Notation (DESIGN.md, supplement eqs. 45–58): segment j leaves x_{j−1} along ω with throughput
 //! β_{j−1}; ℓ = min(t, t_max) is how far it got (clipped to where it is inside the medium's box);
@@ -15,15 +15,38 @@
 //! on it). ĥ at a probe is α·(NEE + indirect): the NEE reuses the light sample of x_j (joint); the
 //! indirect part is a suffix path traced from the probe, either on every segment or on one segment
 //! per path picked with probability P_j ∝ |β_{j−1}|·ℓ_j and weighted by 1/P_j.
+//!
+//! In the code: [`carried_radiance`] gives R_j, `Replay::choose_suffix` the suffix segment and
+//! its 1/P_j, and `joint_term`, `drt_term`, `naive_term` (with the `transmittance_term` that drt
+//! and naive share) and `shadow_term` are the formulas above, one function each.
+//!
+//! # The contract between `trace` and the replay
+//!
+//! `trace` pushes exactly one [`Segment`] per free flight: where it ran (origin, direction, where
+//! it enters and leaves the medium's box, the collision distance or none), the throughput β_{j−1}
+//! entering it, and what its end contributed — after a collision that scattered, the light sample,
+//! the NEE radiance before the albedo and the Russian-roulette factor w_j (1/q, or 0 where the path
+//! ended); on escape, the MIS-weighted environment radiance; after a collision that did not scatter
+//! (past the maximum depth, or absorbed with albedo 0), nothing. From these fields alone the replay
+//! re-derives, last segment first, the radiance the path carries back from each vertex,
+//! R_j = α·(NEE_j + w_j·R_{j+1}) (`carried_radiance`), and every estimator uses R_j as ĥ(x_j). That
+//! rule is the one `trace` used to add up the pixel, written a second time, backwards; the test
+//! `carried_radiance_reproduces_traced_radiance` in `tests/replay.rs` ties the two together: for
+//! random camera paths in scenes where Russian roulette, the max-depth cut, absorption, a sun and
+//! environment maps all occur, R_1 must equal the radiance `trace` returned, and at every vertex
+//! the radiance must split into Σ_{i<j} β_{i−1}·α·NEE_i + β_{j−1}·R_j. Change what `trace` records
+//! or how it weights a path, and that test says which half was forgotten.
 
 use glam::{IVec3, Vec3};
 use rand::Rng;
 
 use crate::render::lights::luminance;
-use crate::render::path::{direct_light, trace, LightSample, PathRecord, PathState};
+use crate::render::path::{
+    direct_light, trace, LightSample, PathRecord, PathState, Segment, ShadowRay,
+};
 use crate::render::scene::Scene;
 use crate::volume::brickmap::{corner, floor_ivec3};
-use crate::volume::medium::{Filter, Medium};
+use crate::volume::medium::{Filter, IndexRay, Medium};
 use crate::volume::tracking::{sample_transmittance_distance, TrackingStats};
 
 #[derive(
@@ -118,186 +141,281 @@ impl Scratch {
     }
 }
 
-/// Traces one camera path and adds its gradient samples to `sink`; returns the path's radiance.
-pub fn camera_path_gradient(
-    scene: &Scene,
-    options: &AdjointOptions,
-    origin: Vec3,
-    dir: Vec3,
-    rng: &mut impl Rng,
-    stats: &mut TrackingStats,
-    scratch: &mut Scratch,
-    sink: &mut impl GradientSink,
-) -> Vec3 {
-    scratch.clear();
-    let radiance = trace(
-        scene,
-        PathState::camera(origin, dir),
-        options.max_depth,
-        rng,
-        stats,
-        Some(&mut scratch.record),
-    );
-    replay(scene, options, rng, stats, scratch, sink);
-    radiance
-}
-
-/// ĥ at a scattering point: α·(NEE with `light_sample` + `suffix_weight` × a suffix path), zero
-/// beyond the maximum depth (the renderer would not scatter there either).
-fn h_at(
-    scene: &Scene,
-    options: &AdjointOptions,
-    p: Vec3,
-    dir: Vec3,
-    depth: u32,
-    light_sample: &LightSample,
-    suffix_weight: f32,
-    rng: &mut impl Rng,
-    stats: &mut TrackingStats,
-) -> Vec3 {
-    if depth > options.max_depth {
-        return Vec3::ZERO;
-    }
-    let mut in_scattered = direct_light(scene, p, dir, light_sample, rng, stats, None);
-    if suffix_weight > 0.0 {
-        let state = PathState::scattered(scene, p, dir, depth, rng);
-        in_scattered += suffix_weight * trace(scene, state, options.max_depth, rng, stats, None);
-    }
-    scene.medium.albedo * in_scattered
-}
-
-fn replay(
-    scene: &Scene,
-    options: &AdjointOptions,
-    rng: &mut impl Rng,
-    stats: &mut TrackingStats,
-    scratch: &mut Scratch,
-    sink: &mut impl GradientSink,
-) {
-    let medium = &scene.medium;
-    let segments = &scratch.record.segments;
-    // R_j = ĥ(x_j), from the last segment back.
-    scratch.carried.resize(segments.len(), Vec3::ZERO);
+/// R_j = ĥ(x_j) for every segment of a recorded path (into `carried`, index j − 1), computed from
+/// the last segment back: what the path carries back from the end of segment j, before the
+/// throughput β_{j−1} that reaches it.
+///
+/// - escape: the MIS-weighted environment radiance;
+/// - a collision that scattered: R_j = α·(NEE_j + w_j·R_{j+1}), w_j the Russian-roulette factor
+///   (1/q, or 0 where the path ended, which is also where R_{j+1} would be missing);
+/// - a collision that did not scatter (past the maximum depth, or absorbed with albedo 0): 0.
+///
+/// This is `trace`'s sum read backwards: with β_0 = 1, R_1 is the path's radiance.
+pub fn carried_radiance(segments: &[Segment], albedo: Vec3, carried: &mut Vec<Vec3>) {
+    carried.clear();
+    carried.resize(segments.len(), Vec3::ZERO);
     let mut deeper = Vec3::ZERO;
-    for (j, seg) in segments.iter().enumerate().rev() {
-        deeper = match (seg.collision, seg.light_sample) {
-            (None, _) => seg.escape,
-            (Some(_), None) => Vec3::ZERO, // beyond the maximum depth: the path ends unscattered
-            (Some(_), Some(_)) => medium.albedo * (seg.nee + seg.continuation_weight * deeper),
+    for (j, segment) in segments.iter().enumerate().rev() {
+        deeper = match (segment.collision, segment.light_sample) {
+            (None, _) => segment.escape,
+            (Some(_), None) => Vec3::ZERO,
+            (Some(_), Some(_)) => albedo * (segment.nee + segment.continuation_weight * deeper),
         };
-        scratch.carried[j] = deeper;
+        carried[j] = deeper;
     }
-    let in_medium = |seg: &crate::render::path::Segment| {
-        (seg.collision.unwrap_or(seg.t_exit) - seg.t_enter).max(0.0)
-    };
+}
 
-    // Which segment gets the suffix path (per path), and with what weight.
-    let mut chosen = usize::MAX;
-    let mut chosen_weight = 0.0;
-    if options.estimator != Estimator::Naive && options.suffix == Suffix::PerPath {
-        let weight = |seg: &crate::render::path::Segment| {
-            if seg.depth <= options.max_depth {
-                luminance(seg.throughput) * in_medium(seg)
+/// What every step of a replay needs: the scene, the options, the path's random stream and the
+/// tracking counters. They travel together from the camera ray down to every probe's suffix.
+pub struct Replay<'a, R> {
+    pub scene: &'a Scene,
+    pub options: &'a AdjointOptions,
+    pub rng: &'a mut R,
+    pub stats: &'a mut TrackingStats,
+}
+
+/// Which probes trace a suffix path (the indirect part of ĥ), and with what weight.
+#[derive(Debug, Clone, Copy)]
+enum SuffixChoice {
+    /// `Suffix::PerSegment`: every probe, weight 1.
+    All,
+    /// `Suffix::PerPath`: only the probe on segment `index`, weighted by 1/P(index).
+    Only { index: usize, weight: f32 },
+    /// No probe (naive evaluates no ĥ away from x_j; or no segment lies in the medium).
+    Nowhere,
+}
+
+impl SuffixChoice {
+    fn weight(self, j: usize) -> f32 {
+        match self {
+            SuffixChoice::All => 1.0,
+            SuffixChoice::Only { index, weight } if index == j => weight,
+            _ => 0.0,
+        }
+    }
+}
+
+/// Segment j as the estimators' terms see it.
+struct ReplayedSegment<'s> {
+    segment: &'s Segment,
+    /// The segment in index space, where ∂σt is looked up.
+    ray: IndexRay,
+    /// ℓ, from where the segment enters the medium's box.
+    length: f32,
+    /// ĥ(x_j) = R_j.
+    h_end: Vec3,
+    /// s ~ U[t_enter, t_enter + ℓ]: the probe y of joint, the transmittance point of drt and naive.
+    probe: f32,
+    /// The weight of a suffix path from this segment's ĥ evaluations (0: NEE only).
+    suffix_weight: f32,
+}
+
+impl<R: Rng> Replay<'_, R> {
+    /// Traces one camera path and adds its gradient samples to `sink`; returns the path's radiance.
+    pub fn camera_path_gradient(
+        &mut self,
+        origin: Vec3,
+        dir: Vec3,
+        scratch: &mut Scratch,
+        sink: &mut impl GradientSink,
+    ) -> Vec3 {
+        scratch.clear();
+        let radiance = trace(
+            self.scene,
+            PathState::camera(origin, dir),
+            self.options.max_depth,
+            self.rng,
+            self.stats,
+            Some(&mut scratch.record),
+        );
+        let albedo = self.scene.medium.albedo;
+        carried_radiance(&scratch.record.segments, albedo, &mut scratch.carried);
+        self.add_path_gradient(&scratch.record, &scratch.carried, sink);
+        radiance
+    }
+
+    /// Every segment's term of the chosen estimator, then every shadow ray's. The random numbers
+    /// are drawn in a fixed order (suffix choice; per segment the probe s, then the estimator's
+    /// own; then the shadow rays), which is what makes a seed reproduce a gradient.
+    fn add_path_gradient(
+        &mut self,
+        record: &PathRecord,
+        carried: &[Vec3],
+        sink: &mut impl GradientSink,
+    ) {
+        let medium = &self.scene.medium;
+        let suffix = self.choose_suffix(&record.segments);
+        for (j, segment) in record.segments.iter().enumerate() {
+            let length = segment.length_in_medium();
+            if length <= 0.0
+                || (segment.depth > self.options.max_depth && segment.collision.is_some())
+            {
+                // Outside the medium, or a collision beyond the maximum depth: ĥ(y) = ĥ(x_j) = 0.
+                continue;
+            }
+            let replayed = ReplayedSegment {
+                segment,
+                ray: medium.to_index_ray(segment.origin, segment.dir),
+                length,
+                h_end: carried[j],
+                probe: segment.t_enter + self.rng.gen::<f32>() * length,
+                suffix_weight: suffix.weight(j),
+            };
+            match self.options.estimator {
+                Estimator::Joint => self.joint_term(&replayed, sink),
+                Estimator::Drt => self.drt_term(&replayed, sink),
+                Estimator::Naive => self.naive_term(&replayed, sink),
+            }
+        }
+        for shadow in &record.shadows {
+            self.shadow_term(shadow, sink);
+        }
+    }
+
+    /// The segment whose probe traces the suffix path: with `Suffix::PerPath`, one segment per
+    /// path, picked with probability P_j ∝ |β_{j−1}|·ℓ_j among those that can scatter, weighted by
+    /// 1/P_j (linear cost); with `Suffix::PerSegment`, all of them (quadratic cost).
+    fn choose_suffix(&mut self, segments: &[Segment]) -> SuffixChoice {
+        match (self.options.suffix, self.options.estimator) {
+            (Suffix::PerSegment, _) => return SuffixChoice::All,
+            (Suffix::PerPath, Estimator::Naive) => return SuffixChoice::Nowhere,
+            (Suffix::PerPath, _) => {}
+        }
+        let max_depth = self.options.max_depth;
+        let p_unnormalised = |segment: &Segment| {
+            if segment.depth <= max_depth {
+                luminance(segment.throughput) * segment.length_in_medium()
             } else {
                 0.0
             }
         };
-        let total: f32 = segments.iter().map(weight).sum();
+        let total: f32 = segments.iter().map(p_unnormalised).sum();
+        let mut choice = SuffixChoice::Nowhere;
         if total > 0.0 {
-            let mut u = rng.gen::<f32>() * total;
-            for (j, seg) in segments.iter().enumerate() {
-                let w = weight(seg);
-                if w > 0.0 {
-                    chosen = j;
-                    chosen_weight = total / w;
-                    if u < w {
+            let mut u = self.rng.gen::<f32>() * total;
+            for (j, segment) in segments.iter().enumerate() {
+                let p = p_unnormalised(segment);
+                if p > 0.0 {
+                    // The last positive one stands if rounding leaves u ≥ p to the end.
+                    choice = SuffixChoice::Only {
+                        index: j,
+                        weight: total / p,
+                    };
+                    if u < p {
                         break;
                     }
-                    u -= w;
+                    u -= p;
                 }
             }
         }
+        choice
     }
 
-    for (j, seg) in segments.iter().enumerate() {
-        let length = in_medium(seg);
-        if length <= 0.0 || (seg.depth > options.max_depth && seg.collision.is_some()) {
-            // Outside the medium, or a collision beyond the maximum depth: ĥ(y) = ĥ(x_j) = 0.
-            continue;
+    /// joint (eq. 58): β_{j−1}·ℓ·[ĥ(y) − ĥ(x_j)]·∂σt(y) at the probe y. ĥ(y) reuses x_j's light
+    /// sample, so that its NEE is correlated with the one in ĥ(x_j) and the difference stays
+    /// small; a segment that ended without one (escape, absorption) draws a fresh one.
+    fn joint_term(&mut self, replayed: &ReplayedSegment, sink: &mut impl GradientSink) {
+        let segment = replayed.segment;
+        let light_sample = segment
+            .light_sample
+            .unwrap_or_else(|| LightSample::draw(self.rng));
+        let h_probe = self.h_at(
+            segment,
+            replayed.probe,
+            &light_sample,
+            replayed.suffix_weight,
+        );
+        splat_d_sigma(
+            &self.scene.medium,
+            replayed.ray.at(replayed.probe),
+            segment.throughput * (h_probe - replayed.h_end) * replayed.length,
+            sink,
+        );
+    }
+
+    /// drt: the transmittance part, plus the scattering part β_{j−1}·W·ĥ(t′)·∂σt(t′) with t′ ∝ T
+    /// on [0, t_max] from one ratio-tracking walk (W = Σ T̂·Δt) and ĥ(t′) from a fresh light
+    /// sample.
+    fn drt_term(&mut self, replayed: &ReplayedSegment, sink: &mut impl GradientSink) {
+        self.transmittance_term(replayed, sink);
+        let segment = replayed.segment;
+        if segment.depth > self.options.max_depth {
+            return;
         }
-        let ray = medium.to_index_ray(seg.origin, seg.dir);
-        let carried = scratch.carried[j];
-        let suffix_weight = match options.suffix {
-            Suffix::PerSegment => 1.0,
-            Suffix::PerPath if j == chosen => chosen_weight,
-            Suffix::PerPath => 0.0,
+        let medium = &self.scene.medium;
+        let ray = &replayed.ray;
+        let Some((t, w)) = sample_transmittance_distance(
+            medium,
+            ray,
+            segment.t_enter,
+            segment.t_exit,
+            self.rng,
+            self.stats,
+        ) else {
+            return;
         };
-        let s = seg.t_enter + rng.gen::<f32>() * length;
-        match options.estimator {
-            Estimator::Joint => {
-                let light_sample = seg.light_sample.unwrap_or_else(|| LightSample::draw(rng));
-                let h_probe = h_at(
-                    scene,
-                    options,
-                    seg.origin + seg.dir * s,
-                    seg.dir,
-                    seg.depth,
-                    &light_sample,
-                    suffix_weight,
-                    rng,
-                    stats,
-                );
-                splat_d_sigma(
-                    medium,
-                    ray.at(s),
-                    seg.throughput * (h_probe - carried) * length,
-                    sink,
-                );
-            }
-            Estimator::Drt => {
-                splat_d_sigma(medium, ray.at(s), -seg.throughput * carried * length, sink);
-                if seg.depth <= options.max_depth {
-                    if let Some((t, w)) = sample_transmittance_distance(
-                        medium,
-                        &ray,
-                        seg.t_enter,
-                        seg.t_exit,
-                        rng,
-                        stats,
-                    ) {
-                        let light_sample = LightSample::draw(rng);
-                        let h = h_at(
-                            scene,
-                            options,
-                            seg.origin + seg.dir * t,
-                            seg.dir,
-                            seg.depth,
-                            &light_sample,
-                            suffix_weight,
-                            rng,
-                            stats,
-                        );
-                        splat_d_sigma(medium, ray.at(t), seg.throughput * h * w, sink);
-                    }
-                }
-            }
-            Estimator::Naive => {
-                splat_d_sigma(medium, ray.at(s), -seg.throughput * carried * length, sink);
-                if let Some(t) = seg.collision {
-                    let sigma = medium.sigma_t(ray.at(t));
-                    if sigma > 0.0 {
-                        splat_d_sigma(medium, ray.at(t), seg.throughput * carried / sigma, sink);
-                    }
-                }
+        let light_sample = LightSample::draw(self.rng);
+        let h = self.h_at(segment, t, &light_sample, replayed.suffix_weight);
+        splat_d_sigma(medium, ray.at(t), segment.throughput * h * w, sink);
+    }
+
+    /// naive: the transmittance part, plus the scattering part β_{j−1}·ĥ(x_j)·∂σt(x_j)/σt(x_j)
+    /// at a real collision (nothing where σt(x_j) = 0: the bias in empty voxels).
+    fn naive_term(&mut self, replayed: &ReplayedSegment, sink: &mut impl GradientSink) {
+        self.transmittance_term(replayed, sink);
+        let segment = replayed.segment;
+        if let Some(t) = segment.collision {
+            let medium = &self.scene.medium;
+            let x = replayed.ray.at(t);
+            let sigma = medium.sigma_t(x);
+            if sigma > 0.0 {
+                splat_d_sigma(medium, x, segment.throughput * replayed.h_end / sigma, sink);
             }
         }
     }
 
-    // NEE shadow rays: d/dθ of T̂ is −T̂ · ∫∂σt along the ray, one uniform point.
-    for shadow in &scratch.record.shadows {
+    /// The transmittance part that drt and naive share: −β_{j−1}·ℓ·ĥ(x_j)·∂σt(s).
+    fn transmittance_term(&self, replayed: &ReplayedSegment, sink: &mut impl GradientSink) {
+        splat_d_sigma(
+            &self.scene.medium,
+            replayed.ray.at(replayed.probe),
+            -replayed.segment.throughput * replayed.h_end * replayed.length,
+            sink,
+        );
+    }
+
+    /// A NEE shadow ray's transmittance derivative: d T̂ = −T̂·∫∂σt along the ray, so the term is
+    /// −C·ℓ_s·∂σt(u) with C the ray's contribution and u uniform on it.
+    fn shadow_term(&mut self, shadow: &ShadowRay, sink: &mut impl GradientSink) {
+        let medium = &self.scene.medium;
         let length = shadow.t_exit - shadow.t_enter;
-        let u = shadow.t_enter + rng.gen::<f32>() * length;
+        let u = shadow.t_enter + self.rng.gen::<f32>() * length;
         let ray = medium.to_index_ray(shadow.origin, shadow.dir);
         splat_d_sigma(medium, ray.at(u), -shadow.contribution * length, sink);
+    }
+
+    /// ĥ at distance `t` along `segment`: α·(NEE with `light_sample` + `suffix_weight` × a suffix
+    /// path), zero past the maximum depth (the renderer would not scatter there either).
+    fn h_at(
+        &mut self,
+        segment: &Segment,
+        t: f32,
+        light_sample: &LightSample,
+        suffix_weight: f32,
+    ) -> Vec3 {
+        if segment.depth > self.options.max_depth {
+            return Vec3::ZERO;
+        }
+        let scene = self.scene;
+        let (p, dir) = (segment.at(t), segment.dir);
+        let mut in_scattered =
+            direct_light(scene, p, dir, light_sample, self.rng, self.stats, None);
+        if suffix_weight > 0.0 {
+            let state = PathState::scattered(scene, p, dir, segment.depth, self.rng);
+            let max_depth = self.options.max_depth;
+            in_scattered +=
+                suffix_weight * trace(scene, state, max_depth, self.rng, self.stats, None);
+        }
+        scene.medium.albedo * in_scattered
     }
 }

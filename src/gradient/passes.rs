@@ -7,9 +7,7 @@ use glam::{IVec3, Vec3};
 use rand::Rng;
 use rayon::prelude::*;
 
-use crate::gradient::adjoint::{
-    camera_path_gradient, AdjointOptions, Estimator, GradientSink, Scratch, Suffix,
-};
+use crate::gradient::adjoint::{AdjointOptions, Estimator, GradientSink, Replay, Scratch, Suffix};
 use crate::gradient::grid::GradientGrid;
 use crate::io::images::RgbImage;
 use crate::render::image::RenderStats;
@@ -100,14 +98,21 @@ impl GradientSink for BoxSink {
     }
 }
 
-/// Runs `per_pixel(acc, x, y, stats, scratch)` for every pixel in parallel over row bands.
+/// What one thread keeps from path to path: its tracking counters and its replay buffers.
+#[derive(Default)]
+struct Worker {
+    stats: TrackingStats,
+    scratch: Scratch,
+}
+
+/// Runs `per_pixel(acc, x, y, worker)` for every pixel in parallel over row bands.
 /// Returns the per-band accumulators and the summed stats.
 fn over_pixels<T: Send>(
     scene: &Scene,
     progress: bool,
     what: &str,
     init: impl Fn() -> T + Sync + Send,
-    per_pixel: impl Fn(&mut T, u32, u32, &mut TrackingStats, &mut Scratch) + Sync + Send,
+    per_pixel: impl Fn(&mut T, u32, u32, &mut Worker) + Sync + Send,
 ) -> (Vec<T>, TrackingStats) {
     let (w, h) = (scene.camera.width, scene.camera.height);
     let bar = crate::io::progress::bar(progress, h as u64, what);
@@ -118,16 +123,16 @@ fn over_pixels<T: Send>(
         .into_par_iter()
         .with_min_len(band)
         .fold(
-            || (init(), TrackingStats::default(), Scratch::default()),
-            |(mut acc, mut stats, mut scratch), y| {
+            || (init(), Worker::default()),
+            |(mut acc, mut worker), y| {
                 for x in 0..w {
-                    per_pixel(&mut acc, x, y, &mut stats, &mut scratch);
+                    per_pixel(&mut acc, x, y, &mut worker);
                 }
                 bar.inc(1);
-                (acc, stats, scratch)
+                (acc, worker)
             },
         )
-        .map(|(acc, stats, _)| (acc, stats))
+        .map(|(acc, worker)| (acc, worker.stats))
         .collect();
     bar.finish_and_clear();
     let mut stats = TrackingStats::default();
@@ -141,37 +146,39 @@ fn over_pixels<T: Send>(
     (values, stats)
 }
 
-/// One camera path through pixel (x, y) with its own random stream; its gradient samples go to
-/// `sink` and its radiance is returned.
-#[allow(clippy::too_many_arguments)]
-fn sample_gradient(
-    scene: &Scene,
-    options: &GradOptions,
-    x: u32,
-    y: u32,
-    sample: u32,
-    stats: &mut TrackingStats,
-    scratch: &mut Scratch,
-    sink: &mut impl GradientSink,
-) -> Vec3 {
-    let camera = &scene.camera;
-    let mut rng = sample_rng(
-        options.seed,
-        (y * camera.width + x) as u64,
-        sample,
-        Pass::Adjoint,
-    );
-    let dir = camera.direction(x as f32 + rng.gen::<f32>(), y as f32 + rng.gen::<f32>());
-    camera_path_gradient(
-        scene,
-        &options.adjoint,
-        camera.position,
-        dir,
-        &mut rng,
-        stats,
-        scratch,
-        sink,
-    )
+/// The scene and options that every gradient sample of a pass shares.
+struct GradientPass<'a> {
+    scene: &'a Scene,
+    options: &'a GradOptions,
+}
+
+impl GradientPass<'_> {
+    /// One camera path through pixel (x, y) with its own random stream; its gradient samples go
+    /// to `sink` and its radiance is returned.
+    fn sample(
+        &self,
+        x: u32,
+        y: u32,
+        sample: u32,
+        worker: &mut Worker,
+        sink: &mut impl GradientSink,
+    ) -> Vec3 {
+        let camera = &self.scene.camera;
+        let mut rng = sample_rng(
+            self.options.seed,
+            (y * camera.width + x) as u64,
+            sample,
+            Pass::Adjoint,
+        );
+        let dir = camera.direction(x as f32 + rng.gen::<f32>(), y as f32 + rng.gen::<f32>());
+        let mut replay = Replay {
+            scene: self.scene,
+            options: &self.options.adjoint,
+            rng: &mut rng,
+            stats: &mut worker.stats,
+        };
+        replay.camera_path_gradient(camera.position, dir, &mut worker.scratch, sink)
+    }
 }
 
 /// The gradient of a loss whose adjoint image is `adjoint` (∂loss/∂pixel), per voxel.
@@ -182,12 +189,13 @@ pub fn gradient(scene: &Scene, adjoint: &[Vec3], options: &GradOptions) -> Gradi
     let template = GradientGrid::for_grid(&scene.medium.grid);
     let active = options.active_only.then_some(&scene.medium.grid);
     let spp = options.spp;
+    let pass = GradientPass { scene, options };
     let (parts, tracking) = over_pixels(
         scene,
         options.progress,
         "gradient",
         || (template.empty_like(), Vec::<(u32, Vec3)>::new()),
-        |(grid, pixels), x, y, stats, scratch| {
+        |(grid, pixels), x, y, worker| {
             let index = y * w + x;
             let mut sink = GridSink {
                 grid,
@@ -196,7 +204,7 @@ pub fn gradient(scene: &Scene, adjoint: &[Vec3], options: &GradOptions) -> Gradi
             };
             let mut sum = Vec3::ZERO;
             for sample in 0..spp {
-                sum += sample_gradient(scene, options, x, y, sample, stats, scratch, &mut sink);
+                sum += pass.sample(x, y, sample, worker, &mut sink);
             }
             pixels.push((index, sum / spp as f32));
         },
@@ -232,19 +240,20 @@ pub fn derivative_image(
     let camera = &scene.camera;
     let w = camera.width;
     let spp = options.spp;
+    let pass = GradientPass { scene, options };
     let (parts, tracking) = over_pixels(
         scene,
         options.progress,
         "d pixel",
         Vec::<(u32, Vec3)>::new,
-        |pixels, x, y, stats, scratch| {
+        |pixels, x, y, worker| {
             let mut sink = BoxSink {
                 lo,
                 hi,
                 sum: Vec3::ZERO,
             };
             for sample in 0..spp {
-                sample_gradient(scene, options, x, y, sample, stats, scratch, &mut sink);
+                pass.sample(x, y, sample, worker, &mut sink);
             }
             pixels.push((y * w + x, sink.sum / spp as f32));
         },

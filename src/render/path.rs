@@ -68,7 +68,8 @@ impl PathState {
 
 /// One free flight of a path, as the adjoint pass replays it: from `origin` along `dir`, entering
 /// the medium's box at `t_enter` and leaving it at `t_exit`, ending in a real collision at
-/// `collision` or escaping.
+/// `collision` or escaping. `trace` records one per loop iteration; the replay re-derives the
+/// radiance the path carries from the fields below (`gradient::adjoint::carried_radiance`).
 #[derive(Debug, Clone, Copy)]
 pub struct Segment {
     pub origin: Vec3,
@@ -81,12 +82,25 @@ pub struct Segment {
     /// Index j of the segment (1 for the camera ray); a collision on it is scattering event j.
     pub depth: u32,
     /// At a collision that scattered: the light sample and the NEE radiance (before the albedo).
+    /// `None` at a collision that did not scatter (past the maximum depth, or albedo 0).
     pub light_sample: Option<LightSample>,
     pub nee: Vec3,
     /// On escape: the environment radiance with its MIS weight.
     pub escape: Vec3,
     /// Russian roulette after this vertex: the 1/q factor, or 0 if the path ended here.
     pub continuation_weight: f32,
+}
+
+impl Segment {
+    /// ℓ: how far the flight ran inside the medium's box (to the collision, or to where it left).
+    pub fn length_in_medium(&self) -> f32 {
+        (self.collision.unwrap_or(self.t_exit) - self.t_enter).max(0.0)
+    }
+
+    /// The world point at distance `t` along the flight.
+    pub fn at(&self, t: f32) -> Vec3 {
+        self.origin + self.dir * t
+    }
 }
 
 /// Records a path's segments (and the NEE shadow rays' contributions) for the adjoint pass.
@@ -171,7 +185,9 @@ pub fn direct_light(
 
 /// Follows a path from `state` until it escapes, is absorbed by Russian roulette, or reaches
 /// `max_depth` scattering events; returns the radiance it carries back to `state.p`, weighted by
-/// `state.throughput`. With `record`, every segment is kept for the adjoint pass.
+/// `state.throughput`. With `record`, every free flight is kept for the adjoint pass: exactly one
+/// [`Segment`] per iteration of the loop, pushed after the iteration has decided how the flight
+/// ended (see the contract at the top of `gradient::adjoint`).
 pub fn trace(
     scene: &Scene,
     state: PathState,
@@ -197,6 +213,8 @@ pub fn trace(
         let collision =
             bounds.and_then(|(t0, t1)| sample_collision(medium, &ray, t0, t1, rng, stats));
         let (t_enter, t_exit) = bounds.unwrap_or((0.0, 0.0));
+        // Filled in below with whatever the flight's end contributes; the defaults (no light
+        // sample, no NEE, no escape, continuation weight 0) describe a path that ends unscattered.
         let mut segment = Segment {
             origin: p,
             dir,
@@ -210,60 +228,66 @@ pub fn trace(
             escape: Vec3::ZERO,
             continuation_weight: 0.0,
         };
-        let Some(t) = collision else {
-            let weight = phase_pdf.map_or(1.0, |pdf| power_heuristic(pdf, env.pdf(dir)));
-            segment.escape = env.eval(dir) * weight;
-            radiance += throughput * segment.escape;
-            if let Some(r) = record.as_deref_mut() {
-                r.segments.push(segment);
+        let path_goes_on = match collision {
+            None => {
+                // Escaped: the environment, MIS-weighted against the phase sample that aimed here.
+                let weight = phase_pdf.map_or(1.0, |pdf| power_heuristic(pdf, env.pdf(dir)));
+                segment.escape = env.eval(dir) * weight;
+                radiance += throughput * segment.escape;
+                false
             }
-            break;
-        };
-        if depth >= max_depth {
-            if let Some(r) = record.as_deref_mut() {
-                r.segments.push(segment);
-            }
-            break;
-        }
-        depth += 1;
-        p += dir * t;
-        // A real collision scatters with probability α; the albedo weights the throughput.
-        throughput *= medium.albedo;
-        if throughput == Vec3::ZERO {
-            // Absorbed (albedo 0): nothing more can reach the camera along this path.
-            if let Some(r) = record.as_deref_mut() {
-                r.segments.push(segment);
-            }
-            break;
-        }
-        let light_sample = LightSample::draw(rng);
-        let shadows = record.as_deref_mut().map(|r| (&mut r.shadows, throughput));
-        segment.nee = direct_light(scene, p, dir, &light_sample, rng, stats, shadows);
-        segment.light_sample = Some(light_sample);
-        radiance += throughput * segment.nee;
-        let new_dir = phase.sample(dir, [rng.gen(), rng.gen()]);
-        phase_pdf = Some(phase.eval(dir.dot(new_dir)));
-        dir = new_dir;
-        segment.continuation_weight = 1.0;
-        if depth >= RR_START_DEPTH {
-            let survive = throughput.max_element();
-            if survive < 1.0 {
-                segment.continuation_weight = if rng.gen::<f32>() < survive {
-                    1.0 / survive
+            // A collision past the maximum depth: the renderer does not scatter there.
+            Some(_) if depth >= max_depth => false,
+            Some(t) => {
+                depth += 1;
+                p += dir * t;
+                // A real collision scatters with probability α; the albedo weights the throughput.
+                throughput *= medium.albedo;
+                if throughput == Vec3::ZERO {
+                    // Absorbed (albedo 0): nothing more can reach the camera along this path.
+                    false
                 } else {
-                    0.0
-                };
-                throughput *= segment.continuation_weight;
+                    let light_sample = LightSample::draw(rng);
+                    let shadows = record.as_deref_mut().map(|r| (&mut r.shadows, throughput));
+                    segment.nee = direct_light(scene, p, dir, &light_sample, rng, stats, shadows);
+                    segment.light_sample = Some(light_sample);
+                    radiance += throughput * segment.nee;
+                    let new_dir = phase.sample(dir, [rng.gen(), rng.gen()]);
+                    phase_pdf = Some(phase.eval(dir.dot(new_dir)));
+                    dir = new_dir;
+                    segment.continuation_weight = russian_roulette(throughput, depth, rng);
+                    throughput *= segment.continuation_weight;
+                    segment.continuation_weight != 0.0
+                }
             }
-        }
+        };
         if let Some(r) = record.as_deref_mut() {
             r.segments.push(segment);
         }
-        if segment.continuation_weight == 0.0 {
+        if !path_goes_on {
             break;
         }
     }
     radiance
+}
+
+/// The factor by which Russian roulette after scattering event `depth` scales the throughput:
+/// 1 before `RR_START_DEPTH` or while the throughput is at least 1, otherwise 1/q with
+/// probability q = max(throughput) and 0 (the path ends) with probability 1 − q.
+fn russian_roulette(throughput: Vec3, depth: u32, rng: &mut impl Rng) -> f32 {
+    if depth < RR_START_DEPTH {
+        return 1.0;
+    }
+    let survive = throughput.max_element();
+    if survive < 1.0 {
+        if rng.gen::<f32>() < survive {
+            1.0 / survive
+        } else {
+            0.0
+        }
+    } else {
+        1.0
+    }
 }
 
 /// Radiance arriving at world point `origin` from direction `-dir`, by one path.
