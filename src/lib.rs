@@ -4,6 +4,10 @@
 //! and the terminal) < `render` (scenes and the path tracer) < `gradient` (path replay, passes,
 //! finite differences) < `compare` (equal-time studies). The binary's `cli` sits on top.
 
+// Bad input gets an error, never a panic: outside tests an unwrap must say why it cannot fail
+// (`expect`). Tests (here and in tests/) may unwrap.
+#![cfg_attr(not(test), deny(clippy::unwrap_used))]
+
 pub mod compare;
 pub mod gradient;
 pub mod io;

@@ -1,6 +1,10 @@
 //! The `volgrad` command line: the subcommands and their dispatch. Each subcommand's flags and
 //! its `run()` live in `cli/<command>.rs`; what a library user would want lives in the library.
 
+// Bad input gets an error, never a panic: outside tests an unwrap must say why it cannot fail
+// (`expect`). Tests (here and in tests/) may unwrap.
+#![cfg_attr(not(test), deny(clippy::unwrap_used))]
+
 mod cli;
 
 use std::process::ExitCode;

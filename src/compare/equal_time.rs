@@ -509,9 +509,10 @@ pub fn summary(
         .map(|m| (*m, points(&curve(rows, m))))
         .filter(|(_, p)| !p.is_empty())
         .collect();
+    // The longest time every curve reached (each is non-empty, filtered above).
     let equal_time = curves
         .iter()
-        .map(|(_, p)| p.last().unwrap().0)
+        .filter_map(|(_, p)| p.last().map(|l| l.0))
         .fold(f64::INFINITY, f64::min);
     let target = curves
         .iter()
