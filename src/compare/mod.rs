@@ -18,8 +18,10 @@ mod equal_time;
 mod reference;
 mod stability;
 mod study;
+mod summary;
 
 pub use equal_time::*;
 pub use reference::*;
 pub use stability::*;
 pub use study::*;
+pub use summary::*;
