@@ -9,7 +9,7 @@ use clap::ValueEnum;
 use glam::IVec3;
 
 use super::values::{self, FdDirection, IndexBox};
-use super::{set_threads, AdjointArgs, Domain, FdArgs};
+use super::{report_non_finite, set_threads, AdjointArgs, Domain, FdArgs};
 use volgrad::gradient::adjoint::Estimator;
 use volgrad::gradient::fd;
 use volgrad::gradient::loss::Loss;
@@ -189,6 +189,7 @@ pub fn run(args: &Args) -> Result<()> {
         eprintln!("loss ({}) = {loss:.6e}", args.loss);
     }
     let run = gradient(&scene, &adjoint.delta, &options);
+    report_non_finite(&run.stats);
     let provenance = Provenance {
         estimator: estimator.to_string(),
         spp: options.spp as u64,
@@ -223,7 +224,8 @@ pub fn run(args: &Args) -> Result<()> {
         scale.unwrap_or(0.0)
     );
     if let Some((lo, hi)) = image_box {
-        let (image, _) = derivative_image(&scene, lo, hi, &options);
+        let (image, stats) = derivative_image(&scene, lo, hi, &options);
+        report_non_finite(&stats);
         let paths = outputs(&vdb_out, true);
         let (exr, png) = (&paths[2], &paths[3]);
         images::write_exr(exr, &image, false)?;
@@ -246,6 +248,7 @@ pub fn run(args: &Args) -> Result<()> {
         println!("paths/s              {:.0}", run.stats.paths_per_second());
         println!("lookups per path     {:.2}", run.stats.lookups_per_path());
         println!("gradient bricks      {}", run.gradient.brick_count());
+        println!("non-finite samples   {} (dropped)", run.stats.non_finite);
     }
     Ok(())
 }

@@ -21,6 +21,7 @@ use volgrad::gradient::adjoint::{AdjointOptions, Estimator, Suffix};
 use volgrad::gradient::fd::{self, FdOptions};
 use volgrad::gradient::loss::Loss;
 use volgrad::gradient::passes::GradOptions;
+use volgrad::render::image::RenderStats;
 use volgrad::render::scene::Scene;
 
 /// Which voxels are parameters.
@@ -158,6 +159,16 @@ pub fn set_threads(threads: Option<usize>) -> Result<()> {
             .context("cannot start the thread pool")?;
     }
     Ok(())
+}
+
+/// Says on stderr how many samples came out non-finite and were dropped (none, for a valid scene).
+pub fn report_non_finite(stats: &RenderStats) {
+    if stats.non_finite > 0 {
+        eprintln!(
+            "warning: {} non-finite samples were dropped (counted as 0) out of {} paths",
+            stats.non_finite, stats.paths
+        );
+    }
 }
 
 /// A byte count as people read it.

@@ -4,7 +4,7 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Result};
 
-use super::{bytes, set_threads, SamplingArgs};
+use super::{bytes, report_non_finite, set_threads, SamplingArgs};
 use volgrad::io::images;
 use volgrad::io::output::refuse_overwrite;
 use volgrad::render::image::{render, RenderOptions, RenderStats};
@@ -81,6 +81,7 @@ pub fn run(args: &Args) -> Result<()> {
         progress: !sampling.quiet,
     };
     let (image, stats) = render(&scene, &options);
+    report_non_finite(&stats);
     images::write_exr(&exr, &image, args.half)?;
     images::write_png(&png, &image, scene.settings.exposure)?;
     eprintln!("wrote {} and {}", exr.display(), png.display());
@@ -114,6 +115,7 @@ fn print_stats(scene: &Scene, stats: &RenderStats) {
         "tracking efficiency  {:.3} (real collisions / free-flight lookups)",
         stats.tracking_efficiency()
     );
+    println!("non-finite samples   {} (dropped)", stats.non_finite);
     let leaf_bytes = m.grid.leaves().len() * BRICK_VOXELS * 4;
     println!(
         "memory               brick map {} = {:.3} × leaf values ({} leaves, {} tiles); majorant {}",

@@ -56,12 +56,25 @@ struct GridSink<'a> {
     /// δ / spp for the current pixel.
     weight: Vec3,
     active: Option<&'a BrickMap>,
+    /// Non-finite samples dropped.
+    dropped: u64,
+}
+
+impl GridSink<'_> {
+    /// A non-finite sample would poison every voxel it touches and every merge after it: it is
+    /// dropped and counted instead.
+    #[inline]
+    fn finite(&mut self, d_pixel: Vec3) -> bool {
+        let ok = d_pixel.is_finite();
+        self.dropped += u64::from(!ok);
+        ok
+    }
 }
 
 impl GradientSink for GridSink<'_> {
     #[inline]
     fn add(&mut self, voxel: IVec3, d_pixel: Vec3) {
-        if self.active.is_some_and(|m| !m.is_active(voxel)) {
+        if self.active.is_some_and(|m| !m.is_active(voxel)) || !self.finite(d_pixel) {
             return;
         }
         self.grid.add(voxel, self.weight.dot(d_pixel) as f64);
@@ -69,6 +82,9 @@ impl GradientSink for GridSink<'_> {
 
     #[inline]
     fn add_cell(&mut self, base: IVec3, weights: &[f32; 8], d_pixel: Vec3) {
+        if !self.finite(d_pixel) {
+            return;
+        }
         match self.active {
             None => self
                 .grid
@@ -87,13 +103,19 @@ struct BoxSink {
     lo: IVec3,
     hi: IVec3,
     sum: Vec3,
+    /// Non-finite samples dropped (as in `GridSink`).
+    dropped: u64,
 }
 
 impl GradientSink for BoxSink {
     #[inline]
     fn add(&mut self, voxel: IVec3, d_pixel: Vec3) {
         if voxel.cmpge(self.lo).all() && voxel.cmple(self.hi).all() {
-            self.sum += d_pixel;
+            if d_pixel.is_finite() {
+                self.sum += d_pixel;
+            } else {
+                self.dropped += 1;
+            }
         }
     }
 }
@@ -103,23 +125,25 @@ impl GradientSink for BoxSink {
 struct Worker {
     stats: TrackingStats,
     scratch: Scratch,
+    /// Non-finite samples dropped (`RenderStats::non_finite`).
+    non_finite: u64,
 }
 
 /// Runs `per_pixel(acc, x, y, worker)` for every pixel in parallel over row bands.
-/// Returns the per-band accumulators and the summed stats.
+/// Returns the per-band accumulators, the summed stats and the non-finite samples dropped.
 fn over_pixels<T: Send>(
     scene: &Scene,
     progress: bool,
     what: &str,
     init: impl Fn() -> T + Sync + Send,
     per_pixel: impl Fn(&mut T, u32, u32, &mut Worker) + Sync + Send,
-) -> (Vec<T>, TrackingStats) {
+) -> (Vec<T>, TrackingStats, u64) {
     let (w, h) = (scene.camera.width, scene.camera.height);
     let bar = crate::io::progress::bar(progress, h as u64, what);
     // A few row bands per thread: enough to balance the load, few enough that the per-band
     // accumulators (whole gradient grids) stay cheap to allocate and merge.
     let band = h.div_ceil(4 * rayon::current_num_threads() as u32).max(1) as usize;
-    let results: Vec<(T, TrackingStats)> = (0..h)
+    let results: Vec<(T, Worker)> = (0..h)
         .into_par_iter()
         .with_min_len(band)
         .fold(
@@ -132,18 +156,20 @@ fn over_pixels<T: Send>(
                 (acc, worker)
             },
         )
-        .map(|(acc, worker)| (acc, worker.stats))
+        .map(|(acc, worker)| (acc, worker))
         .collect();
     bar.finish_and_clear();
     let mut stats = TrackingStats::default();
+    let mut non_finite = 0;
     let values = results
         .into_iter()
-        .map(|(v, s)| {
-            stats += s;
+        .map(|(v, worker)| {
+            stats += worker.stats;
+            non_finite += worker.non_finite;
             v
         })
         .collect();
-    (values, stats)
+    (values, stats, non_finite)
 }
 
 /// The scene and options that every gradient sample of a pass shares.
@@ -190,7 +216,7 @@ pub fn gradient(scene: &Scene, adjoint: &[Vec3], options: &GradOptions) -> Gradi
     let active = options.active_only.then_some(&scene.medium.grid);
     let spp = options.spp;
     let pass = GradientPass { scene, options };
-    let (parts, tracking) = over_pixels(
+    let (parts, tracking, non_finite) = over_pixels(
         scene,
         options.progress,
         "gradient",
@@ -201,11 +227,16 @@ pub fn gradient(scene: &Scene, adjoint: &[Vec3], options: &GradOptions) -> Gradi
                 grid,
                 weight: adjoint[index as usize] / spp as f32,
                 active,
+                dropped: 0,
             };
             let mut sum = Vec3::ZERO;
             for sample in 0..spp {
-                sum += pass.sample(x, y, sample, worker, &mut sink);
+                let radiance = pass.sample(x, y, sample, worker, &mut sink);
+                if radiance.is_finite() {
+                    sum += radiance;
+                }
             }
+            worker.non_finite += sink.dropped;
             pixels.push((index, sum / spp as f32));
         },
     );
@@ -221,6 +252,7 @@ pub fn gradient(scene: &Scene, adjoint: &[Vec3], options: &GradOptions) -> Gradi
         paths: camera.width as u64 * camera.height as u64 * spp as u64,
         wall: start.elapsed(),
         tracking,
+        non_finite,
     };
     GradientRun {
         gradient,
@@ -241,7 +273,7 @@ pub fn derivative_image(
     let w = camera.width;
     let spp = options.spp;
     let pass = GradientPass { scene, options };
-    let (parts, tracking) = over_pixels(
+    let (parts, tracking, non_finite) = over_pixels(
         scene,
         options.progress,
         "d pixel",
@@ -251,10 +283,12 @@ pub fn derivative_image(
                 lo,
                 hi,
                 sum: Vec3::ZERO,
+                dropped: 0,
             };
             for sample in 0..spp {
                 pass.sample(x, y, sample, worker, &mut sink);
             }
+            worker.non_finite += sink.dropped;
             pixels.push((y * w + x, sink.sum / spp as f32));
         },
     );
@@ -268,6 +302,7 @@ pub fn derivative_image(
             paths: camera.width as u64 * camera.height as u64 * spp as u64,
             wall: start.elapsed(),
             tracking,
+            non_finite,
         },
     )
 }

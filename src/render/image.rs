@@ -39,6 +39,9 @@ pub struct RenderStats {
     pub paths: u64,
     pub wall: Duration,
     pub tracking: TrackingStats,
+    /// Path samples (or gradient samples) that came out infinite or NaN and were dropped, i.e.
+    /// counted as 0. A valid scene should give none; a count above 0 is reported on stderr.
+    pub non_finite: u64,
 }
 
 impl RenderStats {
@@ -64,10 +67,11 @@ pub fn render(scene: &Scene, options: &RenderOptions) -> (RgbImage, RenderStats)
         .flat_map(|ty| (0..w.div_ceil(TILE)).map(move |tx| (tx * TILE, ty * TILE)))
         .collect();
     let progress = crate::io::progress::bar(options.progress, tiles.len() as u64, "rendering");
-    let results: Vec<((u32, u32), Vec<Vec3>, TrackingStats)> = tiles
+    let results: Vec<((u32, u32), Vec<Vec3>, TrackingStats, u64)> = tiles
         .par_iter()
         .map(|&(x0, y0)| {
             let mut stats = TrackingStats::default();
+            let mut non_finite = 0;
             let mut pixels = Vec::with_capacity((TILE * TILE) as usize);
             for y in y0..(y0 + TILE).min(h) {
                 for x in x0..(x0 + TILE).min(w) {
@@ -77,7 +81,7 @@ pub fn render(scene: &Scene, options: &RenderOptions) -> (RgbImage, RenderStats)
                             sample_rng(options.seed, (y * w + x) as u64, sample, Pass::Forward);
                         let dir = camera
                             .direction(x as f32 + rng.gen::<f32>(), y as f32 + rng.gen::<f32>());
-                        sum += trace_path(
+                        let radiance = trace_path(
                             scene,
                             camera.position,
                             dir,
@@ -85,12 +89,17 @@ pub fn render(scene: &Scene, options: &RenderOptions) -> (RgbImage, RenderStats)
                             &mut rng,
                             &mut stats,
                         );
+                        if radiance.is_finite() {
+                            sum += radiance;
+                        } else {
+                            non_finite += 1;
+                        }
                     }
                     pixels.push(sum / options.spp as f32);
                 }
             }
             progress.inc(1);
-            ((x0, y0), pixels, stats)
+            ((x0, y0), pixels, stats, non_finite)
         })
         .collect();
     progress.finish_and_clear();
@@ -99,13 +108,14 @@ pub fn render(scene: &Scene, options: &RenderOptions) -> (RgbImage, RenderStats)
         paths: w as u64 * h as u64 * options.spp as u64,
         ..Default::default()
     };
-    for ((x0, y0), pixels, tile_stats) in results {
+    for ((x0, y0), pixels, tile_stats, non_finite) in results {
         let tw = (x0 + TILE).min(w) - x0;
         for (i, c) in pixels.into_iter().enumerate() {
             let (x, y) = (x0 + i as u32 % tw, y0 + i as u32 / tw);
             image.pixels[(y * w + x) as usize] = c;
         }
         stats.tracking += tile_stats;
+        stats.non_finite += non_finite;
     }
     stats.wall = start.elapsed();
     (image, stats)

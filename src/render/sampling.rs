@@ -54,24 +54,34 @@ pub struct HenyeyGreenstein {
 }
 
 impl HenyeyGreenstein {
+    /// p(cos θ) = (1 − g²) / (4π (1 + g² − 2g cos θ)^{3/2}).
+    ///
+    /// In f64 and with the denominator written as (1 − g)² + 2g(1 − cos θ): in f32, 1 + g² − 2g·cosθ
+    /// cancels to exactly 0 at cos θ = 1 once |g| ≳ 0.9995 (an infinite density, then NaN). This
+    /// form stays positive for every |g| < 1 and the value fits an f32 (≈ 1.6e9 at g = 0.99999).
     #[inline]
     pub fn eval(&self, cos_theta: f32) -> f32 {
-        let g = self.g;
-        let denom = 1.0 + g * g - 2.0 * g * cos_theta;
-        (1.0 - g * g) / (4.0 * PI * denom * denom.max(1e-12).sqrt())
+        let g = self.g as f64;
+        let one_minus_cos = (1.0 - cos_theta as f64).clamp(0.0, 2.0);
+        let denom = (1.0 - g) * (1.0 - g) + 2.0 * g * one_minus_cos;
+        ((1.0 - g * g) / (4.0 * std::f64::consts::PI * denom * denom.sqrt())) as f32
     }
 
-    /// A direction scattered from `dir`, with pdf `eval(dir · result)` (exact sampling).
+    /// A direction scattered from `dir`, with pdf `eval(dir · result)` (exact sampling). The
+    /// inversion runs in f64 for the same reason as `eval`: near |g| = 1 the f32 form loses every
+    /// digit of cos θ.
     #[inline]
     pub fn sample(&self, dir: Vec3, u: [f32; 2]) -> Vec3 {
-        let g = self.g;
+        let g = self.g as f64;
+        let u0 = u[0] as f64;
         let cos_theta = if g.abs() < 1e-3 {
-            1.0 - 2.0 * u[0]
+            1.0 - 2.0 * u0
         } else {
-            let s = (1.0 - g * g) / (1.0 - g + 2.0 * g * u[0]);
+            let s = (1.0 - g * g) / (1.0 - g + 2.0 * g * u0);
             ((1.0 + g * g - s * s) / (2.0 * g)).clamp(-1.0, 1.0)
         };
-        let sin_theta = (1.0 - cos_theta * cos_theta).max(0.0).sqrt();
+        let sin_theta = (1.0 - cos_theta * cos_theta).max(0.0).sqrt() as f32;
+        let cos_theta = cos_theta as f32;
         let phi = 2.0 * PI * u[1];
         let (t, b) = basis(dir);
         (t * (sin_theta * phi.cos()) + b * (sin_theta * phi.sin()) + dir * cos_theta).normalize()
@@ -88,12 +98,14 @@ pub fn uniform_sphere(u: [f32; 2]) -> Vec3 {
 
 pub const UNIFORM_SPHERE_PDF: f32 = 1.0 / (4.0 * PI);
 
-/// Power heuristic (β = 2) weight of strategy `a` against `b`.
+/// Power heuristic (β = 2) weight of strategy `a` against `b`. In f64: a peaked phase function's
+/// density squared overflows f32 (and ∞/∞ is NaN).
 #[inline]
 pub fn power_heuristic(pdf_a: f32, pdf_b: f32) -> f32 {
-    let (a2, b2) = (pdf_a * pdf_a, pdf_b * pdf_b);
-    if a2 + b2 > 0.0 {
-        a2 / (a2 + b2)
+    let (a, b) = (pdf_a as f64, pdf_b as f64);
+    let (a2, b2) = (a * a, b * b);
+    if a2 + b2 > 0.0 && a2.is_finite() && b2.is_finite() {
+        (a2 / (a2 + b2)) as f32
     } else {
         0.0
     }
@@ -182,6 +194,44 @@ mod tests {
                 / m as f32;
             assert!((mean - g).abs() < 0.01, "g={g}: mean cosine {mean}");
         }
+    }
+
+    /// |g| → 1: the density stays finite and exact at its peak (1 + g)/(4π(1 − g)²), sampling keeps
+    /// its mean cosine, and MIS weights with such densities are numbers.
+    #[test]
+    fn hg_is_finite_and_exact_as_g_approaches_one() {
+        let mut rng = pixel_rng(3, 0, 0);
+        let dir = Vec3::new(0.3, -0.8, 0.52).normalize();
+        for g in [0.9f32, 0.99, 0.999, 0.9995, 0.9999, 0.99999] {
+            for g in [g, -g] {
+                let hg = HenyeyGreenstein { g };
+                let (gd, pi) = (g as f64, std::f64::consts::PI);
+                let peak = (1.0 + gd.abs()) / (4.0 * pi * (1.0 - gd.abs()).powi(2));
+                let at_peak = hg.eval(g.signum()) as f64;
+                assert!(
+                    (at_peak / peak - 1.0).abs() < 1e-4,
+                    "g={g}: {at_peak} vs {peak}"
+                );
+                for cos in [-1.0f32, -0.3, 0.0, 0.7, 1.0, 1.0 + 1e-7] {
+                    let p = hg.eval(cos);
+                    assert!(p.is_finite() && p > 0.0, "g={g}, cos={cos}: {p}");
+                }
+                let m = 20_000;
+                let mean = (0..m)
+                    .map(|_| {
+                        let w = hg.sample(dir, [rng.gen(), rng.gen()]);
+                        assert!(w.is_finite() && (w.length() - 1.0).abs() < 1e-4);
+                        w.dot(dir) as f64
+                    })
+                    .sum::<f64>()
+                    / m as f64;
+                assert!((mean - gd).abs() < 0.01, "g={g}: mean cosine {mean}");
+                let w = power_heuristic(hg.eval(1.0), 0.1);
+                assert!(w.is_finite() && (0.0..=1.0).contains(&w), "g={g}: {w}");
+            }
+        }
+        assert_eq!(power_heuristic(f32::MAX, f32::MAX), 0.5);
+        assert_eq!(power_heuristic(f32::INFINITY, 1.0), 0.0);
     }
 
     #[test]
