@@ -57,6 +57,14 @@ impl RenderStats {
     }
 }
 
+/// What one tile of the image loop produced.
+struct Tile {
+    origin: (u32, u32),
+    pixels: Vec<Vec3>,
+    stats: TrackingStats,
+    non_finite: u64,
+}
+
 /// Renders the scene's camera view. Each path has its own random stream (seed, pixel, sample), so
 /// the image does not depend on the number of threads.
 pub fn render(scene: &Scene, options: &RenderOptions) -> (RgbImage, RenderStats) {
@@ -67,7 +75,7 @@ pub fn render(scene: &Scene, options: &RenderOptions) -> (RgbImage, RenderStats)
         .flat_map(|ty| (0..w.div_ceil(TILE)).map(move |tx| (tx * TILE, ty * TILE)))
         .collect();
     let progress = crate::io::progress::bar(options.progress, tiles.len() as u64, "rendering");
-    let results: Vec<((u32, u32), Vec<Vec3>, TrackingStats, u64)> = tiles
+    let results: Vec<Tile> = tiles
         .par_iter()
         .map(|&(x0, y0)| {
             let mut stats = TrackingStats::default();
@@ -99,7 +107,12 @@ pub fn render(scene: &Scene, options: &RenderOptions) -> (RgbImage, RenderStats)
                 }
             }
             progress.inc(1);
-            ((x0, y0), pixels, stats, non_finite)
+            Tile {
+                origin: (x0, y0),
+                pixels,
+                stats,
+                non_finite,
+            }
         })
         .collect();
     progress.finish_and_clear();
@@ -108,14 +121,15 @@ pub fn render(scene: &Scene, options: &RenderOptions) -> (RgbImage, RenderStats)
         paths: w as u64 * h as u64 * options.spp as u64,
         ..Default::default()
     };
-    for ((x0, y0), pixels, tile_stats, non_finite) in results {
+    for tile in results {
+        let (x0, y0) = tile.origin;
         let tw = (x0 + TILE).min(w) - x0;
-        for (i, c) in pixels.into_iter().enumerate() {
+        for (i, c) in tile.pixels.into_iter().enumerate() {
             let (x, y) = (x0 + i as u32 % tw, y0 + i as u32 / tw);
             image.pixels[(y * w + x) as usize] = c;
         }
-        stats.tracking += tile_stats;
-        stats.non_finite += non_finite;
+        stats.tracking += tile.stats;
+        stats.non_finite += tile.non_finite;
     }
     stats.wall = start.elapsed();
     (image, stats)
