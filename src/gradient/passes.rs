@@ -129,15 +129,18 @@ struct Worker {
     non_finite: u64,
 }
 
-/// Runs `per_pixel(acc, x, y, worker)` for every pixel in parallel over row bands.
-/// Returns the per-band accumulators, the summed stats and the non-finite samples dropped.
+/// Runs `per_pixel(acc, x, y, worker)` for every pixel in parallel over row bands, `spp` paths
+/// each. Returns the per-band accumulators and the pass's stats (paths, wall time, tracking
+/// counters, non-finite samples dropped).
 fn over_pixels<T: Send>(
     scene: &Scene,
+    spp: u32,
     progress: bool,
     what: &str,
     init: impl Fn() -> T + Sync + Send,
     per_pixel: impl Fn(&mut T, u32, u32, &mut Worker) + Sync + Send,
-) -> (Vec<T>, TrackingStats, u64) {
+) -> (Vec<T>, RenderStats) {
+    let start = Instant::now();
     let (w, h) = (scene.camera.width, scene.camera.height);
     let bar = crate::io::progress::bar(progress, h as u64, what);
     // A few row bands per thread: enough to balance the load, few enough that the per-band
@@ -159,17 +162,20 @@ fn over_pixels<T: Send>(
         .map(|(acc, worker)| (acc, worker))
         .collect();
     bar.finish_and_clear();
-    let mut stats = TrackingStats::default();
-    let mut non_finite = 0;
+    let mut stats = RenderStats {
+        paths: w as u64 * h as u64 * spp as u64,
+        ..Default::default()
+    };
     let values = results
         .into_iter()
         .map(|(v, worker)| {
-            stats += worker.stats;
-            non_finite += worker.non_finite;
+            stats.tracking += worker.stats;
+            stats.non_finite += worker.non_finite;
             v
         })
         .collect();
-    (values, stats, non_finite)
+    stats.wall = start.elapsed();
+    (values, stats)
 }
 
 /// The scene and options that every gradient sample of a pass shares.
@@ -209,15 +215,15 @@ impl GradientPass<'_> {
 
 /// The gradient of a loss whose adjoint image is `adjoint` (∂loss/∂pixel), per voxel.
 pub fn gradient(scene: &Scene, adjoint: &[Vec3], options: &GradOptions) -> GradientRun {
-    let start = Instant::now();
     let camera = &scene.camera;
     let w = camera.width;
     let template = GradientGrid::for_grid(&scene.medium.grid);
     let active = options.active_only.then_some(&scene.medium.grid);
     let spp = options.spp;
     let pass = GradientPass { scene, options };
-    let (parts, tracking, non_finite) = over_pixels(
+    let (parts, stats) = over_pixels(
         scene,
+        spp,
         options.progress,
         "gradient",
         || (template.empty_like(), Vec::<(u32, Vec3)>::new()),
@@ -248,12 +254,6 @@ pub fn gradient(scene: &Scene, adjoint: &[Vec3], options: &GradOptions) -> Gradi
             image.pixels[i as usize] = c;
         }
     }
-    let stats = RenderStats {
-        paths: camera.width as u64 * camera.height as u64 * spp as u64,
-        wall: start.elapsed(),
-        tracking,
-        non_finite,
-    };
     GradientRun {
         gradient,
         image,
@@ -268,13 +268,13 @@ pub fn derivative_image(
     hi: IVec3,
     options: &GradOptions,
 ) -> (RgbImage, RenderStats) {
-    let start = Instant::now();
     let camera = &scene.camera;
     let w = camera.width;
     let spp = options.spp;
     let pass = GradientPass { scene, options };
-    let (parts, tracking, non_finite) = over_pixels(
+    let (parts, stats) = over_pixels(
         scene,
+        spp,
         options.progress,
         "d pixel",
         Vec::<(u32, Vec3)>::new,
@@ -296,13 +296,5 @@ pub fn derivative_image(
     for (i, c) in parts.into_iter().flatten() {
         image.pixels[i as usize] = c;
     }
-    (
-        image,
-        RenderStats {
-            paths: camera.width as u64 * camera.height as u64 * spp as u64,
-            wall: start.elapsed(),
-            tracking,
-            non_finite,
-        },
-    )
+    (image, stats)
 }
