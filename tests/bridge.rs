@@ -122,7 +122,7 @@ fn half(v: f32) -> f32 {
 }
 
 fn read_cloud() -> FloatGridData {
-    ffi::read_float_grid(&asset("wdas_cloud_sixteenth.vdb"), "density", -1).unwrap()
+    ffi::read_float_grid(&asset("wdas_cloud_sixteenth.vdb"), "density", -1, false).unwrap()
 }
 
 // ------------------------------------------------------------------------------------------------
@@ -327,20 +327,20 @@ fn read_cloud_copies_leaves_and_tiles() {
 fn read_by_index_selects_among_repeated_names() {
     let path = asset("grids.vdb");
     let grids: Vec<FloatGridData> = (0..3)
-        .map(|i| ffi::read_float_grid(&path, "", i).unwrap())
+        .map(|i| ffi::read_float_grid(&path, "", i, false).unwrap())
         .collect();
     let counts: Vec<u64> = grids.iter().map(active_voxels).collect();
     assert_eq!(counts, [491, 2222, 803]);
     assert!(grids.iter().all(|g| g.name == "density"));
     assert_ne!(leaves(&grids[0]), leaves(&grids[2]));
     // By name: the first grid with that name.
-    let by_name = ffi::read_float_grid(&path, "density", -1).unwrap();
+    let by_name = ffi::read_float_grid(&path, "density", -1, false).unwrap();
     assert_eq!(leaves(&by_name), leaves(&grids[0]));
 }
 
 #[test]
 fn read_half_grid() {
-    let g = ffi::read_float_grid(&asset("smoke.vdb"), "density", -1).unwrap();
+    let g = ffi::read_float_grid(&asset("smoke.vdb"), "density", -1, false).unwrap();
     assert!(g.saved_as_half);
     assert_eq!(active_voxels(&g), 1_049_275);
     // Stored as half: every value is exactly representable in f16.
@@ -363,7 +363,7 @@ fn round_trip_cloud() {
         .collect();
     assert_eq!(names, ["cloud.vdb"], "no temporary file is left behind");
 
-    let back = ffi::read_float_grid(path_str(&out), "density", -1).unwrap();
+    let back = ffi::read_float_grid(path_str(&out), "density", -1, false).unwrap();
     assert_eq!(back.name, src.name);
     assert_eq!(back.grid_class, src.grid_class);
     assert_eq!(back.index_to_world, src.index_to_world);
@@ -394,7 +394,7 @@ fn round_trip_cloud_as_half() {
     ffi::write_float_grids(path_str(&full), std::slice::from_ref(&src), false).unwrap();
     ffi::write_float_grids(path_str(&halved), std::slice::from_ref(&src), true).unwrap();
 
-    let back = ffi::read_float_grid(path_str(&halved), "", 0).unwrap();
+    let back = ffi::read_float_grid(path_str(&halved), "", 0, false).unwrap();
     assert!(back.saved_as_half);
     assert!(ffi::list_grids(path_str(&halved)).unwrap()[0].saved_as_half);
     assert_eq!(back.leaf_origins, src.leaf_origins);
@@ -495,7 +495,7 @@ fn round_trip_hand_built_grid() {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("hand.vdb");
     ffi::write_float_grids(path_str(&out), std::slice::from_ref(&src), false).unwrap();
-    let back = ffi::read_float_grid(path_str(&out), "hand", -1).unwrap();
+    let back = ffi::read_float_grid(path_str(&out), "hand", -1, false).unwrap();
 
     assert_eq!(back.name, "hand");
     assert_eq!(back.grid_class, "fog volume");
@@ -557,7 +557,8 @@ fn written_grids_keep_their_order_and_repeated_names() {
         .map(|g| g.name)
         .collect();
     assert_eq!(names, ["zeta", "alpha", "zeta"]);
-    let tile_value = |i: i32, name: &str| ffi::read_float_grid(p, name, i).unwrap().tile_values[0];
+    let tile_value =
+        |i: i32, name: &str| ffi::read_float_grid(p, name, i, false).unwrap().tile_values[0];
     assert_eq!(tile_value(0, ""), 0.75);
     assert_eq!(tile_value(1, ""), 0.25);
     assert_eq!(tile_value(2, ""), 2.0);
@@ -601,7 +602,7 @@ fn vdb_print_reads_written_file() {
 fn error_missing_file() {
     let e = err_text(ffi::list_grids("/no/such/dir/missing.vdb"));
     assert_eq!(e, "cannot open '/no/such/dir/missing.vdb': no such file");
-    let e = err_text(ffi::read_float_grid("missing.vdb", "density", -1));
+    let e = err_text(ffi::read_float_grid("missing.vdb", "density", -1, false));
     assert!(
         e.contains("'missing.vdb'") && e.contains("no such file"),
         "{e}"
@@ -623,10 +624,10 @@ fn error_truncated_and_garbage_files() {
             )),
             "cut at {len}: {e}"
         );
-        assert!(ffi::read_float_grid(ps, "density", -1).is_err());
+        assert!(ffi::read_float_grid(ps, "density", -1, false).is_err());
     }
     std::fs::write(&p, &bytes[..bytes.len() / 2]).unwrap();
-    let e = err_text(ffi::read_float_grid(ps, "density", -1));
+    let e = err_text(ffi::read_float_grid(ps, "density", -1, false));
     assert!(e.contains("ends at byte"), "{e}");
 
     let mut state = 0x9e37_79b9_7f4a_7c15u64;
@@ -645,14 +646,14 @@ fn error_truncated_and_garbage_files() {
     let mut fake = bytes[..8].to_vec();
     fake.extend_from_slice(&garbage);
     std::fs::write(&p, &fake).unwrap();
-    let e = err_text(ffi::read_float_grid(ps, "density", -1));
+    let e = err_text(ffi::read_float_grid(ps, "density", -1, false));
     assert!(e.contains("is not a valid VDB file"), "{e}");
 }
 
 #[test]
 fn error_unknown_grid_name_lists_names() {
     let p = asset("grids.vdb");
-    let e = err_text(ffi::read_float_grid(&p, "temperature", -1));
+    let e = err_text(ffi::read_float_grid(&p, "temperature", -1, false));
     assert_eq!(
         e,
         format!("no grid named 'temperature' in '{p}' (grids: density, density, density)")
@@ -662,15 +663,15 @@ fn error_unknown_grid_name_lists_names() {
 #[test]
 fn error_index_out_of_range() {
     let p = asset("grids.vdb");
-    let e = err_text(ffi::read_float_grid(&p, "density", 5));
+    let e = err_text(ffi::read_float_grid(&p, "density", 5, false));
     assert_eq!(e, format!("grid index 5 out of range: '{p}' has 3 grids"));
-    assert!(ffi::read_float_grid(&p, "density", 2).is_ok());
+    assert!(ffi::read_float_grid(&p, "density", 2, false).is_ok());
 }
 
 #[test]
 fn error_points_grid_is_not_float() {
     let p = asset("points.vdb");
-    let e = err_text(ffi::read_float_grid(&p, "points", -1));
+    let e = err_text(ffi::read_float_grid(&p, "points", -1, false));
     assert_eq!(
         e,
         format!("grid 'points' in '{p}' has value type ptdataidx32, not float")
@@ -921,4 +922,151 @@ fn image_errors_name_the_file() {
 
     let e = err_text(ffi::write_image("/nonexistent-dir/a.exr", &img, "half"));
     assert!(e.contains("does not exist"), "{e}");
+}
+
+// ------------------------------------------------------------------------------------------------
+// Grid classes and backgrounds
+
+/// A level set of a ball of radius 5 voxels (voxel 0.5), written as OpenVDB level sets are:
+/// signed world distances in a band of 3 voxels each side, background 1.5 (the half-width). Only
+/// the band's leaves are given: the writer flood-fills the inside.
+fn level_set_ball(path: &Path) {
+    let (voxel, radius, half_width) = (0.5f32, 5.0f32, 1.5f32);
+    let mut d = hand_built();
+    d.name = "ls_ball".into();
+    d.grid_class = "level set".into();
+    d.background = half_width;
+    d.metadata.clear();
+    d.index_to_world = [
+        0.5, 0.0, 0.0, 0.0, 0.0, 0.5, 0.0, 0.0, 0.0, 0.0, 0.5, 0.0, 0.0, 0.0, 0.0, 1.0,
+    ];
+    (d.leaf_origins, d.leaf_values, d.leaf_active) = (vec![], vec![], vec![]);
+    (d.tile_origins, d.tile_sizes, d.tile_values) = (vec![], vec![], vec![]);
+    for ox in [-16, -8, 0, 8] {
+        for oy in [-16, -8, 0, 8] {
+            for oz in [-16, -8, 0, 8] {
+                let mut values = [half_width; 512];
+                let mut active = [0u64; 8];
+                for i in 0..512 {
+                    let (x, y, z) = (ox + i as i32 / 64, oy + i as i32 / 8 % 8, oz + i as i32 % 8);
+                    let r = ((x * x + y * y + z * z) as f32).sqrt();
+                    let dist = (r - radius) * voxel;
+                    values[i] = dist.clamp(-half_width, half_width);
+                    if dist.abs() < half_width {
+                        active[i / 64] |= 1 << (i % 64);
+                    }
+                }
+                if active.iter().any(|&w| w != 0) {
+                    d.leaf_origins.extend([ox, oy, oz]);
+                    d.leaf_values.extend(values);
+                    d.leaf_active.extend(active);
+                }
+            }
+        }
+    }
+    ffi::write_float_grids(path_str(path), std::slice::from_ref(&d), false).unwrap();
+}
+
+/// The value at index `v` of a grid copy: its leaf's value, an active tile's, else the background.
+fn value_at(g: &FloatGridData, v: [i32; 3]) -> f32 {
+    for (l, o) in g.leaf_origins.chunks(3).enumerate() {
+        if (0..3).all(|k| v[k] - o[k] >= 0 && v[k] - o[k] < 8) {
+            let i = ((v[0] - o[0]) * 64 + (v[1] - o[1]) * 8 + (v[2] - o[2])) as usize;
+            return g.leaf_values[512 * l + i];
+        }
+    }
+    for (t, o) in g.tile_origins.chunks(3).enumerate() {
+        let s = g.tile_sizes[t] as i32;
+        if (0..3).all(|k| v[k] - o[k] >= 0 && v[k] - o[k] < s) {
+            return g.tile_values[t];
+        }
+    }
+    g.background
+}
+
+#[test]
+fn level_sets_round_trip_and_convert_with_sdf_to_fog_volume() {
+    let dir = tempfile::tempdir().unwrap();
+    let p = dir.path().join("ls.vdb");
+    level_set_ball(&p);
+    let ps = path_str(&p);
+    let summary = &ffi::list_grids(ps).unwrap()[0];
+    assert_eq!(summary.grid_class, "level set");
+
+    // As stored: distances, the background the band's half-width.
+    let raw = ffi::read_float_grid(ps, "ls_ball", -1, false).unwrap();
+    assert_eq!(raw.grid_class, "level set");
+    assert_eq!(raw.background, 1.5);
+    assert_eq!(value_at(&raw, [5, 0, 0]), 0.0);
+    assert_eq!(
+        value_at(&raw, [0, 0, 0]),
+        -1.5,
+        "the inside is flood-filled"
+    );
+
+    // Converted: 0 outside, a ramp over the interior half-band (1.5 world units = 3 voxels), 1
+    // inside; background 0, class fog volume.
+    let fog = ffi::read_float_grid(ps, "ls_ball", -1, true).unwrap();
+    assert_eq!(fog.grid_class, "fog volume");
+    assert_eq!(fog.background, 0.0);
+    assert_eq!(value_at(&fog, [0, 0, 0]), 1.0);
+    assert_eq!(value_at(&fog, [7, 0, 0]), 0.0);
+    assert!((value_at(&fog, [4, 0, 0]) - 1.0 / 3.0).abs() < 1e-6);
+    assert!(fog.leaf_values.iter().all(|v| (0.0..=1.0).contains(v)));
+    // Fog volumes are unaffected by the flag.
+    let cloud = asset("wdas_cloud_sixteenth.vdb");
+    let a = ffi::read_float_grid(&cloud, "density", -1, true).unwrap();
+    assert_eq!(a.leaf_values, read_cloud().leaf_values);
+}
+
+#[test]
+fn error_level_set_needs_a_positive_background() {
+    let dir = tempfile::tempdir().unwrap();
+    let p = dir.path().join("bad.vdb");
+    let mut d = hand_built();
+    d.grid_class = "level set".into();
+    d.background = 0.0;
+    let e = err_text(ffi::write_float_grids(
+        path_str(&p),
+        std::slice::from_ref(&d),
+        false,
+    ));
+    assert!(
+        e.contains("narrow-band half-width") && e.contains("> 0"),
+        "{e}"
+    );
+    d.grid_class = "fog volume".into();
+    d.background = f32::NAN;
+    let e = err_text(ffi::write_float_grids(
+        path_str(&p),
+        std::slice::from_ref(&d),
+        false,
+    ));
+    assert!(e.contains("background") && e.contains("not finite"), "{e}");
+}
+
+#[test]
+fn backgrounds_round_trip() {
+    let dir = tempfile::tempdir().unwrap();
+    let p = dir.path().join("bg.vdb");
+    let mut d = hand_built();
+    d.background = 0.25;
+    ffi::write_float_grids(path_str(&p), std::slice::from_ref(&d), false).unwrap();
+    let back = ffi::read_float_grid(path_str(&p), "hand", -1, false).unwrap();
+    assert_eq!(back.background, 0.25);
+}
+
+#[test]
+fn error_a_file_without_grids() {
+    let dir = tempfile::tempdir().unwrap();
+    let p = dir.path().join("empty.vdb");
+    ffi::write_float_grids(path_str(&p), &[], false).unwrap();
+    assert!(ffi::list_grids(path_str(&p)).unwrap().is_empty());
+    let holds_none = format!("'{}' holds no grids", path_str(&p));
+    for (name, index) in [("density", -1), ("", 0)] {
+        assert_eq!(
+            err_text(ffi::read_float_grid(path_str(&p), name, index, false)),
+            holds_none
+        );
+    }
 }

@@ -415,6 +415,81 @@ fn bad_inputs_give_clear_errors_and_a_nonzero_exit() {
     for (scene, needles) in &cases {
         assert_clean_error(&render(scene), needles);
     }
+    // Numbers: magnitudes are checked before anything derived from them.
+    let camera = |from: &str, to: &str, needles: &[&str]| {
+        let p = write_scene("numbers.toml", &format!("vdb = {tiny:?}"), "");
+        let text = std::fs::read_to_string(&p).unwrap().replace(from, to);
+        std::fs::write(&p, text).unwrap();
+        assert_clean_error(&render(&p), needles);
+    };
+    let far = ["camera.position", "too far", "1e15"];
+    camera("position = [0, 0, 30]", "position = [0, 0, 1e30]", &far);
+    camera(
+        "position = [0, 0, 30]",
+        "position = [0, 0, nan]",
+        &["camera.position", "finite"],
+    );
+    camera(
+        "target = [0, 0, 0]",
+        "target = [0, 0, 30]",
+        &["camera.target must differ"],
+    );
+    camera("fov_deg = 40", "fov_deg = 180", &["camera.fov_deg"]);
+    camera("fov_deg = 40", "fov_deg = nan", &["camera.fov_deg", "NaN"]);
+    camera(
+        "height = 8",
+        "height = 100000000",
+        &["camera.width × camera.height", "too large", "2^28"],
+    );
+    camera("width = 8", "width = 4294967296", &["width", "u32"]);
+    camera(
+        "fov_deg = 40",
+        "fov_deg = 40\nup = [0, 0, 1e-30]",
+        &["camera.up", "parallel"],
+    );
+    camera(
+        "fov_deg = 40",
+        "fov_deg = 40\nup = [0, 0, 0]",
+        &["camera.up must not be zero"],
+    );
+    let medium = |extra: &str, needles: &[&str]| {
+        let p = write_scene("medium.toml", &format!("vdb = {tiny:?}\n{extra}"), "");
+        assert_clean_error(&render(&p), needles);
+    };
+    medium("density_scale = nan", &["medium.density_scale", "NaN"]);
+    medium("density_scale = inf", &["medium.density_scale", "inf"]);
+    medium(
+        "density_scale = 1e30",
+        &["medium.density_scale", "too large"],
+    );
+    medium("albedo = nan", &["medium.albedo", "NaN"]);
+    let light = |body: &str, needles: &[&str]| {
+        let light = format!("[[light]]\ntype = \"{body}\n");
+        let p = write_scene("light.toml", &format!("vdb = {tiny:?}"), &light);
+        assert_clean_error(&render(&p), needles);
+    };
+    light(
+        "constant\"\nradiance = nan",
+        &["light[0].radiance", "finite"],
+    );
+    light("constant\"\nradiance = -1", &["light[0].radiance", "≥ 0"]);
+    light(
+        "constant\"\nradiance = 1e31",
+        &["light[0].radiance", "too large"],
+    );
+    let dir_light = "directional\"\nirradiance = 1\ndirection =";
+    light(
+        &format!("{dir_light} [0, 0, 0]"),
+        &["light[0].direction", "zero"],
+    );
+    light(
+        &format!("{dir_light} [0, inf, 0]"),
+        &["light[0].direction", "finite"],
+    );
+    light(
+        "directional\"\ndirection = [0, 1, 0]\nirradiance = inf",
+        &["light[0].irradiance"],
+    );
     let zero = write_scene("zero.toml", &format!("vdb = {tiny:?}"), "");
     std::fs::write(
         &zero,
@@ -451,6 +526,94 @@ fn bad_inputs_give_clear_errors_and_a_nonzero_exit() {
         &["spp"],
     );
     assert!(!out.exists(), "a failed render must not leave files behind");
+}
+
+#[test]
+fn grid_classes_backgrounds_and_empty_files() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let out = d.join("o.exr");
+    let (ls, bg, empty) = (d.join("ls.vdb"), d.join("bg.vdb"), d.join("empty.vdb"));
+    let path = |p: &Path| p.to_str().unwrap().to_string();
+    ok(volgrad(&[
+        "make-grid",
+        "sphere",
+        "--class",
+        "levelset",
+        "--size",
+        "12",
+        "--voxel-size",
+        "0.5",
+        "--name",
+        "ls_sphere",
+        "-o",
+        &path(&ls),
+    ]));
+    let class = &volgrad::io::vdb::list_grids(&ls).unwrap()[0].grid_class;
+    assert_eq!(class, "level set");
+    assert_clean_error(
+        &volgrad(&["make-grid", "box", "--class", "levelset", "-o", &path(&bg)]),
+        &["--class levelset", "spheres only"],
+    );
+    // A fog grid with background 0.5, written through the library.
+    let tiny = assets().join("tiny_sphere.vdb");
+    let mut grid =
+        volgrad::io::vdb::read_grid(&tiny, &volgrad::io::vdb::GridSelector::Default).unwrap();
+    grid.background = 0.5;
+    volgrad::io::vdb::write_grids(&bg, &[&grid], false, false).unwrap();
+    volgrad::io::vdb::write_grids(&empty, &[], false, false).unwrap();
+
+    let scene = |vdb: &Path, medium: &str| {
+        let p = d.join("s.toml");
+        std::fs::write(&p, format!(
+            "[camera]\nposition = [0, 0, 1e-30]\ntarget = [0, 0, -1]\nup = [0, 1e-30, 0]\nfov_deg = 40\n\
+             width = 8\nheight = 8\n[medium]\nvdb = {:?}\n{medium}\n[[light]]\n\
+             type = \"directional\"\ndirection = [0, -1e-30, 0]\nirradiance = 1\n[render]\nspp = 1\n",
+            path(vdb))).unwrap();
+        volgrad(&["render", &path(&p), "-o", &path(&out), "--quiet", "--force"])
+    };
+    // Level sets: refused naming the class and the option, or converted on request.
+    assert_clean_error(
+        &scene(&ls, ""),
+        &[
+            "grid 'ls_sphere'",
+            "ls.vdb",
+            "is a level set",
+            "medium.levelset = \"fog\"",
+            "sdfToFogVolume",
+        ],
+    );
+    ok(scene(&ls, "levelset = \"fog\""));
+    assert_clean_error(&scene(&ls, "levelset = \"yes\""), &["yes", "refuse", "fog"]);
+    // Non-zero backgrounds: refused, and info says so.
+    assert_clean_error(
+        &scene(&bg, ""),
+        &["bg.vdb", "background 0.5", "rewrite it with background 0"],
+    );
+    let info = stdout(&ok(volgrad(&["info", &path(&bg)])));
+    assert!(
+        info.contains("background     0.5  (not 0: render refuses it)"),
+        "{info}"
+    );
+    let info = stdout(&ok(volgrad(&["info", &path(&ls)])));
+    assert!(info.contains("level set  (signed distances"), "{info}");
+    // Files without grids: an error for render and grad, "no grids" for info.
+    assert_clean_error(&scene(&empty, ""), &["empty.vdb", "holds no grids"]);
+    assert_clean_error(
+        &scene(&empty, "grid_index = 0"),
+        &["empty.vdb", "holds no grids"],
+    );
+    let grad = volgrad(&[
+        "grad",
+        &path(&d.join("s.toml")),
+        "-o",
+        &path(&d.join("g.vdb")),
+    ]);
+    assert_clean_error(&grad, &["empty.vdb", "holds no grids"]);
+    assert_eq!(
+        stdout(&ok(volgrad(&["info", &path(&empty)]))).trim(),
+        format!("{}: no grids", path(&empty))
+    );
 }
 
 #[test]
