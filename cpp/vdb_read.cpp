@@ -411,6 +411,13 @@ FloatGridData copy_grid(const GridT& grid) {
         d.tile_sizes.push_back(static_cast<uint32_t>(bb.dim().x()));
         d.tile_values.push_back(static_cast<float>(*it));
     }
+    // Inactive tiles are not copied (the brick map reads 0 there), so count those that OpenVDB
+    // would read as something other than the background: the caller decides whether that matters.
+    auto off = tree.cbeginValueOff();
+    off.setMaxDepth(TreeT::ValueOffCIter::LEAF_DEPTH - 1);
+    for (; off; ++off) {
+        if (!off.isVoxelValue() && *off != tree.background()) ++d.inactive_tiles_off_background;
+    }
     d.metadata = meta_entries(grid);
     return d;
 }

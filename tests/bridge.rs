@@ -474,6 +474,7 @@ fn hand_built() -> FloatGridData {
         tile_origins: vec![128, -128, 256],
         tile_sizes: vec![128],
         tile_values: vec![0.75],
+        inactive_tiles_off_background: 0,
         metadata: vec![
             entry("author", "string", "volgrad test, with spaces"),
             entry("sigma", "float", "0.1"),
@@ -1043,6 +1044,26 @@ fn error_level_set_needs_a_positive_background() {
         false,
     ));
     assert!(e.contains("background") && e.contains("not finite"), "{e}");
+}
+
+#[test]
+fn inactive_tiles_off_the_background_are_counted() {
+    // A uniform leaf with no active voxel is pruned to an inactive tile of its value on write.
+    let dir = tempfile::tempdir().unwrap();
+    let p = dir.path().join("off.vdb");
+    let mut d = hand_built();
+    assert_eq!(d.inactive_tiles_off_background, 0);
+    d.leaf_origins.extend([64, 64, 64]);
+    d.leaf_values.extend([0.7f32; 512]);
+    d.leaf_active.extend([0u64; 8]);
+    ffi::write_float_grids(path_str(&p), std::slice::from_ref(&d), false).unwrap();
+    let back = ffi::read_float_grid(path_str(&p), "hand", -1, false).unwrap();
+    assert_eq!(back.inactive_tiles_off_background, 1);
+    assert_eq!(
+        back.leaf_origins.len(),
+        6,
+        "the inactive tile is not copied"
+    );
 }
 
 #[test]

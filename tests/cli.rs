@@ -561,6 +561,20 @@ fn grid_classes_backgrounds_and_empty_files() {
         volgrad::io::vdb::read_grid(&tiny, &volgrad::io::vdb::GridSelector::Default).unwrap();
     grid.background = 0.5;
     volgrad::io::vdb::write_grids(&bg, &[&grid], false, false).unwrap();
+    // Background 0 but an inactive tile of 0.7: the writer prunes a uniform, all-inactive leaf
+    // into one, which OpenVDB reads as 0.7 and the brick map would read as 0. (The active voxel
+    // beyond keeps the leaf inside the active bounds, where the brick map keeps leaves.)
+    let off = d.join("off.vdb");
+    grid.background = 0.0;
+    let mut leaves = grid.bricks.leaves().to_vec();
+    let leaf = |x: i32, value: f32, active: u64| volgrad::volume::brickmap::Leaf {
+        origin: glam::IVec3::new(x, 0, 0),
+        values: [value; 512],
+        active: [active, 0, 0, 0, 0, 0, 0, 0],
+    };
+    leaves.extend([leaf(64, 0.7, 0), leaf(72, 0.0, 1)]);
+    grid.bricks = volgrad::volume::brickmap::BrickMap::new(leaves, grid.bricks.tiles().to_vec());
+    volgrad::io::vdb::write_grids(&off, &[&grid], false, false).unwrap();
     volgrad::io::vdb::write_grids(&empty, &[], false, false).unwrap();
 
     let scene = |vdb: &Path, medium: &str| {
@@ -589,6 +603,13 @@ fn grid_classes_backgrounds_and_empty_files() {
     assert_clean_error(
         &scene(&bg, ""),
         &["bg.vdb", "background 0.5", "rewrite it with background 0"],
+    );
+    assert_clean_error(
+        &scene(&off, ""),
+        &[
+            "off.vdb",
+            "1 inactive tiles whose value is not its background 0",
+        ],
     );
     let info = stdout(&ok(volgrad(&["info", &path(&bg)])));
     assert!(

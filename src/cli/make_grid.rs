@@ -21,7 +21,7 @@ pub struct Args {
     /// Slab thickness in voxels.
     #[arg(long, default_value_t = 2)]
     pub thickness: u32,
-    /// Grid value inside the shape.
+    /// Grid value inside the shape (fog volumes; a level set holds distances).
     #[arg(long, default_value_t = 1.0, allow_negative_numbers = true)]
     pub value: f32,
     /// Voxel size: one number, or three (x,y,z) for anisotropic voxels.

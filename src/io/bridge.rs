@@ -67,6 +67,9 @@ pub mod ffi {
         /// 1 per active tile: its edge length in voxels (8, 128 or 4096 for the standard tree).
         pub tile_sizes: Vec<u32>,
         pub tile_values: Vec<f32>,
+        /// Reading only (ignored on write): inactive tiles whose value is not the background.
+        /// They are not copied, so volgrad reads 0 there where OpenVDB reads their value.
+        pub inactive_tiles_off_background: u64,
         pub metadata: Vec<MetaEntry>,
     }
 

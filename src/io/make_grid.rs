@@ -93,7 +93,6 @@ pub fn make_grid(spec: &GridSpec) -> anyhow::Result<Grid> {
         _ => n,
     };
     let centre = DVec3::new((n - 1) as f64, (n - 1) as f64, (depth - 1) as f64) * 0.5;
-    let mut b = BrickMapBuilder::new();
     if spec.class == Class::Levelset {
         return finish(
             spec,
@@ -101,6 +100,7 @@ pub fn make_grid(spec: &GridSpec) -> anyhow::Result<Grid> {
             centre,
         );
     }
+    let mut b = BrickMapBuilder::new();
     for x in 0..n {
         for y in 0..n {
             for z in 0..depth {

@@ -62,9 +62,10 @@ pub fn read_grid(path: &Path, selector: &GridSelector) -> Result<Grid> {
 }
 
 /// Reads a float grid to render as a density: a level set is converted or refused (`level_set`),
-/// a non-zero background refused. OpenVDB's background is the value of all space outside the
-/// tree, so a non-zero one would be an infinite medium, while volgrad's medium ends at the active
-/// voxels' bounds and reads 0 wherever there is no leaf or tile.
+/// a non-zero background refused, and so are inactive tiles of another value. OpenVDB's
+/// background is the value of all space outside the tree, so a non-zero one would be an infinite
+/// medium, while volgrad's medium ends at the active voxels' bounds and reads 0 wherever there is
+/// no leaf or active tile.
 pub fn read_density(path: &Path, selector: &GridSelector, level_set: LevelSet) -> Result<Grid> {
     let data = read_data(path, selector, level_set == LevelSet::Fog)?;
     let what = format!("grid '{}' in '{}'", data.name, path.display());
@@ -79,6 +80,12 @@ pub fn read_density(path: &Path, selector: &GridSelector, level_set: LevelSet) -
             data.background
         );
     }
+    if data.inactive_tiles_off_background > 0 {
+        bail!(
+            "{what} has {} inactive tiles whose value is not its background 0: OpenVDB reads their value there, volgrad reads 0; activate them or set them to 0",
+            data.inactive_tiles_off_background
+        );
+    }
     Grid::from_data(data).map_err(|e| anyhow!("{what}: {e}"))
 }
 
@@ -86,9 +93,10 @@ fn read_data(path: &Path, selector: &GridSelector, to_fog: bool) -> Result<Float
     let p = path_str(path)?;
     match selector {
         GridSelector::Name(name) => ffi::read_float_grid(p, name, -1, to_fog),
-        GridSelector::Index(i) => {
-            ffi::read_float_grid(p, "", i32::try_from(*i).unwrap_or(i32::MAX), to_fog)
-        }
+        GridSelector::Index(i) => match i32::try_from(*i) {
+            Ok(i) => ffi::read_float_grid(p, "", i, to_fog),
+            Err(_) => bail!("grid index {i} out of range for '{}'", path.display()),
+        },
         GridSelector::Default => {
             let grids = list_grids(path)?;
             match grids.iter().position(|g| g.name == "density") {
@@ -173,6 +181,7 @@ impl Grid {
             tile_origins: tiles.iter().flat_map(|t| t.origin.to_array()).collect(),
             tile_sizes: tiles.iter().map(|t| t.size).collect(),
             tile_values: tiles.iter().map(|t| t.value).collect(),
+            inactive_tiles_off_background: 0,
             metadata: self.metadata.clone(),
         }
     }
