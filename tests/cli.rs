@@ -575,6 +575,11 @@ fn grid_classes_backgrounds_and_empty_files() {
     leaves.extend([leaf(64, 0.7, 0), leaf(72, 0.0, 1)]);
     grid.bricks = volgrad::volume::brickmap::BrickMap::new(leaves, grid.bricks.tiles().to_vec());
     volgrad::io::vdb::write_grids(&off, &[&grid], false, false).unwrap();
+    // Signed distances without the level-set class: refused for their negative values.
+    let neg = d.join("neg.vdb");
+    grid.grid_class = "unknown".into();
+    grid.bricks = volgrad::volume::brickmap::BrickMap::new(vec![leaf(0, -1.0, u64::MAX)], vec![]);
+    volgrad::io::vdb::write_grids(&neg, &[&grid], false, false).unwrap();
     volgrad::io::vdb::write_grids(&empty, &[], false, false).unwrap();
 
     let scene = |vdb: &Path, medium: &str| {
@@ -610,6 +615,10 @@ fn grid_classes_backgrounds_and_empty_files() {
             "off.vdb",
             "1 inactive tiles whose value is not its background 0",
         ],
+    );
+    assert_clean_error(
+        &scene(&neg, ""),
+        &["neg.vdb", "negative values", "class \"level set\""],
     );
     let info = stdout(&ok(volgrad(&["info", &path(&bg)])));
     assert!(

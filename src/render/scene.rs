@@ -225,7 +225,7 @@ impl Scene {
         let mode = file.render.majorant();
         if grid.bricks.min_value() < 0.0 {
             bail!(
-                "grid '{}' in '{}' has negative values (min {}): extinction must be ≥ 0",
+                "grid '{}' in '{}' has negative values (min {}): extinction must be ≥ 0 (signed distances must be stored as class \"level set\" to be converted)",
                 grid.name,
                 vdb_path.display(),
                 grid.bricks.min_value()
