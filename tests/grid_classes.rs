@@ -252,6 +252,19 @@ fn grid_classes_backgrounds_and_empty_files() {
         &volgrad(&["make-grid", "box", "--class", "levelset", "-o", &path(&bg)]),
         &["--class levelset", "spheres only"],
     );
+    assert_clean_error(
+        &volgrad(&[
+            "make-grid",
+            "sphere",
+            "--class",
+            "levelset",
+            "--voxel-size",
+            "1,2,1",
+            "-o",
+            &path(&bg),
+        ]),
+        &["--class levelset", "cubic voxels"],
+    );
     // A fog grid with background 0.5, written through the library.
     let tiny = assets().join("tiny_sphere.vdb");
     let mut grid =

@@ -164,3 +164,30 @@ pub fn light_value(key: &str, v: Vec3) -> Result<()> {
     }
     Ok(())
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn tiny_vectors_normalise_and_zero_ones_are_named() {
+        assert_eq!(unit("d", [0.0, -1e-30, 0.0]).unwrap(), Vec3::NEG_Y);
+        assert_eq!(unit("d", [0.0, 1e-45, 0.0]).unwrap(), Vec3::Y);
+        let e = unit("light[0].direction", [0.0; 3])
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("light[0].direction must not be zero"), "{e}");
+        let (forward, up) = view_frame([0.0, 0.0, 1e-30], [0.0; 3], [0.0, 1e-30, 0.0]).unwrap();
+        assert_eq!((forward, up), (Vec3::NEG_Z, Vec3::Y));
+    }
+
+    #[test]
+    fn magnitudes_are_checked_before_directions() {
+        let e = coordinates("camera.position", [0.0, 0.0, 1e30]).unwrap_err();
+        assert!(e.to_string().contains("too far from the origin"), "{e}");
+        let e = view_frame([0.0; 3], [0.0, 0.0, -1.0], [0.0, 0.0, 3e38]).unwrap_err();
+        assert!(e.to_string().contains("parallel"), "{e}");
+        let e = light_value("light[0].radiance", Vec3::splat(3e38)).unwrap_err();
+        assert!(e.to_string().contains("too large"), "{e}");
+    }
+}
