@@ -21,7 +21,8 @@ struct ImageData;
 
 rust::Vec<GridSummary> list_grids(rust::Str path);
 
-FloatGridData read_float_grid(rust::Str path, rust::Str name, std::int32_t index);
+FloatGridData read_float_grid(rust::Str path, rust::Str name, std::int32_t index,
+                              bool level_set_to_fog);
 
 void write_float_grids(rust::Str path, rust::Slice<const FloatGridData> grids, bool save_half);
 

@@ -1,5 +1,7 @@
 // Reading VDB files for the cxx bridge declared in src/io/bridge.rs (list_grids, read_float_grid):
 // OpenVDB (10.x) behind plain-data functions. Nothing OpenVDB-typed crosses the bridge.
+// A level set can be converted to a fog volume on the way (OpenVDB's own sdfToFogVolume), because
+// that conversion needs the tree's inactive interior tiles, which the plain data does not carry.
 //
 // Conventions (see the doc comments in src/io/bridge.rs):
 //  * index_to_world is column-vector convention, row-major: the TRANSPOSE of OpenVDB's Mat4d, which
@@ -33,6 +35,7 @@
 #include <openvdb/math/Maps.h>
 #include <openvdb/math/Transform.h>
 #include <openvdb/openvdb.h>
+#include <openvdb/tools/LevelSetUtil.h>
 
 #include <algorithm>
 #include <array>
@@ -408,6 +411,13 @@ FloatGridData copy_grid(const GridT& grid) {
         d.tile_sizes.push_back(static_cast<uint32_t>(bb.dim().x()));
         d.tile_values.push_back(static_cast<float>(*it));
     }
+    // Inactive tiles are not copied (the brick map reads 0 there), so count those that OpenVDB
+    // would read as something other than the background: the caller decides whether that matters.
+    auto off = tree.cbeginValueOff();
+    off.setMaxDepth(TreeT::ValueOffCIter::LEAF_DEPTH - 1);
+    for (; off; ++off) {
+        if (!off.isVoxelValue() && *off != tree.background()) ++d.inactive_tiles_off_background;
+    }
     d.metadata = meta_entries(grid);
     return d;
 }
@@ -416,6 +426,7 @@ FloatGridData copy_grid(const GridT& grid) {
 size_t select_grid(const VdbArchive& vdb, const std::string& path, const std::string& name,
                    int32_t index) {
     const size_t n = vdb.size();
+    if (n == 0) fail(quoted(path) + " holds no grids");
     if (index >= 0) {
         if (size_t(index) >= n) {
             fail("grid index " + std::to_string(index) + " out of range: " + quoted(path) +
@@ -427,8 +438,7 @@ size_t select_grid(const VdbArchive& vdb, const std::string& path, const std::st
         if (vdb.name(i) == name) return i;
     std::string names;
     for (size_t i = 0; i < n; ++i) names += (i ? ", " : "") + vdb.name(i);
-    fail("no grid named '" + name + "' in " + quoted(path) +
-         (n ? " (grids: " + names + ")" : " (the file has no grids)"));
+    fail("no grid named '" + name + "' in " + quoted(path) + " (grids: " + names + ")");
 }
 
 }  // namespace
@@ -454,7 +464,8 @@ rust::Vec<GridSummary> list_grids(rust::Str path_str) {
     return out;
 }
 
-FloatGridData read_float_grid(rust::Str path_str, rust::Str name_str, int32_t index) {
+FloatGridData read_float_grid(rust::Str path_str, rust::Str name_str, int32_t index,
+                              bool level_set_to_fog_volume) {
     const std::string path = to_std(path_str);
     const std::string name = to_std(name_str);
     auto vdb = open_vdb(path);
@@ -464,6 +475,17 @@ FloatGridData read_float_grid(rust::Str path_str, rust::Str name_str, int32_t in
     if (!base->constTransform().baseMap()->isLinear()) {
         fail(what + " has a non-linear (" + base->constTransform().mapType() +
              ") transform, which volgrad cannot render");
+    }
+    // sdfToFogVolume: the interior half of the narrow band becomes a 0 -> 1 ramp (0 at the
+    // surface, 1 at the band's inner edge), the inside 1, the outside 0; background 0, class fog.
+    if (level_set_to_fog_volume && base->getGridClass() == openvdb::GRID_LEVEL_SET) {
+        with_context("cannot convert the level set " + what + " to a fog volume", [&] {
+            if (auto g = openvdb::gridPtrCast<openvdb::FloatGrid>(base)) {
+                openvdb::tools::sdfToFogVolume(*g);
+            } else if (auto g = openvdb::gridPtrCast<openvdb::DoubleGrid>(base)) {
+                openvdb::tools::sdfToFogVolume(*g);
+            }
+        });
     }
     return with_context("cannot copy " + what, [&] {
         if (auto g = openvdb::gridConstPtrCast<openvdb::FloatGrid>(base)) return copy_grid(*g);

@@ -19,6 +19,7 @@
 #include <openvdb/math/Transform.h>
 #include <openvdb/openvdb.h>
 #include <openvdb/tools/Prune.h>
+#include <openvdb/tools/SignedFloodFill.h>
 
 #include <algorithm>
 #include <array>
@@ -191,6 +192,14 @@ openvdb::FloatGrid::Ptr build_grid(const FloatGridData& d) {
         }
     }
 
+    // A level set's background is the half-width of its narrow band: the distance reported
+    // everywhere outside the band, positive outside and (after the flood fill below) negative inside.
+    if (!std::isfinite(d.background)) fail("the background value is not finite");
+    if (gc == GRID_LEVEL_SET && !(d.background > 0.0f)) {
+        fail("a level set's background is its narrow-band half-width and must be > 0 (got " +
+             std::to_string(d.background) + ")");
+    }
+
     // Shapes.
     const size_t nleaf = d.leaf_origins.size() / 3;
     if (d.leaf_origins.size() % 3 != 0) fail("leaf_origins length is not a multiple of 3");
@@ -284,7 +293,14 @@ openvdb::FloatGrid::Ptr build_grid(const FloatGridData& d) {
         if (skip_on_write(key)) continue;
         grid->insertMeta(key, *make_metadata(e));
     }
-    tools::prune(tree, 0.0f);
+    if (gc == GRID_LEVEL_SET) {
+        // The plain data holds leaves and active tiles only: the inside of the surface away from
+        // the band is empty, so give it (and inactive voxels) the sign of the distances around it.
+        tools::signedFloodFill(tree);
+        tools::pruneLevelSet(tree);
+    } else {
+        tools::prune(tree, 0.0f);
+    }
     return grid;
 }
 

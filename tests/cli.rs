@@ -415,6 +415,81 @@ fn bad_inputs_give_clear_errors_and_a_nonzero_exit() {
     for (scene, needles) in &cases {
         assert_clean_error(&render(scene), needles);
     }
+    // Numbers: magnitudes are checked before anything derived from them.
+    let camera = |from: &str, to: &str, needles: &[&str]| {
+        let p = write_scene("numbers.toml", &format!("vdb = {tiny:?}"), "");
+        let text = std::fs::read_to_string(&p).unwrap().replace(from, to);
+        std::fs::write(&p, text).unwrap();
+        assert_clean_error(&render(&p), needles);
+    };
+    let far = ["camera.position", "too far", "1e15"];
+    camera("position = [0, 0, 30]", "position = [0, 0, 1e30]", &far);
+    camera(
+        "position = [0, 0, 30]",
+        "position = [0, 0, nan]",
+        &["camera.position", "finite"],
+    );
+    camera(
+        "target = [0, 0, 0]",
+        "target = [0, 0, 30]",
+        &["camera.target must differ"],
+    );
+    camera("fov_deg = 40", "fov_deg = 180", &["camera.fov_deg"]);
+    camera("fov_deg = 40", "fov_deg = nan", &["camera.fov_deg", "NaN"]);
+    camera(
+        "height = 8",
+        "height = 100000000",
+        &["camera.width × camera.height", "too large", "2^28"],
+    );
+    camera("width = 8", "width = 4294967296", &["width", "u32"]);
+    camera(
+        "fov_deg = 40",
+        "fov_deg = 40\nup = [0, 0, 1e-30]",
+        &["camera.up", "parallel"],
+    );
+    camera(
+        "fov_deg = 40",
+        "fov_deg = 40\nup = [0, 0, 0]",
+        &["camera.up must not be zero"],
+    );
+    let medium = |extra: &str, needles: &[&str]| {
+        let p = write_scene("medium.toml", &format!("vdb = {tiny:?}\n{extra}"), "");
+        assert_clean_error(&render(&p), needles);
+    };
+    medium("density_scale = nan", &["medium.density_scale", "NaN"]);
+    medium("density_scale = inf", &["medium.density_scale", "inf"]);
+    medium(
+        "density_scale = 1e30",
+        &["medium.density_scale", "too large"],
+    );
+    medium("albedo = nan", &["medium.albedo", "NaN"]);
+    let light = |body: &str, needles: &[&str]| {
+        let light = format!("[[light]]\ntype = \"{body}\n");
+        let p = write_scene("light.toml", &format!("vdb = {tiny:?}"), &light);
+        assert_clean_error(&render(&p), needles);
+    };
+    light(
+        "constant\"\nradiance = nan",
+        &["light[0].radiance", "finite"],
+    );
+    light("constant\"\nradiance = -1", &["light[0].radiance", "≥ 0"]);
+    light(
+        "constant\"\nradiance = 1e31",
+        &["light[0].radiance", "too large"],
+    );
+    let dir_light = "directional\"\nirradiance = 1\ndirection =";
+    light(
+        &format!("{dir_light} [0, 0, 0]"),
+        &["light[0].direction", "zero"],
+    );
+    light(
+        &format!("{dir_light} [0, inf, 0]"),
+        &["light[0].direction", "finite"],
+    );
+    light(
+        "directional\"\ndirection = [0, 1, 0]\nirradiance = inf",
+        &["light[0].irradiance"],
+    );
     let zero = write_scene("zero.toml", &format!("vdb = {tiny:?}"), "");
     std::fs::write(
         &zero,

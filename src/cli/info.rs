@@ -17,6 +17,10 @@ pub struct Args {
 pub fn run(args: &Args) -> Result<()> {
     let file = &args.file;
     let grids = vdb::list_grids(file)?;
+    if grids.is_empty() {
+        println!("{}: no grids", file.display());
+        return Ok(());
+    }
     println!(
         "{}: {} grid{}",
         file.display(),
@@ -34,7 +38,11 @@ pub fn run(args: &Args) -> Result<()> {
                 ""
             }
         );
-        println!("  class          {}", g.grid_class);
+        let class_note = match g.grid_class.as_str() {
+            "level set" => "  (signed distances: render with medium.levelset = \"fog\")",
+            _ => "",
+        };
+        println!("  class          {}{class_note}", g.grid_class);
         let v = g.voxel_size;
         let kind = match (g.linear, g.axis_aligned) {
             (false, _) => "non-linear map (not renderable)",
@@ -75,6 +83,12 @@ pub fn run(args: &Args) -> Result<()> {
         }
         if g.value_type == "float" {
             let grid = vdb::read_grid(file, &vdb::GridSelector::Index(i))?;
+            let refused = if grid.background == 0.0 || g.grid_class == "level set" {
+                ""
+            } else {
+                "  (not 0: render refuses it)"
+            };
+            println!("  background     {}{refused}", grid.background);
             let b = &grid.bricks;
             let leaf_bytes = b.leaves().len() * BRICK_VOXELS * 4;
             println!(

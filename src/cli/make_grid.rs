@@ -4,7 +4,7 @@ use std::path::PathBuf;
 
 use anyhow::{bail, Result};
 
-use volgrad::io::make_grid::{make_grid, GridKind, GridSpec};
+use volgrad::io::make_grid::{make_grid, Class, GridKind, GridSpec};
 use volgrad::io::vdb;
 
 #[derive(clap::Args)]
@@ -21,7 +21,7 @@ pub struct Args {
     /// Slab thickness in voxels.
     #[arg(long, default_value_t = 2)]
     pub thickness: u32,
-    /// Grid value inside the shape.
+    /// Grid value inside the shape (fog volumes; a level set holds distances).
     #[arg(long, default_value_t = 1.0, allow_negative_numbers = true)]
     pub value: f32,
     /// Voxel size: one number, or three (x,y,z) for anisotropic voxels.
@@ -30,6 +30,9 @@ pub struct Args {
     /// Rotation in degrees about x, then y, then z.
     #[arg(long, value_delimiter = ',', allow_negative_numbers = true)]
     pub rotate_deg: Option<Vec<f64>>,
+    /// Grid class: a fog volume of densities, or (sphere only) a level set of signed distances.
+    #[arg(long, value_enum, default_value = "fog")]
+    pub class: Class,
     /// Grid name.
     #[arg(long, default_value = "density")]
     pub name: String,
@@ -66,6 +69,7 @@ pub fn run(args: &Args) -> Result<()> {
         voxel_size,
         rotate_deg,
         name: args.name.clone(),
+        class: args.class,
     };
     let grid = make_grid(&spec)?;
     vdb::write_grids(&args.output, &[&grid], args.half, args.force)?;

@@ -67,6 +67,9 @@ pub mod ffi {
         /// 1 per active tile: its edge length in voxels (8, 128 or 4096 for the standard tree).
         pub tile_sizes: Vec<u32>,
         pub tile_values: Vec<f32>,
+        /// Reading only (ignored on write): inactive tiles whose value is not the background.
+        /// They are not copied, so volgrad reads 0 there where OpenVDB reads their value.
+        pub inactive_tiles_off_background: u64,
         pub metadata: Vec<MetaEntry>,
     }
 
@@ -87,9 +90,18 @@ pub mod ffi {
 
         /// Reads one float grid: by `index` (position in file order) when `index >= 0`, else by
         /// `name`. Errors name the file and the reason (missing, corrupt, no such grid, not float).
-        fn read_float_grid(path: &str, name: &str, index: i32) -> Result<FloatGridData>;
+        /// With `level_set_to_fog`, a grid of class "level set" comes back converted by OpenVDB's
+        /// `tools::sdfToFogVolume` (class "fog volume", background 0); other grids are unchanged.
+        fn read_float_grid(
+            path: &str,
+            name: &str,
+            index: i32,
+            level_set_to_fog: bool,
+        ) -> Result<FloatGridData>;
 
         /// Writes float grids to one file (pruned; stored as half when `save_half`), replacing it.
+        /// A "level set" needs a background > 0 (its narrow-band half-width); its inside is
+        /// signed-flood-filled, so leaves around the surface are enough.
         fn write_float_grids(path: &str, grids: &[FloatGridData], save_half: bool) -> Result<()>;
 
         /// Reads any image OpenImageIO can open, converted to f32 (no colour conversion).

@@ -127,6 +127,7 @@ pub fn gradient_grid(
     Grid {
         name: format!("grad_{grid_name}"),
         grid_class: "fog volume".into(),
+        background: 0.0,
         transform,
         bricks: gradient,
         saved_as_half: false,

@@ -3,7 +3,7 @@
 use glam::{DMat3, DVec3, IVec3};
 
 use crate::io::vdb::{meta, Grid};
-use crate::volume::brickmap::BrickMapBuilder;
+use crate::volume::brickmap::{BrickMap, BrickMapBuilder};
 use crate::volume::transform::IndexTransform;
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
@@ -18,6 +18,21 @@ pub enum GridKind {
     SingleVoxel,
 }
 
+/// The OpenVDB class of the grid written.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, clap::ValueEnum)]
+pub enum Class {
+    /// Densities: the shape's voxels hold `value`, background 0.
+    #[default]
+    Fog,
+    /// Signed distances in world units (negative inside) in a narrow band of
+    /// `LEVEL_SET_HALF_WIDTH` voxels either side of the surface; background the half-width.
+    /// Sphere only, cubic voxels only (the distance is then exact).
+    Levelset,
+}
+
+/// OpenVDB's default narrow-band half-width (`openvdb::LEVEL_SET_HALF_WIDTH`), in voxels.
+pub const LEVEL_SET_HALF_WIDTH: i32 = 3;
+
 #[derive(Debug, Clone)]
 pub struct GridSpec {
     pub kind: GridKind,
@@ -29,6 +44,7 @@ pub struct GridSpec {
     /// Rotation applied after scaling: Euler angles about x, then y, then z, in degrees.
     pub rotate_deg: [f64; 3],
     pub name: String,
+    pub class: Class,
 }
 
 impl GridSpec {
@@ -41,6 +57,7 @@ impl GridSpec {
             voxel_size: [1.0; 3],
             rotate_deg: [0.0; 3],
             name: "density".into(),
+            class: Class::Fog,
         }
     }
 }
@@ -59,12 +76,30 @@ pub fn make_grid(spec: &GridSpec) -> anyhow::Result<Grid> {
     if spec.voxel_size.iter().any(|&s| !(s > 0.0 && s.is_finite())) {
         anyhow::bail!("--voxel-size must be positive (got {:?})", spec.voxel_size);
     }
+    if spec.class == Class::Levelset {
+        if spec.kind != GridKind::Sphere {
+            anyhow::bail!(
+                "--class levelset makes spheres only (got {})",
+                format!("{:?}", spec.kind).to_lowercase()
+            );
+        }
+        if spec.voxel_size.iter().any(|&s| s != spec.voxel_size[0]) {
+            anyhow::bail!("--class levelset needs cubic voxels: give one --voxel-size");
+        }
+    }
     let n = spec.size as i32;
     let depth = match spec.kind {
         GridKind::Slab => spec.thickness.clamp(1, spec.size) as i32,
         _ => n,
     };
     let centre = DVec3::new((n - 1) as f64, (n - 1) as f64, (depth - 1) as f64) * 0.5;
+    if spec.class == Class::Levelset {
+        return finish(
+            spec,
+            level_set_sphere(n, centre, spec.voxel_size[0]),
+            centre,
+        );
+    }
     let mut b = BrickMapBuilder::new();
     for x in 0..n {
         for y in 0..n {
@@ -85,17 +120,49 @@ pub fn make_grid(spec: &GridSpec) -> anyhow::Result<Grid> {
             }
         }
     }
+    finish(spec, b.build(), centre)
+}
+
+/// Signed distances to the sphere of diameter `n` voxels around `centre`, in world units
+/// (`voxel` per index unit): active within the narrow band, ±half-width elsewhere in its leaves.
+fn level_set_sphere(n: i32, centre: DVec3, voxel: f64) -> BrickMap {
+    let band = LEVEL_SET_HALF_WIDTH;
+    let mut b = BrickMapBuilder::new();
+    for x in -band..n + band {
+        for y in -band..n + band {
+            for z in -band..n + band {
+                let v = IVec3::new(x, y, z);
+                let d = (v.as_dvec3() - centre).length() - n as f64 * 0.5;
+                let active = d.abs() < band as f64;
+                let d = d.clamp(-band as f64, band as f64) * voxel;
+                b.set(v, d as f32, active);
+            }
+        }
+    }
+    b.build()
+}
+
+/// The grid around `bricks`, with the spec's transform, name and class.
+fn finish(spec: &GridSpec, bricks: BrickMap, centre: DVec3) -> anyhow::Result<Grid> {
     let [rx, ry, rz] = spec.rotate_deg.map(f64::to_radians);
     let linear = DMat3::from_rotation_z(rz)
         * DMat3::from_rotation_y(ry)
         * DMat3::from_rotation_x(rx)
         * DMat3::from_diagonal(DVec3::from(spec.voxel_size));
     let transform = IndexTransform::centred(linear, centre)?;
+    let (grid_class, background) = match spec.class {
+        Class::Fog => ("fog volume", 0.0),
+        Class::Levelset => (
+            "level set",
+            (LEVEL_SET_HALF_WIDTH as f64 * spec.voxel_size[0]) as f32,
+        ),
+    };
     Ok(Grid {
         name: spec.name.clone(),
-        grid_class: "fog volume".into(),
+        grid_class: grid_class.into(),
+        background,
         transform,
-        bricks: b.build(),
+        bricks,
         saved_as_half: false,
         metadata: vec![meta(
             "generator",

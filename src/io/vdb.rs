@@ -1,4 +1,5 @@
-//! Reading and writing float grids through the OpenVDB bridge, as brick maps.
+//! Reading and writing float grids through the OpenVDB bridge, as brick maps; and what a grid must
+//! be to serve as a density (`read_density`).
 
 use std::path::Path;
 
@@ -20,12 +21,27 @@ pub enum GridSelector {
     Default,
 }
 
+/// What to do with a grid of class "level set" read as a density.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum LevelSet {
+    /// Refuse it: its values are signed distances, not densities.
+    #[default]
+    Refuse,
+    /// Convert it with OpenVDB's `tools::sdfToFogVolume`: 0 outside, a 0 → 1 ramp across the
+    /// interior half of the narrow band, 1 inside.
+    Fog,
+}
+
 /// A float grid in memory.
 pub struct Grid {
     pub name: String,
     pub grid_class: String,
     pub transform: IndexTransform,
     pub bricks: BrickMap,
+    /// OpenVDB's value outside every leaf and tile. The brick map reads 0 there, so only a grid
+    /// with background 0 is read as a density (`read_density`); the rest keep it to write it back.
+    pub background: f32,
     pub saved_as_half: bool,
     pub metadata: Vec<MetaEntry>,
 }
@@ -39,16 +55,54 @@ pub fn list_grids(path: &Path) -> Result<Vec<GridSummary>> {
     ffi::list_grids(path_str(path)?).map_err(|e| anyhow!("{}", e.what()))
 }
 
+/// Reads a float grid as it is stored (any class, any background).
 pub fn read_grid(path: &Path, selector: &GridSelector) -> Result<Grid> {
+    let data = read_data(path, selector, false)?;
+    Grid::from_data(data).map_err(|e| anyhow!("grid in '{}': {e}", path.display()))
+}
+
+/// Reads a float grid to render as a density: a level set is converted or refused (`level_set`),
+/// a non-zero background refused, and so are inactive tiles of another value. OpenVDB's
+/// background is the value of all space outside the tree, so a non-zero one would be an infinite
+/// medium, while volgrad's medium ends at the active voxels' bounds and reads 0 wherever there is
+/// no leaf or active tile.
+pub fn read_density(path: &Path, selector: &GridSelector, level_set: LevelSet) -> Result<Grid> {
+    let data = read_data(path, selector, level_set == LevelSet::Fog)?;
+    let what = format!("grid '{}' in '{}'", data.name, path.display());
+    if data.grid_class == "level set" {
+        bail!(
+            "{what} is a level set (signed distances, not densities): set medium.levelset = \"fog\" to convert it with OpenVDB's sdfToFogVolume, or give a fog volume"
+        );
+    }
+    if data.background != 0.0 {
+        bail!(
+            "{what} has background {} (the value of all space outside its voxels): volgrad renders densities that are 0 outside the grid; rewrite it with background 0",
+            data.background
+        );
+    }
+    if data.inactive_tiles_off_background > 0 {
+        bail!(
+            "{what} has {} inactive tiles whose value is not its background 0: OpenVDB reads their value there, volgrad reads 0; activate them or set them to 0",
+            data.inactive_tiles_off_background
+        );
+    }
+    Grid::from_data(data).map_err(|e| anyhow!("{what}: {e}"))
+}
+
+fn read_data(path: &Path, selector: &GridSelector, to_fog: bool) -> Result<FloatGridData> {
     let p = path_str(path)?;
-    let data = match selector {
-        GridSelector::Name(name) => ffi::read_float_grid(p, name, -1),
-        GridSelector::Index(i) => ffi::read_float_grid(p, "", i32::try_from(*i).unwrap_or(i32::MAX)),
+    match selector {
+        GridSelector::Name(name) => ffi::read_float_grid(p, name, -1, to_fog),
+        GridSelector::Index(i) => match i32::try_from(*i) {
+            Ok(i) => ffi::read_float_grid(p, "", i, to_fog),
+            Err(_) => bail!("grid index {i} out of range for '{}'", path.display()),
+        },
         GridSelector::Default => {
             let grids = list_grids(path)?;
             match grids.iter().position(|g| g.name == "density") {
-                Some(i) => ffi::read_float_grid(p, "", i as i32),
-                None if grids.len() == 1 => ffi::read_float_grid(p, "", 0),
+                Some(i) => ffi::read_float_grid(p, "", i as i32, to_fog),
+                None if grids.is_empty() => bail!("'{}' holds no grids", path.display()),
+                None if grids.len() == 1 => ffi::read_float_grid(p, "", 0, to_fog),
                 None => {
                     let names: Vec<_> = grids.iter().map(|g| g.name.as_str()).collect();
                     bail!(
@@ -61,8 +115,7 @@ pub fn read_grid(path: &Path, selector: &GridSelector) -> Result<Grid> {
             }
         }
     }
-    .map_err(|e| anyhow!("{}", e.what()))?;
-    Grid::from_data(data).map_err(|e| anyhow!("grid in '{}': {e}", path.display()))
+    .map_err(|e| anyhow!("{}", e.what()))
 }
 
 /// Writes grids to `path`. Refuses to replace an existing file unless `overwrite`.
@@ -107,6 +160,7 @@ impl Grid {
             bricks: BrickMap::new(leaves, tiles),
             name: d.name,
             grid_class: d.grid_class,
+            background: d.background,
             saved_as_half: d.saved_as_half,
             metadata: d.metadata,
         })
@@ -119,7 +173,7 @@ impl Grid {
             name: self.name.clone(),
             grid_class: self.grid_class.clone(),
             index_to_world: self.transform.to_rows(),
-            background: 0.0,
+            background: self.background,
             saved_as_half: self.saved_as_half,
             leaf_origins: leaves.iter().flat_map(|l| l.origin.to_array()).collect(),
             leaf_values: leaves.iter().flat_map(|l| l.values).collect(),
@@ -127,6 +181,7 @@ impl Grid {
             tile_origins: tiles.iter().flat_map(|t| t.origin.to_array()).collect(),
             tile_sizes: tiles.iter().map(|t| t.size).collect(),
             tile_values: tiles.iter().map(|t| t.value).collect(),
+            inactive_tiles_off_background: 0,
             metadata: self.metadata.clone(),
         }
     }

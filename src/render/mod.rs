@@ -8,3 +8,4 @@ pub mod lights;
 pub mod path;
 pub mod sampling;
 pub mod scene;
+pub mod scene_check;

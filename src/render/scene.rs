@@ -8,9 +8,10 @@ use glam::Vec3;
 use serde::Deserialize;
 
 use crate::io::images;
-use crate::io::vdb::{self, GridSelector};
+use crate::io::vdb::{self, GridSelector, LevelSet};
 use crate::render::camera::Camera;
 use crate::render::lights::{DirectionalLight, EnvMap, Environment, Lights};
+use crate::render::scene_check::{self, MAX_EXTINCTION, MAX_LIGHT};
 use crate::volume::majorant::{Majorant, MajorantGrid, MajorantMode};
 use crate::volume::medium::{Filter, Medium};
 
@@ -73,6 +74,9 @@ pub struct MediumFile {
     pub phase_g: f32,
     #[serde(default)]
     pub filter: Filter,
+    /// A level-set grid is refused unless this is "fog" (converted by OpenVDB's sdfToFogVolume).
+    #[serde(default)]
+    pub levelset: LevelSet,
 }
 
 fn one() -> f32 {
@@ -183,118 +187,6 @@ impl SceneFile {
             .with_context(|| format!("cannot read scene file '{}'", path.display()))?;
         Self::parse(&text, path)
     }
-
-    /// Checks every value a render depends on; the message names the key.
-    pub fn validate(&self) -> Result<()> {
-        let c = &self.camera;
-        finite3("camera.position", c.position)?;
-        finite3("camera.target", c.target)?;
-        finite3("camera.up", c.up)?;
-        let forward = Vec3::from(c.target) - Vec3::from(c.position);
-        if forward.length() <= 0.0 {
-            bail!("camera.target must differ from camera.position");
-        }
-        if forward.normalize().cross(Vec3::from(c.up)).length() < 1e-6 {
-            bail!("camera.up must not be zero or parallel to the view direction");
-        }
-        if !(c.fov_deg > 0.0 && c.fov_deg < 180.0) {
-            bail!(
-                "camera.fov_deg must be between 0 and 180 degrees (got {})",
-                c.fov_deg
-            );
-        }
-        if c.width == 0 || c.height == 0 {
-            bail!(
-                "camera.width and camera.height must be at least 1 (got {}×{})",
-                c.width,
-                c.height
-            );
-        }
-        if c.width as u64 * c.height as u64 > 1 << 28 {
-            bail!(
-                "camera.width × camera.height is too large ({}×{})",
-                c.width,
-                c.height
-            );
-        }
-        let m = &self.medium;
-        if m.grid.is_some() && m.grid_index.is_some() {
-            bail!("medium.grid and medium.grid_index are exclusive: give one");
-        }
-        if !(m.density_scale >= 0.0 && m.density_scale.is_finite()) {
-            bail!(
-                "medium.density_scale must be a finite number ≥ 0 (got {})",
-                m.density_scale
-            );
-        }
-        let albedo = m.albedo.rgb();
-        if !(albedo.cmpge(Vec3::ZERO).all() && albedo.cmple(Vec3::ONE).all()) {
-            bail!("medium.albedo must lie in [0, 1] (got {albedo})");
-        }
-        if m.phase_g.is_nan() || m.phase_g.abs() >= 1.0 {
-            bail!("medium.phase_g must satisfy |g| < 1 (got {})", m.phase_g);
-        }
-        let mut envmaps = 0;
-        for (i, light) in self.light.iter().enumerate() {
-            match light {
-                LightFile::Constant { radiance } => {
-                    non_negative(&format!("light[{i}].radiance"), radiance.rgb())?
-                }
-                LightFile::Envmap { scale, .. } => {
-                    envmaps += 1;
-                    if !(*scale >= 0.0 && scale.is_finite()) {
-                        bail!("light[{i}].scale must be a finite number ≥ 0 (got {scale})");
-                    }
-                }
-                LightFile::Directional {
-                    direction,
-                    irradiance,
-                } => {
-                    finite3(&format!("light[{i}].direction"), *direction)?;
-                    if Vec3::from(*direction).length() == 0.0 {
-                        bail!("light[{i}].direction must not be zero");
-                    }
-                    non_negative(&format!("light[{i}].irradiance"), irradiance.rgb())?;
-                }
-            }
-        }
-        if envmaps > 1 {
-            bail!("at most one light of type \"envmap\" is supported (found {envmaps})");
-        }
-        let r = &self.render;
-        if r.spp == 0 {
-            bail!("render.spp must be at least 1");
-        }
-        if !(r.exposure > 0.0 && r.exposure.is_finite()) {
-            bail!(
-                "render.exposure must be a finite number > 0 (got {})",
-                r.exposure
-            );
-        }
-        if r.majorant_cell == 0 || r.majorant_cell > 1024 {
-            bail!(
-                "render.majorant_cell must be between 1 and 1024 voxels (got {})",
-                r.majorant_cell
-            );
-        }
-        Ok(())
-    }
-}
-
-fn finite3(key: &str, v: [f32; 3]) -> Result<()> {
-    if v.iter().all(|x| x.is_finite()) {
-        Ok(())
-    } else {
-        bail!("{key} must be three finite numbers (got {v:?})")
-    }
-}
-
-fn non_negative(key: &str, v: Vec3) -> Result<()> {
-    if v.is_finite() && v.cmpge(Vec3::ZERO).all() {
-        Ok(())
-    } else {
-        bail!("{key} must be finite and ≥ 0 (got {v})")
-    }
 }
 
 impl Scene {
@@ -321,24 +213,30 @@ impl Scene {
             (None, Some(i)) => GridSelector::Index(i),
             (None, None) => GridSelector::Default,
         };
-        let grid = vdb::read_grid(&vdb_path, &selector)?;
+        let grid = vdb::read_density(&vdb_path, &selector, file.medium.levelset)?;
         let c = &file.camera;
-        let camera = Camera::new(
-            c.position.into(),
-            c.target.into(),
-            c.up.into(),
-            c.fov_deg,
-            c.width,
-            c.height,
-        );
+        // Camera::new normalises in f32: give it a target at a distance it resolves (|position|,
+        // at least 1) along the direction found in f64, and a unit up.
+        let (forward, up) = scene_check::view_frame(c.position, c.target, c.up)?;
+        let position = Vec3::from(c.position);
+        let target = position + forward * position.length().max(1.0);
+        let camera = Camera::new(position, target, up, c.fov_deg, c.width, c.height);
         let filter = file.medium.filter;
         let mode = file.render.majorant();
         if grid.bricks.min_value() < 0.0 {
             bail!(
-                "grid '{}' in '{}' has negative values (min {}): extinction must be ≥ 0",
+                "grid '{}' in '{}' has negative values (min {}): extinction must be ≥ 0 (signed distances must be stored as class \"level set\" to be converted)",
                 grid.name,
                 vdb_path.display(),
                 grid.bricks.min_value()
+            );
+        }
+        let extinction = file.medium.density_scale as f64 * grid.bricks.max_value() as f64;
+        if extinction > MAX_EXTINCTION {
+            bail!(
+                "medium.density_scale × the largest value of grid '{}' in '{}' is {extinction:.3e}: too large to track (at most {MAX_EXTINCTION:e} per world unit; the medium is opaque long before)",
+                grid.name,
+                vdb_path.display()
             );
         }
         let mut medium = Medium::new(
@@ -392,7 +290,15 @@ fn load_lights(files: &[LightFile], dir: &Path) -> Result<Lights> {
                         path.display()
                     );
                 }
-                let texels = image.pixels.iter().map(|&c| c * *scale).collect();
+                let texels: Vec<Vec3> = image.pixels.iter().map(|&c| c * *scale).collect();
+                // The pixels are finite and ≥ 0 and so is the scale: only overflow is left.
+                let brightest = texels.iter().fold(0.0f32, |m, c| m.max(c.max_element()));
+                if brightest > MAX_LIGHT {
+                    bail!(
+                        "light[{i}]: scale × the brightest pixel of '{}' is {brightest:e}, too large (at most {MAX_LIGHT:e})",
+                        path.display()
+                    );
+                }
                 environment.map = Some(EnvMap::new(
                     image.width as usize,
                     image.height as usize,
@@ -403,7 +309,7 @@ fn load_lights(files: &[LightFile], dir: &Path) -> Result<Lights> {
                 direction,
                 irradiance,
             } => lights.directional.push(DirectionalLight {
-                to_light: -Vec3::from(*direction).normalize(),
+                to_light: -scene_check::unit(&format!("light[{i}].direction"), *direction)?,
                 irradiance: irradiance.rgb(),
             }),
         }

@@ -1,0 +1,193 @@
+//! The checks of a parsed scene file: every number and vector a render depends on, with errors
+//! that name the key and say what is wrong. Magnitudes are checked before anything derived from
+//! them (a length that overflows f32 must not be reported as "zero" or "parallel"), and vectors
+//! are normalised in f64 so that tiny but non-zero ones are accepted.
+
+use anyhow::{bail, Result};
+use glam::{DVec3, Vec3};
+
+use crate::render::scene::{LightFile, SceneFile};
+
+/// Largest |coordinate| of camera.position and camera.target. The renderer traces in f32: beyond
+/// this, squared distances (up to ~1e31) approach f32::MAX (3.4e38) once scaled into index space,
+/// and a ray origin's rounding error (|p| × 6e-8) exceeds any reasonable voxel.
+pub const MAX_COORDINATE: f32 = 1e15;
+/// Largest light value (radiance, irradiance, an envmap texel × scale): sums over millions of
+/// samples stay finite in f32.
+pub const MAX_LIGHT: f32 = 1e30;
+/// Largest extinction (density_scale × the grid's largest value) per world unit: a mean free path
+/// of 1e-15 is far below what f32 positions resolve, so anything larger is simply opaque.
+pub const MAX_EXTINCTION: f64 = 1e15;
+/// Largest image, in pixels (2^28: a 16384 × 16384 render); beyond, buffers run to gigabytes.
+pub const MAX_PIXELS: u64 = 1 << 28;
+
+impl SceneFile {
+    /// Checks every value a render depends on; the message names the key.
+    pub fn validate(&self) -> Result<()> {
+        let c = &self.camera;
+        coordinates("camera.position", c.position)?;
+        coordinates("camera.target", c.target)?;
+        view_frame(c.position, c.target, c.up)?;
+        if !(c.fov_deg > 0.0 && c.fov_deg < 180.0) {
+            bail!(
+                "camera.fov_deg must be between 0 and 180 degrees, exclusive (got {})",
+                c.fov_deg
+            );
+        }
+        if c.width == 0 || c.height == 0 {
+            bail!(
+                "camera.width and camera.height must be at least 1 (got {}×{})",
+                c.width,
+                c.height
+            );
+        }
+        if c.width as u64 * c.height as u64 > MAX_PIXELS {
+            bail!(
+                "camera.width × camera.height is too large ({}×{} = {} pixels; at most 2^28 = {MAX_PIXELS})",
+                c.width,
+                c.height,
+                c.width as u64 * c.height as u64
+            );
+        }
+        let m = &self.medium;
+        if m.grid.is_some() && m.grid_index.is_some() {
+            bail!("medium.grid and medium.grid_index are exclusive: give one");
+        }
+        if !(m.density_scale >= 0.0 && m.density_scale.is_finite()) {
+            bail!(
+                "medium.density_scale must be a finite number ≥ 0 (got {})",
+                m.density_scale
+            );
+        }
+        let albedo = m.albedo.rgb();
+        if !(albedo.cmpge(Vec3::ZERO).all() && albedo.cmple(Vec3::ONE).all()) {
+            bail!("medium.albedo must lie in [0, 1] (got {albedo})");
+        }
+        if m.phase_g.is_nan() || m.phase_g.abs() >= 1.0 {
+            bail!("medium.phase_g must satisfy |g| < 1 (got {})", m.phase_g);
+        }
+        let mut envmaps = 0;
+        for (i, light) in self.light.iter().enumerate() {
+            match light {
+                LightFile::Constant { radiance } => {
+                    light_value(&format!("light[{i}].radiance"), radiance.rgb())?
+                }
+                LightFile::Envmap { scale, .. } => {
+                    envmaps += 1;
+                    light_value(&format!("light[{i}].scale"), Vec3::splat(*scale))?;
+                }
+                LightFile::Directional {
+                    direction,
+                    irradiance,
+                } => {
+                    unit(&format!("light[{i}].direction"), *direction)?;
+                    light_value(&format!("light[{i}].irradiance"), irradiance.rgb())?;
+                }
+            }
+        }
+        if envmaps > 1 {
+            bail!("at most one light of type \"envmap\" is supported (found {envmaps})");
+        }
+        let r = &self.render;
+        if r.spp == 0 {
+            bail!("render.spp must be at least 1");
+        }
+        if !(r.exposure > 0.0 && r.exposure.is_finite()) {
+            bail!(
+                "render.exposure must be a finite number > 0 (got {})",
+                r.exposure
+            );
+        }
+        if r.majorant_cell == 0 || r.majorant_cell > 1024 {
+            bail!(
+                "render.majorant_cell must be between 1 and 1024 voxels (got {})",
+                r.majorant_cell
+            );
+        }
+        Ok(())
+    }
+}
+
+/// The camera's unit view direction and unit up vector, computed in f64: `target − position` and
+/// `up` may be far too small (or, as f32 squared lengths, too large) to normalise in f32.
+pub fn view_frame(position: [f32; 3], target: [f32; 3], up: [f32; 3]) -> Result<(Vec3, Vec3)> {
+    let forward = DVec3::from(target.map(f64::from)) - DVec3::from(position.map(f64::from));
+    if forward == DVec3::ZERO {
+        bail!("camera.target must differ from camera.position (both are {position:?})");
+    }
+    let forward = forward.normalize();
+    let up = unit("camera.up", up)?;
+    if forward.cross(up.as_dvec3()).length() < 1e-6 {
+        bail!("camera.up must not be parallel to the view direction (camera.target − camera.position)");
+    }
+    Ok((forward.as_vec3(), up))
+}
+
+/// A non-zero finite vector, normalised in f64 (so [0, −1e-30, 0] is fine).
+pub fn unit(key: &str, v: [f32; 3]) -> Result<Vec3> {
+    finite3(key, v)?;
+    let d = DVec3::from(v.map(f64::from));
+    if d == DVec3::ZERO {
+        bail!("{key} must not be zero");
+    }
+    Ok(d.normalize().as_vec3())
+}
+
+fn finite3(key: &str, v: [f32; 3]) -> Result<()> {
+    if v.iter().all(|x| x.is_finite()) {
+        Ok(())
+    } else {
+        bail!("{key} must be three finite numbers (got {v:?})")
+    }
+}
+
+fn coordinates(key: &str, v: [f32; 3]) -> Result<()> {
+    finite3(key, v)?;
+    if v.iter().any(|x| x.abs() > MAX_COORDINATE) {
+        bail!(
+            "{key} is too far from the origin to trace in f32 (got {v:?}; each coordinate must be within ±{MAX_COORDINATE:e})"
+        );
+    }
+    Ok(())
+}
+
+/// A light value: finite, ≥ 0 and at most `MAX_LIGHT` in every channel.
+pub fn light_value(key: &str, v: Vec3) -> Result<()> {
+    if !(v.is_finite() && v.cmpge(Vec3::ZERO).all()) {
+        bail!("{key} must be finite and ≥ 0 (got {v})");
+    }
+    if v.max_element() > MAX_LIGHT {
+        bail!(
+            "{key} is too large (largest channel {:e}; at most {MAX_LIGHT:e})",
+            v.max_element()
+        );
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn tiny_vectors_normalise_and_zero_ones_are_named() {
+        assert_eq!(unit("d", [0.0, -1e-30, 0.0]).unwrap(), Vec3::NEG_Y);
+        assert_eq!(unit("d", [0.0, 1e-45, 0.0]).unwrap(), Vec3::Y);
+        let e = unit("light[0].direction", [0.0; 3])
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("light[0].direction must not be zero"), "{e}");
+        let (forward, up) = view_frame([0.0, 0.0, 1e-30], [0.0; 3], [0.0, 1e-30, 0.0]).unwrap();
+        assert_eq!((forward, up), (Vec3::NEG_Z, Vec3::Y));
+    }
+
+    #[test]
+    fn magnitudes_are_checked_before_directions() {
+        let e = coordinates("camera.position", [0.0, 0.0, 1e30]).unwrap_err();
+        assert!(e.to_string().contains("too far from the origin"), "{e}");
+        let e = view_frame([0.0; 3], [0.0, 0.0, -1.0], [0.0, 0.0, 3e38]).unwrap_err();
+        assert!(e.to_string().contains("parallel"), "{e}");
+        let e = light_value("light[0].radiance", Vec3::splat(3e38)).unwrap_err();
+        assert!(e.to_string().contains("too large"), "{e}");
+    }
+}
