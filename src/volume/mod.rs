@@ -4,5 +4,6 @@
 pub mod brickmap;
 pub mod majorant;
 pub mod medium;
+pub mod sparse_index;
 pub mod tracking;
 pub mod transform;
