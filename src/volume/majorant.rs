@@ -14,8 +14,10 @@
 
 use glam::{IVec3, Vec3};
 
-use crate::volume::brickmap::{floor_ivec3, leaf_offset, BrickMap, BRICK_VOXELS};
+use crate::volume::brickmap::{leaf_offset, BrickMap, BRICK_VOXELS};
 use crate::volume::sparse_index::SparseIndex;
+
+pub use crate::volume::majorant_walk::DdaWalk;
 
 #[derive(
     Debug,
@@ -63,18 +65,18 @@ impl Majorant {
 }
 
 /// Cells per block edge (log2) and cells per block.
-const BLOCK_LOG2: i32 = 3;
+pub(super) const BLOCK_LOG2: i32 = 3;
 const BLOCK_CELLS: usize = 1 << (3 * BLOCK_LOG2);
-const BLOCK_EDGE: i32 = 1 << BLOCK_LOG2;
+pub(super) const BLOCK_EDGE: i32 = 1 << BLOCK_LOG2;
 
 /// A block of 8³ cells: one majorant for all of them, or one per cell.
 #[derive(Clone)]
-struct Block {
+pub(super) struct Block {
     /// Majorant of every cell without its own value (and a lower bound of those that have one).
-    floor: f32,
-    cells: Option<Box<[f32; BLOCK_CELLS]>>,
+    pub(super) floor: f32,
+    pub(super) cells: Option<Box<[f32; BLOCK_CELLS]>>,
     /// Referenced by many index entries (a tile's interior): copied before a single cell changes.
-    shared: bool,
+    pub(super) shared: bool,
 }
 
 #[derive(Clone)]
@@ -82,18 +84,18 @@ pub struct MajorantGrid {
     /// Index-space corner of cell (0, 0, 0) and the cell edges: cell c spans
     /// `origin + c·cell_size .. origin + (c + 1)·cell_size`. The global mode is one flat cell over
     /// the medium's box.
-    origin: Vec3,
-    cell_size: Vec3,
-    inv_cell_size: Vec3,
+    pub(super) origin: Vec3,
+    pub(super) cell_size: Vec3,
+    pub(super) inv_cell_size: Vec3,
     /// Cells of the medium's box (inclusive); a walk that starts on its faces starts inside.
-    c_lo: IVec3,
-    c_hi: IVec3,
+    pub(super) c_lo: IVec3,
+    pub(super) c_hi: IVec3,
     /// Flat mode (a compact medium): one majorant per cell of the box `c_lo ..= c_hi`, x-major,
     /// walked by a single-level DDA. Empty in block mode.
-    flat: Vec<f32>,
+    pub(super) flat: Vec<f32>,
     /// Block mode: block coordinates → index + 1 into `blocks`.
-    index: SparseIndex,
-    blocks: Vec<Block>,
+    pub(super) index: SparseIndex,
+    pub(super) blocks: Vec<Block>,
 }
 
 /// One stretch of a ray inside one majorant cell: `[t0, t1)` in world distance.
@@ -106,7 +108,7 @@ pub struct MajorantSegment {
 
 /// Offset of cell `local` in an x-major array of `dims` cells.
 #[inline]
-fn cell_offset(local: IVec3, dims: IVec3) -> usize {
+pub(super) fn cell_offset(local: IVec3, dims: IVec3) -> usize {
     (local.x as usize * dims.y as usize + local.y as usize) * dims.z as usize + local.z as usize
 }
 
@@ -338,199 +340,6 @@ impl MajorantGrid {
             + self.blocks.len() * std::mem::size_of::<Block>()
             + self.index.memory_bytes()
             + std::mem::size_of::<Self>()
-    }
-
-    /// Walks the cells the index-space ray `o + t·d` crosses for `t` in `[t0, t1)`, skipping
-    /// regions without data (their majorant is 0).
-    #[inline]
-    pub fn walk(&self, o: Vec3, d: Vec3, t0: f32, t1: f32) -> DdaWalk<'_> {
-        // The ray in cell units: cell c spans [c, c + 1).
-        let o_cells = (o - self.origin) * self.inv_cell_size;
-        let d_cells = d * self.inv_cell_size;
-        let p0 = o_cells + d_cells * t0;
-        let step = IVec3::from(d.cmpgt(Vec3::ZERO)) - IVec3::from(d.cmplt(Vec3::ZERO));
-        // Edge / |d| rather than 1 / |d_cells|: exact for the global mode's single cell.
-        let cell_delta_t = self.cell_size / d.abs();
-        let (outer, inner) = if self.flat.is_empty() {
-            let block = BLOCK_EDGE as f32;
-            let outer = Dda::new(p0 / block, step, cell_delta_t * block, t0, None);
-            (outer, None)
-        } else {
-            // Flat mode: the whole box is one block of cells, walked to the end; no outer walk.
-            let dda = Dda::new(p0, step, cell_delta_t, t0, Some((self.c_lo, self.c_hi)));
-            let inner = Inner {
-                dda,
-                base: self.c_lo,
-                lo: self.c_lo,
-                hi: self.c_hi,
-                dims: self.c_hi - self.c_lo + 1,
-                cells: &self.flat,
-                exit: t1,
-            };
-            (dda, Some(inner))
-        };
-        DdaWalk {
-            grid: self,
-            o_cells,
-            d_cells,
-            cell_delta_t,
-            t: t0,
-            t_end: t1,
-            outer,
-            inner,
-        }
-    }
-}
-
-/// A 3D DDA over unit cells: the ray `p(t) = p0 + (t − t0)·d` in cell units.
-#[derive(Clone, Copy)]
-struct Dda {
-    cell: IVec3,
-    step: IVec3,
-    next_t: Vec3,
-    delta_t: Vec3,
-}
-
-impl Dda {
-    /// Starts in the cell holding `p0` (clamped to `clamp`'s inclusive range: rounding at a
-    /// boundary must not leave the block the caller is in). `step` and `delta_t` (t per cell, ∞
-    /// on axes the ray does not move along) are the ray's, computed once per walk.
-    #[inline]
-    fn new(p0: Vec3, step: IVec3, delta_t: Vec3, t0: f32, clamp: Option<(IVec3, IVec3)>) -> Self {
-        let mut cell = floor_ivec3(p0);
-        if let Some((lo, hi)) = clamp {
-            cell = cell.clamp(lo, hi);
-        }
-        let mut next_t = Vec3::splat(f32::INFINITY);
-        for a in 0..3 {
-            if step[a] > 0 {
-                next_t[a] = t0 + ((cell[a] + 1) as f32 - p0[a]) * delta_t[a];
-            } else if step[a] < 0 {
-                next_t[a] = t0 + (p0[a] - cell[a] as f32) * delta_t[a];
-            }
-        }
-        Dda {
-            cell,
-            step,
-            next_t,
-            delta_t,
-        }
-    }
-
-    /// The axis whose boundary comes first.
-    #[inline]
-    fn exit_axis(&self) -> usize {
-        if self.next_t.x < self.next_t.y {
-            if self.next_t.x < self.next_t.z {
-                0
-            } else {
-                2
-            }
-        } else if self.next_t.y < self.next_t.z {
-            1
-        } else {
-            2
-        }
-    }
-
-    #[inline]
-    fn advance(&mut self, a: usize) {
-        self.cell[a] += self.step[a];
-        self.next_t[a] += self.delta_t[a];
-    }
-}
-
-/// The cells of one block the walk is inside.
-struct Inner<'a> {
-    dda: Dda,
-    base: IVec3,
-    /// The block's cells inside the medium's box.
-    lo: IVec3,
-    hi: IVec3,
-    dims: IVec3,
-    cells: &'a [f32],
-    exit: f32,
-}
-
-pub struct DdaWalk<'a> {
-    grid: &'a MajorantGrid,
-    o_cells: Vec3,
-    d_cells: Vec3,
-    cell_delta_t: Vec3,
-    t: f32,
-    t_end: f32,
-    outer: Dda,
-    inner: Option<Inner<'a>>,
-}
-
-impl Iterator for DdaWalk<'_> {
-    type Item = MajorantSegment;
-
-    #[inline]
-    fn next(&mut self) -> Option<MajorantSegment> {
-        let grid = self.grid;
-        loop {
-            // Not `t >= t_end`: a walk whose bounds are NaN must end too.
-            if self.t.partial_cmp(&self.t_end) != Some(std::cmp::Ordering::Less) {
-                return None;
-            }
-            if let Some(inner) = &mut self.inner {
-                let a = inner.dda.exit_axis();
-                // min/max, not clamp: clamp panics on NaN bounds.
-                let t1 = inner.dda.next_t[a].min(inner.exit).max(self.t);
-                let sigma_max = inner.cells[cell_offset(inner.dda.cell - inner.base, inner.dims)];
-                let segment = MajorantSegment {
-                    t0: self.t,
-                    t1,
-                    sigma_max,
-                };
-                self.t = t1;
-                inner.dda.advance(a);
-                let c = inner.dda.cell[a];
-                if t1 >= inner.exit || c < inner.lo[a] || c > inner.hi[a] {
-                    self.inner = None;
-                    if !grid.flat.is_empty() {
-                        self.t_end = t1; // left the flat grid: the walk is over
-                    }
-                }
-                return Some(segment);
-            }
-            let a = self.outer.exit_axis();
-            let exit = self.outer.next_t[a].min(self.t_end).max(self.t);
-            let key = self.outer.cell;
-            self.outer.advance(a);
-            let handle = grid.index.get(key);
-            if handle == 0 {
-                self.t = exit; // no data: majorant 0, nothing to sample
-                continue;
-            }
-            let block = &grid.blocks[handle as usize - 1];
-            match &block.cells {
-                None => {
-                    let segment = MajorantSegment {
-                        t0: self.t,
-                        t1: exit,
-                        sigma_max: block.floor,
-                    };
-                    self.t = exit;
-                    return Some(segment);
-                }
-                Some(cells) => {
-                    let base = key << BLOCK_LOG2;
-                    let p = self.o_cells + self.d_cells * self.t;
-                    let clamp = (base.max(grid.c_lo), (base + 7).min(grid.c_hi));
-                    self.inner = Some(Inner {
-                        dda: Dda::new(p, self.outer.step, self.cell_delta_t, self.t, Some(clamp)),
-                        base,
-                        lo: clamp.0,
-                        hi: clamp.1,
-                        dims: IVec3::splat(BLOCK_EDGE),
-                        cells: &cells[..],
-                        exit,
-                    });
-                }
-            }
-        }
     }
 }
 

@@ -3,6 +3,7 @@
 
 pub mod brickmap;
 pub mod majorant;
+pub mod majorant_walk;
 pub mod medium;
 pub mod sparse_index;
 pub mod tracking;
