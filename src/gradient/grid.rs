@@ -1,6 +1,7 @@
 //! Sparse accumulation of per-voxel gradients: bricks appear where gradient arrives. The brick
-//! table covers the medium's slot range (the active box plus the trilinear apron), so every voxel a
-//! lookup can weight has a place; accumulation is two array reads plus, the first time a brick is
+//! index (a `SparseIndex`, memory proportional to the bricks touched, whatever the bounding box)
+//! accepts the medium's brick range (the active box plus the trilinear apron), so every voxel a
+//! lookup can weight has a place; accumulation is a few array reads plus, the first time a brick is
 //! touched, one allocation.
 
 use glam::IVec3;
@@ -8,25 +9,32 @@ use glam::IVec3;
 use crate::volume::brickmap::{
     corner, leaf_offset, BrickMap, BrickMapBuilder, BRICK_VOXELS, CORNER_OFFSETS,
 };
+use crate::volume::sparse_index::SparseIndex;
 
 #[derive(Clone)]
 pub struct GradientGrid {
-    slot_origin: IVec3,
-    slot_dims: IVec3,
-    /// 0 = no brick yet, otherwise index + 1 into `bricks`.
-    slots: Vec<u32>,
+    /// Inclusive brick range accepted (voxels beyond it are never weighted by a lookup).
+    brick_lo: IVec3,
+    brick_hi: IVec3,
+    /// Brick coordinates → index + 1 into `bricks` (0 = no brick yet).
+    slots: SparseIndex,
     bricks: Vec<(IVec3, Box<[f64; BRICK_VOXELS]>)>,
 }
 
 impl GradientGrid {
     /// An empty accumulator covering the voxels from `lo` to `hi` (inclusive).
     pub fn new(lo: IVec3, hi: IVec3) -> Self {
-        let (a, b) = (lo >> 3i32, hi >> 3i32);
-        let slot_dims = (b - a + 1).max(IVec3::ZERO);
+        Self::with_flat_budget(lo, hi, 1 << 15)
+    }
+
+    /// As `new`; the brick index is one flat table when the box holds at most `flat_budget`
+    /// bricks (one array read per lookup), a sparse index otherwise.
+    fn with_flat_budget(lo: IVec3, hi: IVec3, flat_budget: u64) -> Self {
+        let (brick_lo, brick_hi) = (lo >> 3i32, hi >> 3i32);
         GradientGrid {
-            slot_origin: a,
-            slot_dims,
-            slots: vec![0; (slot_dims.x * slot_dims.y * slot_dims.z) as usize],
+            brick_lo,
+            brick_hi,
+            slots: SparseIndex::with_flat_budget(brick_lo, brick_hi, flat_budget),
             bricks: Vec::new(),
         }
     }
@@ -34,7 +42,9 @@ impl GradientGrid {
     /// Covers every voxel a lookup in `grid`'s medium can weight.
     pub fn for_grid(grid: &BrickMap) -> Self {
         match grid.active_bounds() {
-            Some((lo, hi)) => Self::new(lo - 1, hi + 1),
+            Some((lo, hi)) => {
+                Self::new(lo.saturating_sub(IVec3::ONE), hi.saturating_add(IVec3::ONE))
+            }
             None => Self::new(IVec3::ZERO, IVec3::splat(-1)),
         }
     }
@@ -42,33 +52,32 @@ impl GradientGrid {
     /// An empty accumulator of the same extent.
     pub fn empty_like(&self) -> Self {
         GradientGrid {
-            slot_origin: self.slot_origin,
-            slot_dims: self.slot_dims,
-            slots: vec![0; self.slots.len()],
+            brick_lo: self.brick_lo,
+            brick_hi: self.brick_hi,
+            slots: self.slots.empty_like(),
             bricks: Vec::new(),
         }
     }
 
+    /// The values of the brick holding voxel `v`, created on first touch; `None` outside the
+    /// extent.
     #[inline]
-    fn slot(&self, brick: IVec3) -> Option<usize> {
-        let b = brick - self.slot_origin;
-        if b.cmplt(IVec3::ZERO).any() || b.cmpge(self.slot_dims).any() {
-            return None;
+    fn brick_mut(&mut self, v: IVec3) -> Option<&mut [f64; BRICK_VOXELS]> {
+        let slot = self.slots.slot_mut(v >> 3)?;
+        if *slot == 0 {
+            self.bricks.push((v & !7, Box::new([0.0; BRICK_VOXELS])));
+            *slot = self.bricks.len() as u32;
         }
-        Some(((b.x * self.slot_dims.y + b.y) * self.slot_dims.z + b.z) as usize)
+        let index = *slot as usize - 1;
+        Some(&mut self.bricks[index].1)
     }
 
     /// Adds `value` to voxel `v`; voxels outside the extent are ignored (no lookup reaches them).
     #[inline]
     pub fn add(&mut self, v: IVec3, value: f64) {
-        let Some(slot) = self.slot(v >> 3) else {
-            return;
-        };
-        if self.slots[slot] == 0 {
-            self.bricks.push((v & !7, Box::new([0.0; BRICK_VOXELS])));
-            self.slots[slot] = self.bricks.len() as u32;
+        if let Some(values) = self.brick_mut(v) {
+            values[leaf_offset(v & 7)] += value;
         }
-        self.bricks[self.slots[slot] as usize - 1].1[leaf_offset(v & 7)] += value;
     }
 
     /// Adds `weights[k] · value` to corner k of the trilinear cell at `base`, resolving the brick
@@ -76,14 +85,9 @@ impl GradientGrid {
     #[inline]
     pub fn add_cell(&mut self, base: IVec3, weights: &[f32; 8], value: f64) {
         if (base & 7).cmplt(IVec3::splat(7)).all() {
-            let Some(slot) = self.slot(base >> 3) else {
+            let Some(values) = self.brick_mut(base) else {
                 return;
             };
-            if self.slots[slot] == 0 {
-                self.bricks.push((base & !7, Box::new([0.0; BRICK_VOXELS])));
-                self.slots[slot] = self.bricks.len() as u32;
-            }
-            let values = &mut self.bricks[self.slots[slot] as usize - 1].1;
             let o = leaf_offset(base & 7);
             for (k, &w) in weights.iter().enumerate() {
                 values[o + CORNER_OFFSETS[k]] += w as f64 * value;
@@ -98,25 +102,21 @@ impl GradientGrid {
     }
 
     pub fn get(&self, v: IVec3) -> f64 {
-        match self.slot(v >> 3).map(|s| self.slots[s]) {
-            Some(i) if i > 0 => self.bricks[i as usize - 1].1[leaf_offset(v & 7)],
-            _ => 0.0,
+        match self.slots.get(v >> 3) {
+            0 => 0.0,
+            i => self.bricks[i as usize - 1].1[leaf_offset(v & 7)],
         }
     }
 
     /// `self += weight · other` (same extent), brick by brick.
     pub fn merge(&mut self, other: &GradientGrid, weight: f64) {
         assert_eq!(
-            self.slot_dims, other.slot_dims,
+            (self.brick_lo, self.brick_hi),
+            (other.brick_lo, other.brick_hi),
             "gradient grids of different extents"
         );
         for (origin, values) in &other.bricks {
-            let slot = self.slot(*origin >> 3).expect("same extent");
-            if self.slots[slot] == 0 {
-                self.bricks.push((*origin, Box::new([0.0; BRICK_VOXELS])));
-                self.slots[slot] = self.bricks.len() as u32;
-            }
-            let mine = &mut self.bricks[self.slots[slot] as usize - 1].1;
+            let mine = self.brick_mut(*origin).expect("same extent");
             for (m, v) in mine.iter_mut().zip(values.iter()) {
                 *m += weight * v;
             }

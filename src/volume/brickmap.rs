@@ -1,6 +1,7 @@
 //! Sparse voxel storage that mirrors an OpenVDB float tree: 8³ bricks (VDB leaves) and constant
-//! active tiles, found through a dense table of brick slots so that a lookup is two array reads and
-//! no hashing.
+//! active tiles, found through a `SparseIndex` of brick slots (8³-brick nodes under a top level that
+//! is dense for compact grids), so that memory follows the active data whatever the bounding box
+//! and a lookup in a compact grid is three array reads and no hashing.
 //!
 //! Conventions are OpenVDB's: voxel centres at integer index coordinates, leaf values in the order
 //! `x*64 + y*8 + z`, and the value 0 wherever there is no leaf or tile (fog volumes' background).
@@ -8,6 +9,8 @@
 use std::collections::HashMap;
 
 use glam::{IVec3, Vec3};
+
+use crate::volume::sparse_index::SparseIndex;
 
 pub const BRICK_EDGE: i32 = 8;
 pub const BRICK_VOXELS: usize = 512;
@@ -42,10 +45,8 @@ pub fn leaf_offset(local: IVec3) -> usize {
 pub struct BrickMap {
     leaves: Vec<Leaf>,
     tiles: Vec<Tile>,
-    /// Brick coordinates (index >> 3) of slot (0, 0, 0), and the slot table's extent.
-    slot_origin: IVec3,
-    slot_dims: IVec3,
-    slots: Vec<u32>,
+    /// Brick coordinates (index >> 3) → slot, for the bricks lookups can reach.
+    slots: SparseIndex,
     /// Inclusive bounding box of the active voxels; `None` for an empty grid.
     active_bounds: Option<(IVec3, IVec3)>,
 }
@@ -65,35 +66,33 @@ impl BrickMap {
     pub fn new(leaves: Vec<Leaf>, tiles: Vec<Tile>) -> Self {
         let active_bounds = active_bounds(&leaves, &tiles);
         let (lo, hi) = match active_bounds {
-            Some((lo, hi)) => ((lo - 1) >> 3i32, (hi + 1) >> 3i32),
+            // i64: the apron of a voxel at the edge of the i32 range must not wrap around.
+            Some((lo, hi)) => (
+                brick_of_i64(lo.as_i64vec3() - 1),
+                brick_of_i64(hi.as_i64vec3() + 1),
+            ),
             None => (IVec3::ZERO, IVec3::splat(-1)),
         };
-        let slot_dims = (hi - lo + 1).max(IVec3::ZERO);
+        let flat_budget = flat_slot_budget(&leaves, &tiles);
         let mut map = BrickMap {
             leaves: Vec::new(),
             tiles,
-            slot_origin: lo,
-            slot_dims,
-            slots: vec![EMPTY; (slot_dims.x * slot_dims.y * slot_dims.z) as usize],
+            slots: SparseIndex::with_flat_budget(lo, hi, flat_budget),
             active_bounds,
         };
         for (j, tile) in map.tiles.iter().enumerate() {
             let b0: IVec3 = tile.origin >> 3;
             let n = (tile.size as i32 / BRICK_EDGE).max(1);
-            for bx in b0.x..b0.x + n {
-                for by in b0.y..b0.y + n {
-                    for bz in b0.z..b0.z + n {
-                        if let Some(slot) = map.slot_index(IVec3::new(bx, by, bz)) {
-                            map.slots[slot] = TILE_BIT | j as u32;
-                        }
-                    }
-                }
-            }
+            let handle = TILE_BIT | j as u32;
+            // A later tile wins where tiles overlap (they do not in a valid VDB tree).
+            let last = b0.saturating_add(IVec3::splat(n - 1));
+            map.slots.fill(b0, last, handle, |slot| *slot = handle);
         }
         // Leaves after tiles: a leaf overrides the tile around it (see `with_added`).
         for leaf in leaves {
-            if let Some(slot) = map.slot_index(leaf.origin >> 3) {
-                map.slots[slot] = map.leaves.len() as u32 + 1;
+            let handle = map.leaves.len() as u32 + 1;
+            if let Some(slot) = map.slots.slot_mut(leaf.origin >> 3) {
+                *slot = handle;
                 map.leaves.push(leaf);
             }
         }
@@ -130,27 +129,16 @@ impl BrickMap {
     pub fn memory_bytes(&self) -> usize {
         self.leaves.len() * std::mem::size_of::<Leaf>()
             + self.tiles.len() * std::mem::size_of::<Tile>()
-            + self.slots.len() * std::mem::size_of::<u32>()
+            + self.slots.memory_bytes()
             + std::mem::size_of::<Self>()
     }
 
     #[inline]
-    fn slot_index(&self, brick: IVec3) -> Option<usize> {
-        let b = brick - self.slot_origin;
-        if b.cmplt(IVec3::ZERO).any() || b.cmpge(self.slot_dims).any() {
-            return None;
-        }
-        Some(((b.x * self.slot_dims.y + b.y) * self.slot_dims.z + b.z) as usize)
-    }
-
-    #[inline]
     fn brick(&self, brick: IVec3) -> Brick<'_> {
-        match self.slot_index(brick).map(|i| self.slots[i]) {
-            None | Some(EMPTY) => Brick::Empty,
-            Some(s) if s & TILE_BIT != 0 => {
-                Brick::Constant(self.tiles[(s & !TILE_BIT) as usize].value)
-            }
-            Some(s) => Brick::Leaf(&self.leaves[(s - 1) as usize].values),
+        match self.slots.get(brick) {
+            EMPTY => Brick::Empty,
+            s if s & TILE_BIT != 0 => Brick::Constant(self.tiles[(s & !TILE_BIT) as usize].value),
+            s => Brick::Leaf(&self.leaves[(s - 1) as usize].values),
         }
     }
 
@@ -166,10 +154,10 @@ impl BrickMap {
 
     /// Whether voxel `v` is active (in a leaf's mask or inside an active tile).
     pub fn is_active(&self, v: IVec3) -> bool {
-        match self.slot_index(v >> 3).map(|i| self.slots[i]) {
-            None | Some(EMPTY) => false,
-            Some(s) if s & TILE_BIT != 0 => true,
-            Some(s) => {
+        match self.slots.get(v >> 3) {
+            EMPTY => false,
+            s if s & TILE_BIT != 0 => true,
+            s => {
                 let o = leaf_offset(v & 7);
                 self.leaves[(s - 1) as usize].active[o >> 6] & (1u64 << (o & 63)) != 0
             }
@@ -223,7 +211,7 @@ impl BrickMap {
         let mut leaves: HashMap<IVec3, Leaf> =
             self.leaves.iter().map(|l| (l.origin, l.clone())).collect();
         for &(v, delta) in deltas {
-            if self.slot_index(v >> 3).is_none() {
+            if !self.slots.contains_key(v >> 3) {
                 continue;
             }
             let origin = v & !7;
@@ -281,6 +269,17 @@ impl BrickMap {
                 .map(|t| (t.size as u64).pow(3))
                 .sum::<u64>()
     }
+}
+
+/// Bricks a flat slot table may cover: 16 per leaf or tile (64 bytes next to a leaf's 2 KiB, 3 %),
+/// or 2¹⁵ (128 KiB) for tiny grids. Beyond it the table is a sparse index.
+fn flat_slot_budget(leaves: &[Leaf], tiles: &[Tile]) -> u64 {
+    (16 * (leaves.len() + tiles.len()) as u64).max(1 << 15)
+}
+
+/// The brick holding voxel `v`, for voxel coordinates one step beyond the i32 range (an apron).
+fn brick_of_i64(v: glam::I64Vec3) -> IVec3 {
+    (v >> 3i64).as_ivec3()
 }
 
 /// ⌊p⌋ per axis without a libm call (x86-64 without SSE4.1 has no floor instruction); index

@@ -3,12 +3,21 @@
 //! Cell `c` of a grid with cell edge `S` voxels covers the voxels `c·S .. c·S+S-1`, i.e. the
 //! continuous index range `[c·S − ½, c·S + S − ½)`. A trilinear lookup anywhere in it reads voxels
 //! `c·S − 1 ..= c·S + S` (the one-voxel apron), so the cell's majorant is the maximum σt over that
-//! range; a nearest lookup reads a subset. `--majorant global` is the same walk over one cell that
-//! spans the whole medium.
+//! range; a nearest lookup reads a subset. `--majorant global` is one cell that spans the whole
+//! medium.
+//!
+//! Memory follows the data: cells are grouped in blocks of 8³, and a block exists only where a
+//! brick or a tile raises it (a `SparseIndex` finds it). A block inside a tile is one shared
+//! constant, not 512 cells. The walk is a two-level DDA: it steps over blocks, skips absent ones
+//! without producing segments, crosses a constant block in one segment, and descends into the cells
+//! of the others.
 
 use glam::{IVec3, Vec3};
 
 use crate::volume::brickmap::{leaf_offset, BrickMap, BRICK_VOXELS};
+use crate::volume::sparse_index::SparseIndex;
+
+pub use crate::volume::majorant_walk::DdaWalk;
 
 #[derive(
     Debug,
@@ -55,15 +64,38 @@ impl Majorant {
     }
 }
 
+/// Cells per block edge (log2) and cells per block.
+pub(super) const BLOCK_LOG2: i32 = 3;
+const BLOCK_CELLS: usize = 1 << (3 * BLOCK_LOG2);
+pub(super) const BLOCK_EDGE: i32 = 1 << BLOCK_LOG2;
+
+/// A block of 8³ cells: one majorant for all of them, or one per cell.
+#[derive(Clone)]
+pub(super) struct Block {
+    /// Majorant of every cell without its own value (and a lower bound of those that have one).
+    pub(super) floor: f32,
+    pub(super) cells: Option<Box<[f32; BLOCK_CELLS]>>,
+    /// Referenced by many index entries (a tile's interior): copied before a single cell changes.
+    pub(super) shared: bool,
+}
+
 #[derive(Clone)]
 pub struct MajorantGrid {
-    /// Continuous index coordinates of cell (0,0,0)'s low corner, and the cell edges.
-    origin: Vec3,
-    cell_size: Vec3,
-    inv_cell_size: Vec3,
-    dims: IVec3,
-    /// σt majorant per cell, x-major like the brick slots.
-    sigma_max: Vec<f32>,
+    /// Index-space corner of cell (0, 0, 0) and the cell edges: cell c spans
+    /// `origin + c·cell_size .. origin + (c + 1)·cell_size`. The global mode is one flat cell over
+    /// the medium's box.
+    pub(super) origin: Vec3,
+    pub(super) cell_size: Vec3,
+    pub(super) inv_cell_size: Vec3,
+    /// Cells of the medium's box (inclusive); a walk that starts on its faces starts inside.
+    pub(super) c_lo: IVec3,
+    pub(super) c_hi: IVec3,
+    /// Flat mode (a compact medium): one majorant per cell of the box `c_lo ..= c_hi`, x-major,
+    /// walked by a single-level DDA. Empty in block mode.
+    pub(super) flat: Vec<f32>,
+    /// Block mode: block coordinates → index + 1 into `blocks`.
+    pub(super) index: SparseIndex,
+    pub(super) blocks: Vec<Block>,
 }
 
 /// One stretch of a ray inside one majorant cell: `[t0, t1)` in world distance.
@@ -72,6 +104,124 @@ pub struct MajorantSegment {
     pub t0: f32,
     pub t1: f32,
     pub sigma_max: f32,
+}
+
+/// Offset of cell `local` in an x-major array of `dims` cells.
+#[inline]
+pub(super) fn cell_offset(local: IVec3, dims: IVec3) -> usize {
+    (local.x as usize * dims.y as usize + local.y as usize) * dims.z as usize + local.z as usize
+}
+
+/// The most cells a flat majorant may have: one f32 per 64 bytes of leaf values (an eighth of the
+/// data, 512 per leaf), or 2¹⁵ for tiny grids. Beyond it (wide or fine grids) cells live in blocks.
+fn flat_cell_budget(bricks: &BrickMap) -> u64 {
+    (512 * (bricks.leaves().len() + bricks.tiles().len()) as u64).max(1 << 15)
+}
+
+/// Builds the cells of a grid-mode majorant.
+struct Builder {
+    /// Flat mode's cells (empty in block mode).
+    flat: Vec<f32>,
+    index: SparseIndex,
+    blocks: Vec<Block>,
+    /// Cells of the medium's box (inclusive): cells beyond it are never walked.
+    c_lo: IVec3,
+    c_hi: IVec3,
+}
+
+impl Builder {
+    /// The block behind `slot`, created (or unshared) so that it can be changed alone.
+    fn own(blocks: &mut Vec<Block>, slot: &mut u32) -> usize {
+        if *slot == 0 {
+            blocks.push(Block {
+                floor: 0.0,
+                cells: None,
+                shared: false,
+            });
+            *slot = blocks.len() as u32;
+        } else if blocks[*slot as usize - 1].shared {
+            let mut copy = blocks[*slot as usize - 1].clone();
+            copy.shared = false;
+            blocks.push(copy);
+            *slot = blocks.len() as u32;
+        }
+        *slot as usize - 1
+    }
+
+    fn raise_floor(block: &mut Block, sigma: f32) {
+        block.floor = block.floor.max(sigma);
+        if let Some(cells) = &mut block.cells {
+            cells.iter_mut().for_each(|c| *c = c.max(sigma));
+        }
+    }
+
+    /// Raises the majorant of every cell in the inclusive range `[lo, hi]` to at least `sigma`.
+    fn raise(&mut self, lo: IVec3, hi: IVec3, sigma: f32) {
+        let (lo, hi) = (lo.max(self.c_lo), hi.min(self.c_hi));
+        if lo.cmpgt(hi).any() {
+            return;
+        }
+        if !self.flat.is_empty() {
+            let dims = self.c_hi - self.c_lo + 1;
+            for x in lo.x..=hi.x {
+                for y in lo.y..=hi.y {
+                    for z in lo.z..=hi.z {
+                        let local = IVec3::new(x, y, z) - self.c_lo;
+                        let c = &mut self.flat[cell_offset(local, dims)];
+                        *c = c.max(sigma);
+                    }
+                }
+            }
+            return;
+        }
+        let (b_lo, b_hi) = (lo >> BLOCK_LOG2, hi >> BLOCK_LOG2);
+        // Blocks entirely inside the range share one constant block (a tile's interior).
+        let full_lo = (lo + (1 << BLOCK_LOG2) - 1) >> BLOCK_LOG2;
+        let full_hi = ((hi + 1) >> BLOCK_LOG2) - 1;
+        if full_lo.cmple(full_hi).all() {
+            self.blocks.push(Block {
+                floor: sigma,
+                cells: None,
+                shared: true,
+            });
+            let handle = self.blocks.len() as u32;
+            let blocks = &mut self.blocks;
+            self.index.fill(full_lo, full_hi, handle, |slot| {
+                let b = Self::own(blocks, slot);
+                Self::raise_floor(&mut blocks[b], sigma);
+            });
+        }
+        for bx in b_lo.x..=b_hi.x {
+            for by in b_lo.y..=b_hi.y {
+                for bz in b_lo.z..=b_hi.z {
+                    let key = IVec3::new(bx, by, bz);
+                    if key.cmpge(full_lo).all() && key.cmple(full_hi).all() {
+                        continue;
+                    }
+                    let Some(slot) = self.index.slot_mut(key) else {
+                        continue;
+                    };
+                    let b = Self::own(&mut self.blocks, slot);
+                    let block = &mut self.blocks[b];
+                    let floor = block.floor;
+                    let cells = block
+                        .cells
+                        .get_or_insert_with(|| Box::new([floor; BLOCK_CELLS]));
+                    let base = key << BLOCK_LOG2;
+                    let (a, z) = (lo.max(base) - base, hi.min(base + 7) - base);
+                    for x in a.x..=z.x {
+                        for y in a.y..=z.y {
+                            for zz in a.z..=z.z {
+                                let c = &mut cells
+                                    [cell_offset(IVec3::new(x, y, zz), IVec3::splat(BLOCK_EDGE))];
+                                *c = c.max(sigma);
+                            }
+                        }
+                    }
+                }
+            }
+        }
+    }
 }
 
 impl MajorantGrid {
@@ -83,55 +233,59 @@ impl MajorantGrid {
         majorant: Majorant,
     ) -> Self {
         match majorant.mode {
-            MajorantMode::Global => {
-                let extent = (bounds.1 - bounds.0).max(Vec3::splat(1e-6));
-                MajorantGrid {
-                    origin: bounds.0,
-                    cell_size: extent,
-                    inv_cell_size: extent.recip(),
-                    dims: IVec3::ONE,
-                    sigma_max: vec![bricks.max_value().max(0.0) * density_scale],
-                }
-            }
+            MajorantMode::Global => MajorantGrid {
+                origin: bounds.0,
+                cell_size: (bounds.1 - bounds.0).max(Vec3::splat(1e-6)),
+                inv_cell_size: (bounds.1 - bounds.0).max(Vec3::splat(1e-6)).recip(),
+                c_lo: IVec3::ZERO,
+                c_hi: IVec3::ZERO,
+                flat: vec![bricks.max_value().max(0.0) * density_scale],
+                index: SparseIndex::new(IVec3::ZERO, IVec3::splat(-1)),
+                blocks: Vec::new(),
+            },
             MajorantMode::Grid => Self::build_cells(
                 bricks,
                 bounds,
                 density_scale,
-                majorant.cell_voxels.max(1) as i32,
+                majorant.cell_voxels.clamp(1, 1 << 20) as i32,
+                flat_cell_budget(bricks),
             ),
         }
     }
 
-    fn build_cells(bricks: &BrickMap, bounds: (Vec3, Vec3), density_scale: f32, s: i32) -> Self {
+    fn build_cells(
+        bricks: &BrickMap,
+        bounds: (Vec3, Vec3),
+        density_scale: f32,
+        s: i32,
+        flat_budget: u64,
+    ) -> Self {
         // Voxel centres inside the box run from ceil(lo) to floor(hi); their cells span the box.
         let first_voxel = bounds.0.ceil().as_ivec3();
         let last_voxel = bounds.1.floor().as_ivec3();
         let c_lo = first_voxel.div_euclid(IVec3::splat(s));
-        let c_hi = last_voxel.div_euclid(IVec3::splat(s));
-        let dims = (c_hi - c_lo + 1).max(IVec3::ONE);
-        let mut grid = MajorantGrid {
-            origin: (c_lo * s).as_vec3() - 0.5,
-            cell_size: Vec3::splat(s as f32),
-            inv_cell_size: Vec3::splat(1.0 / s as f32),
-            dims,
-            sigma_max: vec![0.0; (dims.x * dims.y * dims.z) as usize],
+        let c_hi = last_voxel.div_euclid(IVec3::splat(s)).max(c_lo);
+        let flat_cells = (0..3).try_fold(1u64, |acc, a| {
+            acc.checked_mul((c_hi[a] as i64 - c_lo[a] as i64 + 1) as u64)
+        });
+        let flat = match flat_cells {
+            Some(n) if n <= flat_budget => vec![0.0; n as usize],
+            _ => Vec::new(),
+        };
+        let mut builder = Builder {
+            flat,
+            index: SparseIndex::new(c_lo >> BLOCK_LOG2, c_hi >> BLOCK_LOG2),
+            blocks: Vec::new(),
+            c_lo,
+            c_hi,
         };
         // Voxel v lies in the apron-grown footprint of cells ceil((v − S)/S) ..= floor((v + 1)/S).
-        let mut raise = |v_lo: IVec3, v_hi: IVec3, value: f32| {
-            let lo = ((v_lo - s).as_vec3() / s as f32)
-                .ceil()
-                .as_ivec3()
-                .max(c_lo)
-                - c_lo;
-            let hi = (v_hi + 1).div_euclid(IVec3::splat(s)).min(c_hi) - c_lo;
-            for x in lo.x..=hi.x {
-                for y in lo.y..=hi.y {
-                    for z in lo.z..=hi.z {
-                        let cell = &mut grid.sigma_max[((x * dims.y + y) * dims.z + z) as usize];
-                        *cell = cell.max(value * density_scale);
-                    }
-                }
-            }
+        let footprint = |v_lo: IVec3, v_hi: IVec3| {
+            // i64: the apron of a voxel at the edge of the i32 range must not wrap around.
+            let s = glam::I64Vec3::splat(s as i64);
+            let lo = (v_lo.as_i64vec3() - 1).div_euclid(s);
+            let hi = (v_hi.as_i64vec3() + 1).div_euclid(s);
+            (lo.as_ivec3(), hi.as_ivec3())
         };
         for leaf in bricks.leaves() {
             for o in 0..BRICK_VOXELS {
@@ -140,107 +294,52 @@ impl MajorantGrid {
                     let v = leaf.origin
                         + IVec3::new((o >> 6) as i32, ((o >> 3) & 7) as i32, (o & 7) as i32);
                     debug_assert_eq!(leaf_offset(v - leaf.origin), o);
-                    raise(v, v, value);
+                    let (lo, hi) = footprint(v, v);
+                    builder.raise(lo, hi, value * density_scale);
                 }
             }
         }
         for tile in bricks.tiles() {
             if tile.value > 0.0 {
-                raise(
-                    tile.origin,
-                    tile.origin + IVec3::splat(tile.size as i32 - 1),
-                    tile.value,
-                );
+                let last = tile
+                    .origin
+                    .saturating_add(IVec3::splat(tile.size as i32 - 1));
+                let (lo, hi) = footprint(tile.origin, last);
+                builder.raise(lo, hi, tile.value * density_scale);
             }
         }
-        grid
+        MajorantGrid {
+            // Cell c covers voxels c·S ..= c·S + S − 1: it starts half a voxel below c·S.
+            origin: Vec3::splat(-0.5),
+            cell_size: Vec3::splat(s as f32),
+            inv_cell_size: Vec3::splat(1.0 / s as f32),
+            c_lo,
+            c_hi,
+            flat: builder.flat,
+            index: builder.index,
+            blocks: builder.blocks,
+        }
     }
 
+    /// Cells with their own majorant (constant blocks count as one cell).
     pub fn cell_count(&self) -> usize {
-        self.sigma_max.len()
+        if !self.flat.is_empty() {
+            return self.flat.len();
+        }
+        self.blocks
+            .iter()
+            .map(|b| if b.cells.is_some() { BLOCK_CELLS } else { 1 })
+            .sum()
     }
 
     pub fn memory_bytes(&self) -> usize {
-        self.sigma_max.len() * std::mem::size_of::<f32>() + std::mem::size_of::<Self>()
-    }
-
-    /// Walks the cells the index-space ray `o + t·d` crosses for `t` in `[t0, t1)`.
-    #[inline]
-    pub fn walk(&self, o: Vec3, d: Vec3, t0: f32, t1: f32) -> DdaWalk<'_> {
-        let p = (o + d * t0 - self.origin) * self.inv_cell_size;
-        let cell = crate::volume::brickmap::floor_ivec3(p).clamp(IVec3::ZERO, self.dims - 1);
-        let mut next_t = Vec3::splat(f32::INFINITY);
-        let mut delta_t = Vec3::splat(f32::INFINITY);
-        let mut step = IVec3::ZERO;
-        for a in 0..3 {
-            if d[a] > 0.0 {
-                step[a] = 1;
-                delta_t[a] = self.cell_size[a] / d[a];
-                next_t[a] = t0 + ((cell[a] + 1) as f32 - p[a]) * delta_t[a];
-            } else if d[a] < 0.0 {
-                step[a] = -1;
-                delta_t[a] = -self.cell_size[a] / d[a];
-                next_t[a] = t0 + (p[a] - cell[a] as f32) * delta_t[a];
-            }
-        }
-        DdaWalk {
-            grid: self,
-            t: t0,
-            t_end: t1,
-            cell,
-            step,
-            next_t,
-            delta_t,
-        }
-    }
-}
-
-pub struct DdaWalk<'a> {
-    grid: &'a MajorantGrid,
-    t: f32,
-    t_end: f32,
-    cell: IVec3,
-    step: IVec3,
-    next_t: Vec3,
-    delta_t: Vec3,
-}
-
-impl Iterator for DdaWalk<'_> {
-    type Item = MajorantSegment;
-
-    #[inline]
-    fn next(&mut self) -> Option<MajorantSegment> {
-        if self.t >= self.t_end {
-            return None;
-        }
-        let dims = self.grid.dims;
-        let c = self.cell;
-        let sigma_max = self.grid.sigma_max[((c.x * dims.y + c.y) * dims.z + c.z) as usize];
-        // Step along the axis whose boundary comes first.
-        let a = if self.next_t.x < self.next_t.y {
-            if self.next_t.x < self.next_t.z {
-                0
-            } else {
-                2
-            }
-        } else if self.next_t.y < self.next_t.z {
-            1
-        } else {
-            2
-        };
-        let t1 = self.next_t[a].min(self.t_end);
-        let segment = MajorantSegment {
-            t0: self.t,
-            t1,
-            sigma_max,
-        };
-        self.t = t1;
-        self.cell[a] += self.step[a];
-        self.next_t[a] += self.delta_t[a];
-        if self.cell[a] < 0 || self.cell[a] >= dims[a] {
-            self.t_end = t1; // left the grid
-        }
-        Some(segment)
+        let cells: usize = self.blocks.iter().filter(|b| b.cells.is_some()).count()
+            * std::mem::size_of::<[f32; BLOCK_CELLS]>();
+        cells
+            + self.flat.len() * std::mem::size_of::<f32>()
+            + self.blocks.len() * std::mem::size_of::<Block>()
+            + self.index.memory_bytes()
+            + std::mem::size_of::<Self>()
     }
 }
 
@@ -271,10 +370,13 @@ mod tests {
         }
         let m = b.build();
         let bounds = (Vec3::splat(-0.5), Vec3::splat(23.5));
-        let grid = MajorantGrid::build(&m, bounds, 2.0, Majorant::grid(8));
-        assert_eq!(grid.dims, IVec3::splat(3));
+        let flat = MajorantGrid::build_cells(&m, bounds, 2.0, 8, u64::MAX);
+        let blocks = MajorantGrid::build_cells(&m, bounds, 2.0, 8, 0);
+        assert_eq!((flat.flat.len(), flat.blocks.len()), (27, 0));
+        assert_eq!((blocks.flat.len(), blocks.blocks.len()), (0, 1));
         let mut state = 12345u64;
-        for _ in 0..20000 {
+        for k in 0..40000 {
+            let grid = if k % 2 == 0 { &flat } else { &blocks };
             let mut r = || {
                 state = state
                     .wrapping_mul(6364136223846793005)

@@ -3,6 +3,8 @@
 
 pub mod brickmap;
 pub mod majorant;
+pub mod majorant_walk;
 pub mod medium;
+pub mod sparse_index;
 pub mod tracking;
 pub mod transform;

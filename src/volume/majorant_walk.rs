@@ -1,0 +1,204 @@
+//! The walk over a `MajorantGrid`: a 3D DDA over its cells (pbrt-v4's `DDAMajorantIterator`), in
+//! two levels when the cells live in blocks: a DDA over 8³-cell blocks that skips absent blocks
+//! without producing segments and crosses a constant block in one segment, and inside the other
+//! blocks a DDA over their cells. A flat grid (a compact medium) is walked by the inner DDA alone.
+
+use glam::{IVec3, Vec3};
+
+use crate::volume::brickmap::floor_ivec3;
+use crate::volume::majorant::{cell_offset, MajorantGrid, MajorantSegment, BLOCK_EDGE, BLOCK_LOG2};
+
+impl MajorantGrid {
+    /// Walks the cells the index-space ray `o + t·d` crosses for `t` in `[t0, t1)`, skipping
+    /// regions without data (their majorant is 0).
+    #[inline]
+    pub fn walk(&self, o: Vec3, d: Vec3, t0: f32, t1: f32) -> DdaWalk<'_> {
+        // The ray in cell units: cell c spans [c, c + 1).
+        let o_cells = (o - self.origin) * self.inv_cell_size;
+        let d_cells = d * self.inv_cell_size;
+        let p0 = o_cells + d_cells * t0;
+        let step = IVec3::from(d.cmpgt(Vec3::ZERO)) - IVec3::from(d.cmplt(Vec3::ZERO));
+        // Edge / |d| rather than 1 / |d_cells|: exact for the global mode's single cell.
+        let cell_delta_t = self.cell_size / d.abs();
+        let (outer, inner) = if self.flat.is_empty() {
+            let block = BLOCK_EDGE as f32;
+            let outer = Dda::new(p0 / block, step, cell_delta_t * block, t0, None);
+            (outer, None)
+        } else {
+            // Flat mode: the whole box is one block of cells, walked to the end; no outer walk.
+            let dda = Dda::new(p0, step, cell_delta_t, t0, Some((self.c_lo, self.c_hi)));
+            let inner = Inner {
+                dda,
+                base: self.c_lo,
+                lo: self.c_lo,
+                hi: self.c_hi,
+                dims: self.c_hi - self.c_lo + 1,
+                cells: &self.flat,
+                exit: t1,
+            };
+            (dda, Some(inner))
+        };
+        DdaWalk {
+            grid: self,
+            o_cells,
+            d_cells,
+            cell_delta_t,
+            t: t0,
+            t_end: t1,
+            outer,
+            inner,
+        }
+    }
+}
+
+/// A 3D DDA over unit cells: the ray `p(t) = p0 + (t − t0)·d` in cell units.
+#[derive(Clone, Copy)]
+struct Dda {
+    cell: IVec3,
+    step: IVec3,
+    next_t: Vec3,
+    delta_t: Vec3,
+}
+
+impl Dda {
+    /// Starts in the cell holding `p0` (clamped to `clamp`'s inclusive range: rounding at a
+    /// boundary must not leave the block the caller is in). `step` and `delta_t` (t per cell, ∞
+    /// on axes the ray does not move along) are the ray's, computed once per walk.
+    #[inline]
+    fn new(p0: Vec3, step: IVec3, delta_t: Vec3, t0: f32, clamp: Option<(IVec3, IVec3)>) -> Self {
+        let mut cell = floor_ivec3(p0);
+        if let Some((lo, hi)) = clamp {
+            cell = cell.clamp(lo, hi);
+        }
+        let mut next_t = Vec3::splat(f32::INFINITY);
+        for a in 0..3 {
+            if step[a] > 0 {
+                next_t[a] = t0 + ((cell[a] + 1) as f32 - p0[a]) * delta_t[a];
+            } else if step[a] < 0 {
+                next_t[a] = t0 + (p0[a] - cell[a] as f32) * delta_t[a];
+            }
+        }
+        Dda {
+            cell,
+            step,
+            next_t,
+            delta_t,
+        }
+    }
+
+    /// The axis whose boundary comes first.
+    #[inline]
+    fn exit_axis(&self) -> usize {
+        if self.next_t.x < self.next_t.y {
+            if self.next_t.x < self.next_t.z {
+                0
+            } else {
+                2
+            }
+        } else if self.next_t.y < self.next_t.z {
+            1
+        } else {
+            2
+        }
+    }
+
+    #[inline]
+    fn advance(&mut self, a: usize) {
+        self.cell[a] += self.step[a];
+        self.next_t[a] += self.delta_t[a];
+    }
+}
+
+/// The cells of one block the walk is inside.
+struct Inner<'a> {
+    dda: Dda,
+    base: IVec3,
+    /// The block's cells inside the medium's box.
+    lo: IVec3,
+    hi: IVec3,
+    dims: IVec3,
+    cells: &'a [f32],
+    exit: f32,
+}
+
+pub struct DdaWalk<'a> {
+    grid: &'a MajorantGrid,
+    o_cells: Vec3,
+    d_cells: Vec3,
+    cell_delta_t: Vec3,
+    t: f32,
+    t_end: f32,
+    outer: Dda,
+    inner: Option<Inner<'a>>,
+}
+
+impl Iterator for DdaWalk<'_> {
+    type Item = MajorantSegment;
+
+    #[inline]
+    fn next(&mut self) -> Option<MajorantSegment> {
+        let grid = self.grid;
+        loop {
+            // Not `t >= t_end`: a walk whose bounds are NaN must end too.
+            if self.t.partial_cmp(&self.t_end) != Some(std::cmp::Ordering::Less) {
+                return None;
+            }
+            if let Some(inner) = &mut self.inner {
+                let a = inner.dda.exit_axis();
+                // min/max, not clamp: clamp panics on NaN bounds.
+                let t1 = inner.dda.next_t[a].min(inner.exit).max(self.t);
+                let sigma_max = inner.cells[cell_offset(inner.dda.cell - inner.base, inner.dims)];
+                let segment = MajorantSegment {
+                    t0: self.t,
+                    t1,
+                    sigma_max,
+                };
+                self.t = t1;
+                inner.dda.advance(a);
+                let c = inner.dda.cell[a];
+                if t1 >= inner.exit || c < inner.lo[a] || c > inner.hi[a] {
+                    self.inner = None;
+                    if !grid.flat.is_empty() {
+                        self.t_end = t1; // left the flat grid: the walk is over
+                    }
+                }
+                return Some(segment);
+            }
+            let a = self.outer.exit_axis();
+            let exit = self.outer.next_t[a].min(self.t_end).max(self.t);
+            let key = self.outer.cell;
+            self.outer.advance(a);
+            let handle = grid.index.get(key);
+            if handle == 0 {
+                self.t = exit; // no data: majorant 0, nothing to sample
+                continue;
+            }
+            let block = &grid.blocks[handle as usize - 1];
+            match &block.cells {
+                None => {
+                    let segment = MajorantSegment {
+                        t0: self.t,
+                        t1: exit,
+                        sigma_max: block.floor,
+                    };
+                    self.t = exit;
+                    return Some(segment);
+                }
+                Some(cells) => {
+                    let base = key << BLOCK_LOG2;
+                    let p = self.o_cells + self.d_cells * self.t;
+                    let clamp = (base.max(grid.c_lo), (base + 7).min(grid.c_hi));
+                    self.inner = Some(Inner {
+                        dda: Dda::new(p, self.outer.step, self.cell_delta_t, self.t, Some(clamp)),
+                        base,
+                        lo: clamp.0,
+                        hi: clamp.1,
+                        dims: IVec3::splat(BLOCK_EDGE),
+                        cells: &cells[..],
+                        exit,
+                    });
+                }
+            }
+        }
+    }
+}

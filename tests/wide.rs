@@ -1,0 +1,163 @@
+//! Sparse grids whose bounding box is far wider than their data (debris, cloudscapes): memory must
+//! follow the active voxels, and rendering, differentiation and `volgrad info` must work on them.
+
+mod common;
+
+use common::*;
+use glam::{DVec3, IVec3, Vec3};
+use volgrad::gradient::adjoint::Estimator;
+use volgrad::gradient::grid::GradientGrid;
+use volgrad::gradient::loss::Loss;
+use volgrad::gradient::passes::{gradient, GradOptions};
+use volgrad::io::vdb::{self, Grid, GridSelector};
+use volgrad::render::image::{render, RenderOptions};
+use volgrad::volume::brickmap::{BrickMap, BrickMapBuilder};
+use volgrad::volume::majorant::{Majorant, MajorantGrid};
+use volgrad::volume::medium::Filter;
+use volgrad::volume::transform::IndexTransform;
+
+/// Gap between the two blobs, in voxels: far beyond what a dense table over the box could hold
+/// (24,000³ slots of 4 bytes would be 55 GB for the old brick table, 864 MB of majorant cells).
+const GAP: i32 = 24_000;
+
+/// Two lumpy 6³ blobs, one around the origin and one `GAP` voxels further down −z.
+fn two_blobs() -> BrickMap {
+    let mut b = BrickMapBuilder::new();
+    for z0 in [0, -GAP] {
+        for x in 0..6 {
+            for y in 0..6 {
+                for z in 0..6 {
+                    let value = 0.5 + 0.1 * ((x * 7 + y * 3 + z) % 5) as f32;
+                    b.set(IVec3::new(x, y, z0 + z), value, true);
+                }
+            }
+        }
+    }
+    b.build()
+}
+
+#[test]
+fn blobs_far_apart_render_and_differentiate_in_little_memory() {
+    let grid = two_blobs();
+    assert_eq!(grid.active_voxel_count(), 2 * 216);
+    let leaf_bytes = std::mem::size_of_val(grid.leaves());
+    assert!(
+        grid.memory_bytes() < leaf_bytes + 64 * 1024,
+        "brick map {} bytes for {leaf_bytes} bytes of leaves",
+        grid.memory_bytes()
+    );
+    // Camera on +z with a narrow field of view: every ray crosses the near blob, then the empty
+    // gap, then the far blob (which fills the view 24,000 voxels further).
+    let transform = IndexTransform::uniform(1.0, DVec3::splat(-2.5));
+    let scene = SceneBuilder::new(30.0, 0.008, 12)
+        .constant_light(Vec3::ONE)
+        .build(
+            grid,
+            transform,
+            0.2,
+            Vec3::splat(0.8),
+            0.0,
+            Filter::Trilinear,
+            Majorant::grid(4),
+        );
+    assert!(
+        scene.medium.majorant.memory_bytes() < 256 * 1024,
+        "majorant {} bytes",
+        scene.medium.majorant.memory_bytes()
+    );
+    let options = RenderOptions {
+        spp: 8,
+        seed: 3,
+        max_depth: 8,
+        progress: false,
+    };
+    let (image, stats) = render(&scene, &options);
+    assert!(stats.paths > 0);
+    assert!(image.pixels.iter().all(|p| p.is_finite()));
+    // The blobs absorb: the image is darker than the sky.
+    let mean = image.pixels.iter().map(|p| p.x).sum::<f32>() / image.pixels.len() as f32;
+    assert!(mean < 0.95, "mean pixel {mean}");
+
+    let adjoint = Loss::Mean.adjoint(&image, None);
+    let run = gradient(
+        &scene,
+        &adjoint,
+        &GradOptions::new(Estimator::Joint, 8, 5, 8),
+    );
+    let g = &run.gradient;
+    assert!(g.voxels().all(|(_, v)| v.is_finite()));
+    let near = g.sum_in_box(IVec3::splat(-1), IVec3::splat(6));
+    let far = g.sum_in_box(IVec3::new(-1, -1, -GAP - 1), IVec3::new(6, 6, -GAP + 6));
+    // More density makes the sky-lit blob darker: the mean's gradient is negative on both blobs
+    // (the far one is seen through the near one).
+    assert!(near < 0.0, "near blob gradient {near}");
+    assert!(far != 0.0, "no gradient reached the far blob");
+    // Bricks only where gradient arrived: the blobs and the empty voxels the rays crossed between
+    // them (they are parameters too), at most a 2×2-brick column along the gap.
+    let column = 4 * (GAP as usize / 8 + 4);
+    assert!(
+        g.brick_count() <= column,
+        "{} gradient bricks",
+        g.brick_count()
+    );
+}
+
+#[test]
+fn two_voxels_a_million_apart_load_render_and_stay_small() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut b = BrickMapBuilder::new();
+    b.set(IVec3::ZERO, 1.0, true);
+    b.set(IVec3::new(1_000_000, 0, 0), 1.0, true);
+    let grid = Grid {
+        transform: IndexTransform::uniform(1.0, DVec3::ZERO),
+        bricks: b.build(),
+        name: "density".into(),
+        grid_class: "fog volume".into(),
+        saved_as_half: false,
+        metadata: Vec::new(),
+    };
+    let vdb_path = dir.path().join("apart.vdb");
+    vdb::write_grids(&vdb_path, &[&grid], false, false).unwrap();
+
+    let o = ok(volgrad(&["info", vdb_path.to_str().unwrap()]));
+    assert!(stdout(&o).contains("brick map"), "{}", stdout(&o));
+
+    let read = vdb::read_grid(&vdb_path, &GridSelector::Index(0)).unwrap();
+    assert_eq!(read.bricks.active_voxel_count(), 2);
+    assert_eq!(read.bricks.voxel(IVec3::new(1_000_000, 0, 0)), 1.0);
+    assert!(
+        read.bricks.memory_bytes() < 64 * 1024,
+        "brick map {} bytes",
+        read.bricks.memory_bytes()
+    );
+    for cell in [1, 4, 16] {
+        let bounds = (Vec3::splat(-0.5), Vec3::new(1_000_000.5, 0.5, 0.5));
+        let m = MajorantGrid::build(&read.bricks, bounds, 1.0, Majorant::grid(cell));
+        assert!(
+            m.memory_bytes() < 256 * 1024,
+            "majorant {} bytes",
+            m.memory_bytes()
+        );
+    }
+    let g = GradientGrid::for_grid(&read.bricks);
+    assert_eq!(g.brick_count(), 0);
+
+    let scene = dir.path().join("apart.toml");
+    std::fs::write(
+        &scene,
+        "[camera]\nposition = [-20, 2, 3]\ntarget = [500000, 0, 0]\nfov_deg = 30\nwidth = 16\nheight = 16\n\
+         [medium]\nvdb = \"apart.vdb\"\ndensity_scale = 2.0\n\
+         [[light]]\ntype = \"constant\"\nradiance = 0.5\n\
+         [render]\nspp = 2\n",
+    )
+    .unwrap();
+    let out = dir.path().join("apart.exr");
+    let o = ok(volgrad(&[
+        "render",
+        scene.to_str().unwrap(),
+        "-o",
+        out.to_str().unwrap(),
+        "--stats",
+    ]));
+    assert!(stdout(&o).contains("memory"), "{}", stdout(&o));
+}
