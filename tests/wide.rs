@@ -114,6 +114,7 @@ fn two_voxels_a_million_apart_load_render_and_stay_small() {
         name: "density".into(),
         grid_class: "fog volume".into(),
         saved_as_half: false,
+        background: 0.0,
         metadata: Vec::new(),
     };
     let vdb_path = dir.path().join("apart.vdb");
