@@ -82,3 +82,91 @@ fn white_furnace_holds_for_a_peaked_phase_function() {
         );
     }
 }
+
+/// A real file with one bit flipped, or cut short, at fixed offsets across its header, its
+/// transform and metadata, and its compressed voxel data: `info` and `render` either succeed with a
+/// finite image or fail cleanly (exit status 1, an error naming the file), never abort, hang or panic.
+#[test]
+fn corrupted_copies_of_a_real_file_fail_cleanly_or_render_finitely() {
+    let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
+    let original = std::fs::read(root.join("scenes/assets/wdas_cloud_sixteenth.vdb")).unwrap();
+    let scene_text = std::fs::read_to_string(root.join("scenes/cloud.toml"))
+        .unwrap()
+        .replace("assets/wdas_cloud_sixteenth.vdb", "hostile.vdb")
+        .replace("width    = 256", "width    = 12")
+        .replace("height   = 256", "height   = 12");
+    let dir = tempfile::tempdir().unwrap();
+    let (vdb, scene, exr) = (
+        dir.path().join("hostile.vdb"),
+        dir.path().join("hostile.toml"),
+        dir.path().join("hostile.exr"),
+    );
+    std::fs::write(&scene, scene_text).unwrap();
+    let n = original.len();
+    let flips = [
+        8,
+        20,
+        100,
+        200,
+        1000,
+        5000,
+        n / 8,
+        n / 4,
+        n / 2,
+        3 * n / 4,
+        n - 200,
+        n - 5,
+    ];
+    let mut cases: Vec<(String, Vec<u8>)> = flips
+        .iter()
+        .map(|&at| {
+            let mut bytes = original.clone();
+            bytes[at] ^= 0x10;
+            (format!("bit flipped at byte {at}"), bytes)
+        })
+        .collect();
+    for at in [n / 3, n - 1] {
+        cases.push((format!("cut at byte {at}"), original[..at].to_vec()));
+    }
+    let (mut rendered, mut refused) = (0, 0);
+    for (what, bytes) in cases {
+        std::fs::write(&vdb, bytes).unwrap();
+        let info = volgrad(&["info", vdb.to_str().unwrap()]);
+        let render = volgrad(&[
+            "render",
+            scene.to_str().unwrap(),
+            "--spp",
+            "1",
+            "-o",
+            exr.to_str().unwrap(),
+            "--force",
+            "-q",
+        ]);
+        for (command, o) in [("info", &info), ("render", &render)] {
+            if o.status.success() {
+                continue;
+            }
+            let err = stderr(o);
+            assert_eq!(
+                o.status.code(),
+                Some(1),
+                "{what}: {command} did not fail cleanly: {err}"
+            );
+            assert_clean_error(o, &["hostile"]);
+            refused += usize::from(command == "render");
+        }
+        if render.status.success() {
+            let image = volgrad::io::images::read_rgb(&exr).unwrap();
+            assert!(
+                image.pixels.iter().all(|c| c.is_finite()),
+                "{what}: non-finite pixels"
+            );
+            rendered += 1;
+        }
+    }
+    // Both outcomes occur: the corpus exercises the checks, not only the happy path.
+    assert!(
+        rendered > 0 && refused > 0,
+        "{rendered} rendered, {refused} refused"
+    );
+}
