@@ -2,7 +2,8 @@
 //!
 //! Layers, each using only those before it: `volume` (bricks, majorants, tracking) < `io` (files
 //! and the terminal) < `render` (scenes and the path tracer) < `gradient` (path replay, passes,
-//! finite differences) < `compare` (equal-time studies). The binary's `cli` sits on top.
+//! finite differences) < `compare` (equal-time studies) < `optimize` (inverse rendering). The
+//! binary's `cli` sits on top.
 
 // Bad input gets an error, never a panic: outside tests an unwrap must say why it cannot fail
 // (`expect`). Tests (here and in tests/) may unwrap.
@@ -11,6 +12,7 @@
 pub mod compare;
 pub mod gradient;
 pub mod io;
+pub mod optimize;
 pub mod render;
 pub mod volume;
 

@@ -1,11 +1,13 @@
-//! The library's layers, as `src/lib.rs` states them: volume < io < render < gradient < compare,
-//! with the binary's `cli` on top. A file may use its own layer and the layers below it, never one
+//! The library's layers, as `src/lib.rs` states them: volume < io < render < gradient < compare <
+//! optimize, with the binary's `cli` on top. A file may use its own layer and the layers below it, never one
 //! above: this test reads every source file and fails on a `crate::<layer>` (or `volgrad::<layer>`
 //! from the binary) that points upward.
 
 use std::path::{Path, PathBuf};
 
-const LAYERS: [&str; 6] = ["volume", "io", "render", "gradient", "compare", "cli"];
+const LAYERS: [&str; 7] = [
+    "volume", "io", "render", "gradient", "compare", "optimize", "cli",
+];
 
 fn rank(layer: &str) -> Option<usize> {
     LAYERS.iter().position(|&l| l == layer)
