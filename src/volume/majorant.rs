@@ -17,7 +17,7 @@ use glam::{IVec3, Vec3};
 use crate::volume::brickmap::{leaf_offset, BrickMap, BRICK_VOXELS};
 use crate::volume::sparse_index::SparseIndex;
 
-pub use crate::volume::majorant_walk::DdaWalk;
+pub use crate::volume::majorant_walk::{DdaWalk, FlatWalk, Walk};
 
 #[derive(
     Debug,

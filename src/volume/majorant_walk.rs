@@ -10,9 +10,10 @@ use crate::volume::majorant::{cell_offset, MajorantGrid, MajorantSegment, BLOCK_
 
 impl MajorantGrid {
     /// Walks the cells the index-space ray `o + t·d` crosses for `t` in `[t0, t1)`, skipping
-    /// regions without data (their majorant is 0).
+    /// regions without data (their majorant is 0). Match on the result once per walk (as the
+    /// trackers do) to get a loop specialised for the grid's layout.
     #[inline]
-    pub fn walk(&self, o: Vec3, d: Vec3, t0: f32, t1: f32) -> DdaWalk<'_> {
+    pub fn walk(&self, o: Vec3, d: Vec3, t0: f32, t1: f32) -> Walk<'_> {
         // The ray in cell units: cell c spans [c, c + 1).
         let o_cells = (o - self.origin) * self.inv_cell_size;
         let d_cells = d * self.inv_cell_size;
@@ -20,34 +21,82 @@ impl MajorantGrid {
         let step = IVec3::from(d.cmpgt(Vec3::ZERO)) - IVec3::from(d.cmplt(Vec3::ZERO));
         // Edge / |d| rather than 1 / |d_cells|: exact for the global mode's single cell.
         let cell_delta_t = self.cell_size / d.abs();
-        let (outer, inner) = if self.flat.is_empty() {
-            let block = BLOCK_EDGE as f32;
-            let outer = Dda::new(p0 / block, step, cell_delta_t * block, t0, None);
-            (outer, None)
-        } else {
-            // Flat mode: the whole box is one block of cells, walked to the end; no outer walk.
-            let dda = Dda::new(p0, step, cell_delta_t, t0, Some((self.c_lo, self.c_hi)));
-            let inner = Inner {
-                dda,
-                base: self.c_lo,
-                lo: self.c_lo,
-                hi: self.c_hi,
-                dims: self.c_hi - self.c_lo + 1,
+        if !self.flat.is_empty() {
+            // In the flat array's own coordinates: cell c_lo is (0, 0, 0).
+            let dims = self.c_hi - self.c_lo + 1;
+            let local = p0 - self.c_lo.as_vec3();
+            return Walk::Flat(FlatWalk {
                 cells: &self.flat,
-                exit: t1,
-            };
-            (dda, Some(inner))
-        };
-        DdaWalk {
+                dims,
+                dda: Dda::new(local, step, cell_delta_t, t0, Some((IVec3::ZERO, dims - 1))),
+                t: t0,
+                t_end: t1,
+            });
+        }
+        let block = BLOCK_EDGE as f32;
+        Walk::Blocks(DdaWalk {
             grid: self,
             o_cells,
             d_cells,
             cell_delta_t,
             t: t0,
             t_end: t1,
-            outer,
-            inner,
+            outer: Dda::new(p0 / block, step, cell_delta_t * block, t0, None),
+            inner: None,
+        })
+    }
+}
+
+/// A walk over a majorant grid, by layout.
+pub enum Walk<'a> {
+    Flat(FlatWalk<'a>),
+    Blocks(DdaWalk<'a>),
+}
+
+impl Iterator for Walk<'_> {
+    type Item = MajorantSegment;
+
+    #[inline]
+    fn next(&mut self) -> Option<MajorantSegment> {
+        match self {
+            Walk::Flat(w) => w.next(),
+            Walk::Blocks(w) => w.next(),
         }
+    }
+}
+
+/// The walk over a flat grid: one DDA over its cells, ending where the ray leaves the array.
+pub struct FlatWalk<'a> {
+    cells: &'a [f32],
+    dims: IVec3,
+    dda: Dda,
+    t: f32,
+    t_end: f32,
+}
+
+impl Iterator for FlatWalk<'_> {
+    type Item = MajorantSegment;
+
+    #[inline]
+    fn next(&mut self) -> Option<MajorantSegment> {
+        // Not `t >= t_end`: a walk whose bounds are NaN must end too.
+        if self.t.partial_cmp(&self.t_end) != Some(std::cmp::Ordering::Less) {
+            return None;
+        }
+        let dda = &mut self.dda;
+        let a = dda.exit_axis();
+        let t1 = dda.next_t[a].min(self.t_end);
+        let segment = MajorantSegment {
+            t0: self.t,
+            t1,
+            sigma_max: self.cells[cell_offset(dda.cell, self.dims)],
+        };
+        self.t = t1;
+        dda.advance(a);
+        if dda.cell[a] < 0 || dda.cell[a] >= self.dims[a] {
+            self.t_end = t1; // left the grid
+        }
+        Some(segment)
     }
 }
 
@@ -158,9 +207,6 @@ impl Iterator for DdaWalk<'_> {
                 let c = inner.dda.cell[a];
                 if t1 >= inner.exit || c < inner.lo[a] || c > inner.hi[a] {
                     self.inner = None;
-                    if !grid.flat.is_empty() {
-                        self.t_end = t1; // left the flat grid: the walk is over
-                    }
                 }
                 return Some(segment);
             }
