@@ -6,6 +6,7 @@ mod common;
 use common::*;
 use glam::{DVec3, IVec3, Vec3};
 use volgrad::gradient::adjoint::Estimator;
+use volgrad::gradient::fd;
 use volgrad::gradient::grid::GradientGrid;
 use volgrad::gradient::loss::Loss;
 use volgrad::gradient::passes::{gradient, GradOptions};
@@ -41,6 +42,10 @@ fn blobs_far_apart_render_and_differentiate_in_little_memory() {
     let grid = two_blobs();
     assert_eq!(grid.active_voxel_count(), 2 * 216);
     let leaf_bytes = std::mem::size_of_val(grid.leaves());
+    println!(
+        "two blobs {GAP} voxels apart: brick map {} bytes for {leaf_bytes} bytes of leaves",
+        grid.memory_bytes()
+    );
     assert!(
         grid.memory_bytes() < leaf_bytes + 64 * 1024,
         "brick map {} bytes for {leaf_bytes} bytes of leaves",
@@ -60,6 +65,10 @@ fn blobs_far_apart_render_and_differentiate_in_little_memory() {
             Filter::Trilinear,
             Majorant::grid(4),
         );
+    println!(
+        "two blobs: majorant {} bytes",
+        scene.medium.majorant.memory_bytes()
+    );
     assert!(
         scene.medium.majorant.memory_bytes() < 256 * 1024,
         "majorant {} bytes",
@@ -86,6 +95,7 @@ fn blobs_far_apart_render_and_differentiate_in_little_memory() {
     );
     let g = &run.gradient;
     assert!(g.voxels().all(|(_, v)| v.is_finite()));
+    println!("two blobs: {} gradient bricks", g.brick_count());
     let near = g.sum_in_box(IVec3::splat(-1), IVec3::splat(6));
     let far = g.sum_in_box(IVec3::new(-1, -1, -GAP - 1), IVec3::new(6, 6, -GAP + 6));
     // More density makes the sky-lit blob darker: the mean's gradient is negative on both blobs
@@ -125,6 +135,10 @@ fn two_voxels_a_million_apart_load_render_and_stay_small() {
     let read = vdb::read_grid(&vdb_path, &GridSelector::Index(0)).unwrap();
     assert_eq!(read.bricks.active_voxel_count(), 2);
     assert_eq!(read.bricks.voxel(IVec3::new(1_000_000, 0, 0)), 1.0);
+    println!(
+        "two voxels 10⁶ apart: brick map {} bytes",
+        read.bricks.memory_bytes()
+    );
     assert!(
         read.bricks.memory_bytes() < 64 * 1024,
         "brick map {} bytes",
@@ -133,6 +147,10 @@ fn two_voxels_a_million_apart_load_render_and_stay_small() {
     for cell in [1, 4, 16] {
         let bounds = (Vec3::splat(-0.5), Vec3::new(1_000_000.5, 0.5, 0.5));
         let m = MajorantGrid::build(&read.bricks, bounds, 1.0, Majorant::grid(cell));
+        println!(
+            "two voxels 10⁶ apart: majorant ({cell}³ cells) {} bytes",
+            m.memory_bytes()
+        );
         assert!(
             m.memory_bytes() < 256 * 1024,
             "majorant {} bytes",
@@ -160,4 +178,20 @@ fn two_voxels_a_million_apart_load_render_and_stay_small() {
         "--stats",
     ]));
     assert!(stdout(&o).contains("memory"), "{}", stdout(&o));
+}
+
+#[test]
+fn finite_differences_refuse_to_list_a_huge_domain_instead_of_exhausting_memory() {
+    let mut b = BrickMapBuilder::new();
+    b.set(IVec3::ZERO, 1.0, true);
+    b.set(IVec3::splat(200_000), 1.0, true);
+    let grid = b.build();
+    let (lo, hi) = fd::domain_bounds(&grid).unwrap();
+    let err = fd::ensure_enumerable(&grid, lo, hi)
+        .unwrap_err()
+        .to_string();
+    assert!(err.contains("200003 × 200003 × 200003"), "{err}");
+    assert!(err.contains("smaller box"), "{err}");
+    fd::ensure_enumerable(&grid, IVec3::splat(-1), IVec3::splat(8)).unwrap();
+    fd::ensure_enumerable(&two_blobs(), IVec3::splat(i32::MIN), IVec3::splat(i32::MAX)).unwrap();
 }

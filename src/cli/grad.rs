@@ -238,6 +238,7 @@ fn fd_directions(
 ) -> Result<Vec<(String, fd::Direction)>> {
     let grid = &scene.medium.grid;
     let (lo, hi) = fd::domain_bounds(grid).context("the grid is empty")?;
+    fd::ensure_enumerable(grid, lo, hi)?;
     let domain = || fd::box_voxels(grid, lo, hi, active_only);
     Ok(match values::fd_direction(spec)? {
         FdDirection::Voxels(voxels) => voxels
@@ -246,6 +247,7 @@ fn fd_directions(
             .collect(),
         FdDirection::Box(b) => {
             let (a, c) = resolve_box(b, scene)?;
+            fd::ensure_enumerable(grid, a, c)?;
             vec![(
                 format!("box {a}..{c}"),
                 fd::ones(&fd::box_voxels(grid, a, c, active_only)),

@@ -113,9 +113,9 @@ pub(super) fn cell_offset(local: IVec3, dims: IVec3) -> usize {
 }
 
 /// The most cells a flat majorant may have: one f32 per 64 bytes of leaf values (an eighth of the
-/// data, 512 per leaf), or 2¹⁵ for tiny grids. Beyond it (wide or fine grids) cells live in blocks.
+/// data, 512 per leaf), or 2¹² for tiny grids. Beyond it (wide or fine grids) cells live in blocks.
 fn flat_cell_budget(bricks: &BrickMap) -> u64 {
-    (512 * (bricks.leaves().len() + bricks.tiles().len()) as u64).max(1 << 15)
+    (512 * (bricks.leaves().len() + bricks.tiles().len()) as u64).max(1 << 12)
 }
 
 /// Builds the cells of a grid-mode majorant.
