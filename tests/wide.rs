@@ -12,7 +12,7 @@ use volgrad::gradient::loss::Loss;
 use volgrad::gradient::passes::{gradient, GradOptions};
 use volgrad::io::vdb::{self, Grid, GridSelector};
 use volgrad::render::image::{render, RenderOptions};
-use volgrad::volume::brickmap::{BrickMap, BrickMapBuilder};
+use volgrad::volume::brickmap::{BrickMap, BrickMapBuilder, Tile};
 use volgrad::volume::majorant::{Majorant, MajorantGrid};
 use volgrad::volume::medium::Filter;
 use volgrad::volume::transform::IndexTransform;
@@ -194,4 +194,64 @@ fn finite_differences_refuse_to_list_a_huge_domain_instead_of_exhausting_memory(
     assert!(err.contains("smaller box"), "{err}");
     fd::ensure_enumerable(&grid, IVec3::splat(-1), IVec3::splat(8)).unwrap();
     fd::ensure_enumerable(&two_blobs(), IVec3::splat(i32::MIN), IVec3::splat(i32::MAX)).unwrap();
+}
+
+#[test]
+fn a_root_level_tile_costs_its_surface_not_its_volume() {
+    // OpenVDB's largest tiles are 4096³ voxels: constant fog over a whole sky.
+    let tile = Tile {
+        origin: IVec3::ZERO,
+        size: 4096,
+        value: 0.25,
+    };
+    let mut leaf = BrickMapBuilder::new();
+    leaf.set(IVec3::new(5000, 7, 7), 2.0, true);
+    let leaves = leaf.build().leaves().to_vec();
+    let grid = BrickMap::new(leaves, vec![tile]);
+    assert_eq!(grid.voxel(IVec3::splat(4095)), 0.25);
+    assert_eq!(grid.voxel(IVec3::new(5000, 7, 7)), 2.0);
+    assert!(
+        grid.memory_bytes() < 16 << 20,
+        "brick map {} bytes",
+        grid.memory_bytes()
+    );
+    let (lo, hi) = grid.active_bounds().unwrap();
+    let bounds = (lo.as_vec3() - 0.5, hi.as_vec3() + 0.5);
+    let m = MajorantGrid::build(&grid, bounds, 1.0, Majorant::grid(4));
+    println!(
+        "4096³ tile: brick map {} bytes, majorant {} bytes",
+        grid.memory_bytes(),
+        m.memory_bytes()
+    );
+    assert!(
+        m.memory_bytes() < 64 << 20,
+        "majorant {} bytes",
+        m.memory_bytes()
+    );
+    // The majorant bounds the lookups along rays through the tile, its faces and the leaf.
+    for (o, d) in [
+        (Vec3::new(-0.5, 7.2, 7.3), Vec3::X),
+        (
+            Vec3::new(2000.0, -0.5, 4095.2),
+            Vec3::new(0.3, 1.0, 0.0).normalize(),
+        ),
+        (
+            Vec3::new(4090.0, 4090.0, 4090.0),
+            Vec3::new(1.0, -0.001, -0.001).normalize(),
+        ),
+    ] {
+        let t_end = 1200.0;
+        for seg in m.walk(o, d, 0.0, t_end) {
+            for k in 0..4 {
+                let t = seg.t0 + (seg.t1 - seg.t0) * (k as f32 + 0.5) / 4.0;
+                let sigma = grid.trilinear(o + d * t);
+                assert!(
+                    sigma <= seg.sigma_max + 1e-6,
+                    "σ {sigma} > {} at {}",
+                    seg.sigma_max,
+                    o + d * t
+                );
+            }
+        }
+    }
 }

@@ -68,6 +68,8 @@ impl Majorant {
 pub(super) const BLOCK_LOG2: i32 = 3;
 const BLOCK_CELLS: usize = 1 << (3 * BLOCK_LOG2);
 pub(super) const BLOCK_EDGE: i32 = 1 << BLOCK_LOG2;
+/// Ranges at least this many blocks wide are raised block by block, not cell by cell.
+const WIDE_RANGE_BLOCKS: i32 = 16;
 
 /// A block of 8³ cells: one majorant for all of them, or one per cell.
 #[derive(Clone)]
@@ -175,10 +177,20 @@ impl Builder {
             return;
         }
         let (b_lo, b_hi) = (lo >> BLOCK_LOG2, hi >> BLOCK_LOG2);
-        // Blocks entirely inside the range share one constant block (a tile's interior).
-        let full_lo = (lo + (1 << BLOCK_LOG2) - 1) >> BLOCK_LOG2;
-        let full_hi = ((hi + 1) >> BLOCK_LOG2) - 1;
-        if full_lo.cmple(full_hi).all() {
+        // Blocks entirely inside the range share one constant block (a tile's interior). A range
+        // many blocks wide (a large tile) gives its partly covered blocks the constant too: a
+        // looser bound one block thick around it, so that its cost grows with its surface in
+        // index nodes and not in cells (a 4096³ tile's apron would otherwise be 10⁵ cell arrays).
+        let wide = (b_hi - b_lo).max_element() >= WIDE_RANGE_BLOCKS;
+        let (fill_lo, fill_hi) = if wide {
+            (b_lo, b_hi)
+        } else {
+            (
+                (lo + (1 << BLOCK_LOG2) - 1) >> BLOCK_LOG2,
+                ((hi + 1) >> BLOCK_LOG2) - 1,
+            )
+        };
+        if fill_lo.cmple(fill_hi).all() {
             self.blocks.push(Block {
                 floor: sigma,
                 cells: None,
@@ -186,11 +198,15 @@ impl Builder {
             });
             let handle = self.blocks.len() as u32;
             let blocks = &mut self.blocks;
-            self.index.fill(full_lo, full_hi, handle, |slot| {
+            self.index.fill(fill_lo, fill_hi, handle, |slot| {
                 let b = Self::own(blocks, slot);
                 Self::raise_floor(&mut blocks[b], sigma);
             });
         }
+        if wide {
+            return;
+        }
+        let (full_lo, full_hi) = (fill_lo, fill_hi);
         for bx in b_lo.x..=b_hi.x {
             for by in b_lo.y..=b_hi.y {
                 for bz in b_lo.z..=b_hi.z {
