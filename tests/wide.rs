@@ -255,3 +255,66 @@ fn a_root_level_tile_costs_its_surface_not_its_volume() {
         }
     }
 }
+
+#[test]
+fn walks_skip_empty_nodes_but_never_data() {
+    // Two hot voxels 5,000 apart along a diagonal-ish line; every ray between them crosses empty
+    // nodes (skipped whole) and must still see both voxels' cells.
+    let mut b = BrickMapBuilder::new();
+    let far = IVec3::new(5000, 1200, -700);
+    b.set(IVec3::ZERO, 3.0, true);
+    b.set(far, 5.0, true);
+    let grid = b.build();
+    let (lo, hi) = grid.active_bounds().unwrap();
+    let bounds = (lo.as_vec3() - 0.5, hi.as_vec3() + 0.5);
+    for cell in [1, 4] {
+        let m = MajorantGrid::build(&grid, bounds, 1.0, Majorant::grid(cell));
+        for k in 0..200 {
+            let jitter = Vec3::new(
+                ((k * 37) % 11) as f32 / 11.0 - 0.5,
+                ((k * 53) % 13) as f32 / 13.0 - 0.5,
+                ((k * 71) % 7) as f32 / 7.0 - 0.5,
+            ) * 0.8;
+            let (o, target) = if k % 2 == 0 {
+                (jitter, far.as_vec3() - jitter)
+            } else {
+                (far.as_vec3() + jitter, -jitter)
+            };
+            let d = (target - o).normalize();
+            let length = (target - o).length();
+            let mut seen = [false; 2];
+            let mut last = 0.0f32;
+            for seg in m.walk(o, d, 0.0, length) {
+                assert!(
+                    seg.t0 >= last - 1e-3 && seg.t1 >= seg.t0,
+                    "segments go backwards"
+                );
+                last = seg.t1;
+                for j in 0..8 {
+                    let t = seg.t0 + (seg.t1 - seg.t0) * (j as f32 + 0.5) / 8.0;
+                    let sigma = grid.trilinear(o + d * t);
+                    assert!(
+                        sigma <= seg.sigma_max + 1e-6,
+                        "σ {sigma} > {}",
+                        seg.sigma_max
+                    );
+                }
+                for (i, t_voxel) in [0.0, length].into_iter().enumerate() {
+                    let t_near = if k % 2 == 0 {
+                        t_voxel
+                    } else {
+                        length - t_voxel
+                    };
+                    if seg.sigma_max > 0.0 && seg.t0 <= t_near + 0.25 && seg.t1 >= t_near - 0.25 {
+                        seen[i] = true;
+                    }
+                }
+            }
+            assert_eq!(
+                seen,
+                [true, true],
+                "cell {cell}, ray {k}: a voxel's cells were skipped"
+            );
+        }
+    }
+}

@@ -7,6 +7,7 @@ use glam::{IVec3, Vec3};
 
 use crate::volume::brickmap::floor_ivec3;
 use crate::volume::majorant::{cell_offset, MajorantGrid, MajorantSegment, BLOCK_EDGE, BLOCK_LOG2};
+use crate::volume::sparse_index::NODE_LOG2;
 
 impl MajorantGrid {
     /// Walks the cells the index-space ray `o + t·d` crosses for `t` in `[t0, t1)`, skipping
@@ -151,6 +152,37 @@ impl Dda {
         }
     }
 
+    /// Where the ray leaves the index node (`NODE_LOG2`-aligned group of cells) it is in.
+    #[inline]
+    fn node_exit(&self) -> f32 {
+        let mask = (1 << NODE_LOG2) - 1;
+        (0..3)
+            .map(|a| {
+                let local = self.cell[a] & mask;
+                let remaining = match self.step[a] {
+                    1 => mask - local,
+                    -1 => local,
+                    _ => return f32::INFINITY,
+                };
+                self.next_t[a] + remaining as f32 * self.delta_t[a]
+            })
+            .fold(f32::INFINITY, f32::min)
+    }
+
+    /// Crosses every boundary at or before `t` (at most a node's worth per axis, so that rounding
+    /// can never make this loop long).
+    #[inline]
+    fn advance_to(&mut self, t: f32) {
+        for a in 0..3 {
+            for _ in 0..(1 << NODE_LOG2) {
+                if self.next_t[a] > t || self.step[a] == 0 {
+                    break;
+                }
+                self.advance(a);
+            }
+        }
+    }
+
     #[inline]
     fn advance(&mut self, a: usize) {
         self.cell[a] += self.step[a];
@@ -210,9 +242,16 @@ impl Iterator for DdaWalk<'_> {
                 }
                 return Some(segment);
             }
+            let key = self.outer.cell;
+            if grid.index.node_is_empty(key) {
+                // A whole index node (8³ blocks) without data: jump to where the ray leaves it.
+                let skip_to = self.outer.node_exit().min(self.t_end).max(self.t);
+                self.outer.advance_to(skip_to);
+                self.t = skip_to;
+                continue;
+            }
             let a = self.outer.exit_axis();
             let exit = self.outer.next_t[a].min(self.t_end).max(self.t);
-            let key = self.outer.cell;
             self.outer.advance(a);
             let handle = grid.index.get(key);
             if handle == 0 {

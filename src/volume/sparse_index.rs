@@ -18,7 +18,8 @@ use std::hash::{BuildHasherDefault, Hasher};
 
 use glam::IVec3;
 
-const NODE_LOG2: i32 = 3;
+/// Keys per node edge (log2).
+pub const NODE_LOG2: i32 = 3;
 const NODE_MASK: i32 = (1 << NODE_LOG2) - 1;
 const NODE_ENTRIES: usize = 1 << (3 * NODE_LOG2);
 /// Largest dense top table, in entries (4 bytes each), whatever the caller's budget: 16 KiB.
@@ -179,6 +180,12 @@ impl SparseIndex {
             } => flat_index(node, *origin, *dims).map(|i| &mut entries[i]),
             Top::Hashed(map) => Some(map.entry(node).or_insert(NO_NODE)),
         }
+    }
+
+    /// Whether the whole node holding `key` (its 8³ keys) is absent: a walk can skip it at once.
+    #[inline]
+    pub fn node_is_empty(&self, key: IVec3) -> bool {
+        !matches!(self.top, Top::Flat { .. }) && self.top_entry(node_of(key)) == NO_NODE
     }
 
     /// The handle stored for `key` (0 when absent).
@@ -352,6 +359,10 @@ mod tests {
             assert_eq!(index.get(IVec3::new(8, 15, 8)), 9);
             assert_eq!(index.get(IVec3::new(31, 15, 15)), 9);
             assert_eq!(index.get(IVec3::new(32, 15, 15)), 0);
+            if !matches!(index.top, Top::Flat { .. }) {
+                assert!(index.node_is_empty(IVec3::new(40, 0, 0)));
+                assert!(!index.node_is_empty(IVec3::new(8, 8, 8)));
+            }
             assert!(index.slot_mut(IVec3::new(0, 101, 0)).is_none());
             // Splitting a uniform node keeps its other keys.
             *index.slot_mut(IVec3::new(17, 9, 9)).unwrap() = 4;
