@@ -243,17 +243,16 @@ impl Iterator for DdaWalk<'_> {
                 return Some(segment);
             }
             let key = self.outer.cell;
-            if grid.index.node_is_empty(key) {
+            let Some(handle) = grid.index.get_or_empty_node(key) else {
                 // A whole index node (8³ blocks) without data: jump to where the ray leaves it.
                 let skip_to = self.outer.node_exit().min(self.t_end).max(self.t);
                 self.outer.advance_to(skip_to);
                 self.t = skip_to;
                 continue;
-            }
+            };
             let a = self.outer.exit_axis();
             let exit = self.outer.next_t[a].min(self.t_end).max(self.t);
             self.outer.advance(a);
-            let handle = grid.index.get(key);
             if handle == 0 {
                 self.t = exit; // no data: majorant 0, nothing to sample
                 continue;

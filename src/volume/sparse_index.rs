@@ -182,10 +182,18 @@ impl SparseIndex {
         }
     }
 
-    /// Whether the whole node holding `key` (its 8³ keys) is absent: a walk can skip it at once.
+    /// The handle stored for `key`, `Some(0)` when absent, and `None` when its whole node is
+    /// absent (a walk can skip the node at once): one top-level read for both answers.
     #[inline]
-    pub fn node_is_empty(&self, key: IVec3) -> bool {
-        !matches!(self.top, Top::Flat { .. }) && self.top_entry(node_of(key)) == NO_NODE
+    pub fn get_or_empty_node(&self, key: IVec3) -> Option<u32> {
+        if matches!(self.top, Top::Flat { .. }) {
+            return Some(self.get(key));
+        }
+        match self.top_entry(node_of(key)) {
+            NO_NODE => None,
+            e if e & UNIFORM_BIT != 0 => Some(self.uniform[(e & !UNIFORM_BIT) as usize]),
+            e => Some(self.nodes[e as usize - 1][entry_of(key)]),
+        }
     }
 
     /// The handle stored for `key` (0 when absent).
@@ -360,8 +368,9 @@ mod tests {
             assert_eq!(index.get(IVec3::new(31, 15, 15)), 9);
             assert_eq!(index.get(IVec3::new(32, 15, 15)), 0);
             if !matches!(index.top, Top::Flat { .. }) {
-                assert!(index.node_is_empty(IVec3::new(40, 0, 0)));
-                assert!(!index.node_is_empty(IVec3::new(8, 8, 8)));
+                assert_eq!(index.get_or_empty_node(IVec3::new(40, 0, 0)), None);
+                assert_eq!(index.get_or_empty_node(IVec3::new(9, 8, 8)), Some(9));
+                assert_eq!(index.get_or_empty_node(IVec3::new(-10, 3, 100)), Some(0));
             }
             assert!(index.slot_mut(IVec3::new(0, 101, 0)).is_none());
             // Splitting a uniform node keeps its other keys.
