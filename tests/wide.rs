@@ -6,12 +6,13 @@ mod common;
 use common::*;
 use glam::{DVec3, IVec3, Vec3};
 use volgrad::gradient::adjoint::Estimator;
+use volgrad::gradient::fd;
 use volgrad::gradient::grid::GradientGrid;
 use volgrad::gradient::loss::Loss;
 use volgrad::gradient::passes::{gradient, GradOptions};
 use volgrad::io::vdb::{self, Grid, GridSelector};
 use volgrad::render::image::{render, RenderOptions};
-use volgrad::volume::brickmap::{BrickMap, BrickMapBuilder};
+use volgrad::volume::brickmap::{BrickMap, BrickMapBuilder, Tile};
 use volgrad::volume::majorant::{Majorant, MajorantGrid};
 use volgrad::volume::medium::Filter;
 use volgrad::volume::transform::IndexTransform;
@@ -41,6 +42,10 @@ fn blobs_far_apart_render_and_differentiate_in_little_memory() {
     let grid = two_blobs();
     assert_eq!(grid.active_voxel_count(), 2 * 216);
     let leaf_bytes = std::mem::size_of_val(grid.leaves());
+    println!(
+        "two blobs {GAP} voxels apart: brick map {} bytes for {leaf_bytes} bytes of leaves",
+        grid.memory_bytes()
+    );
     assert!(
         grid.memory_bytes() < leaf_bytes + 64 * 1024,
         "brick map {} bytes for {leaf_bytes} bytes of leaves",
@@ -60,6 +65,10 @@ fn blobs_far_apart_render_and_differentiate_in_little_memory() {
             Filter::Trilinear,
             Majorant::grid(4),
         );
+    println!(
+        "two blobs: majorant {} bytes",
+        scene.medium.majorant.memory_bytes()
+    );
     assert!(
         scene.medium.majorant.memory_bytes() < 256 * 1024,
         "majorant {} bytes",
@@ -86,6 +95,7 @@ fn blobs_far_apart_render_and_differentiate_in_little_memory() {
     );
     let g = &run.gradient;
     assert!(g.voxels().all(|(_, v)| v.is_finite()));
+    println!("two blobs: {} gradient bricks", g.brick_count());
     let near = g.sum_in_box(IVec3::splat(-1), IVec3::splat(6));
     let far = g.sum_in_box(IVec3::new(-1, -1, -GAP - 1), IVec3::new(6, 6, -GAP + 6));
     // More density makes the sky-lit blob darker: the mean's gradient is negative on both blobs
@@ -126,6 +136,10 @@ fn two_voxels_a_million_apart_load_render_and_stay_small() {
     let read = vdb::read_grid(&vdb_path, &GridSelector::Index(0)).unwrap();
     assert_eq!(read.bricks.active_voxel_count(), 2);
     assert_eq!(read.bricks.voxel(IVec3::new(1_000_000, 0, 0)), 1.0);
+    println!(
+        "two voxels 10⁶ apart: brick map {} bytes",
+        read.bricks.memory_bytes()
+    );
     assert!(
         read.bricks.memory_bytes() < 64 * 1024,
         "brick map {} bytes",
@@ -134,6 +148,10 @@ fn two_voxels_a_million_apart_load_render_and_stay_small() {
     for cell in [1, 4, 16] {
         let bounds = (Vec3::splat(-0.5), Vec3::new(1_000_000.5, 0.5, 0.5));
         let m = MajorantGrid::build(&read.bricks, bounds, 1.0, Majorant::grid(cell));
+        println!(
+            "two voxels 10⁶ apart: majorant ({cell}³ cells) {} bytes",
+            m.memory_bytes()
+        );
         assert!(
             m.memory_bytes() < 256 * 1024,
             "majorant {} bytes",
@@ -161,4 +179,143 @@ fn two_voxels_a_million_apart_load_render_and_stay_small() {
         "--stats",
     ]));
     assert!(stdout(&o).contains("memory"), "{}", stdout(&o));
+}
+
+#[test]
+fn finite_differences_refuse_to_list_a_huge_domain_instead_of_exhausting_memory() {
+    let mut b = BrickMapBuilder::new();
+    b.set(IVec3::ZERO, 1.0, true);
+    b.set(IVec3::splat(200_000), 1.0, true);
+    let grid = b.build();
+    let (lo, hi) = fd::domain_bounds(&grid).unwrap();
+    let err = fd::ensure_enumerable(&grid, lo, hi)
+        .unwrap_err()
+        .to_string();
+    assert!(err.contains("200003 × 200003 × 200003"), "{err}");
+    assert!(err.contains("smaller box"), "{err}");
+    fd::ensure_enumerable(&grid, IVec3::splat(-1), IVec3::splat(8)).unwrap();
+    fd::ensure_enumerable(&two_blobs(), IVec3::splat(i32::MIN), IVec3::splat(i32::MAX)).unwrap();
+}
+
+#[test]
+fn a_root_level_tile_costs_its_surface_not_its_volume() {
+    // OpenVDB's largest tiles are 4096³ voxels: constant fog over a whole sky.
+    let tile = Tile {
+        origin: IVec3::ZERO,
+        size: 4096,
+        value: 0.25,
+    };
+    let mut leaf = BrickMapBuilder::new();
+    leaf.set(IVec3::new(5000, 7, 7), 2.0, true);
+    let leaves = leaf.build().leaves().to_vec();
+    let grid = BrickMap::new(leaves, vec![tile]);
+    assert_eq!(grid.voxel(IVec3::splat(4095)), 0.25);
+    assert_eq!(grid.voxel(IVec3::new(5000, 7, 7)), 2.0);
+    assert!(
+        grid.memory_bytes() < 16 << 20,
+        "brick map {} bytes",
+        grid.memory_bytes()
+    );
+    let (lo, hi) = grid.active_bounds().unwrap();
+    let bounds = (lo.as_vec3() - 0.5, hi.as_vec3() + 0.5);
+    let m = MajorantGrid::build(&grid, bounds, 1.0, Majorant::grid(4));
+    println!(
+        "4096³ tile: brick map {} bytes, majorant {} bytes",
+        grid.memory_bytes(),
+        m.memory_bytes()
+    );
+    assert!(
+        m.memory_bytes() < 64 << 20,
+        "majorant {} bytes",
+        m.memory_bytes()
+    );
+    // The majorant bounds the lookups along rays through the tile, its faces and the leaf.
+    for (o, d) in [
+        (Vec3::new(-0.5, 7.2, 7.3), Vec3::X),
+        (
+            Vec3::new(2000.0, -0.5, 4095.2),
+            Vec3::new(0.3, 1.0, 0.0).normalize(),
+        ),
+        (
+            Vec3::new(4090.0, 4090.0, 4090.0),
+            Vec3::new(1.0, -0.001, -0.001).normalize(),
+        ),
+    ] {
+        let t_end = 1200.0;
+        for seg in m.walk(o, d, 0.0, t_end) {
+            for k in 0..4 {
+                let t = seg.t0 + (seg.t1 - seg.t0) * (k as f32 + 0.5) / 4.0;
+                let sigma = grid.trilinear(o + d * t);
+                assert!(
+                    sigma <= seg.sigma_max + 1e-6,
+                    "σ {sigma} > {} at {}",
+                    seg.sigma_max,
+                    o + d * t
+                );
+            }
+        }
+    }
+}
+
+#[test]
+fn walks_skip_empty_nodes_but_never_data() {
+    // Two hot voxels 5,000 apart along a diagonal-ish line; every ray between them crosses empty
+    // nodes (skipped whole) and must still see both voxels' cells.
+    let mut b = BrickMapBuilder::new();
+    let far = IVec3::new(5000, 1200, -700);
+    b.set(IVec3::ZERO, 3.0, true);
+    b.set(far, 5.0, true);
+    let grid = b.build();
+    let (lo, hi) = grid.active_bounds().unwrap();
+    let bounds = (lo.as_vec3() - 0.5, hi.as_vec3() + 0.5);
+    for cell in [1, 4] {
+        let m = MajorantGrid::build(&grid, bounds, 1.0, Majorant::grid(cell));
+        for k in 0..200 {
+            let jitter = Vec3::new(
+                ((k * 37) % 11) as f32 / 11.0 - 0.5,
+                ((k * 53) % 13) as f32 / 13.0 - 0.5,
+                ((k * 71) % 7) as f32 / 7.0 - 0.5,
+            ) * 0.8;
+            let (o, target) = if k % 2 == 0 {
+                (jitter, far.as_vec3() - jitter)
+            } else {
+                (far.as_vec3() + jitter, -jitter)
+            };
+            let d = (target - o).normalize();
+            let length = (target - o).length();
+            let mut seen = [false; 2];
+            let mut last = 0.0f32;
+            for seg in m.walk(o, d, 0.0, length) {
+                assert!(
+                    seg.t0 >= last - 1e-3 && seg.t1 >= seg.t0,
+                    "segments go backwards"
+                );
+                last = seg.t1;
+                for j in 0..8 {
+                    let t = seg.t0 + (seg.t1 - seg.t0) * (j as f32 + 0.5) / 8.0;
+                    let sigma = grid.trilinear(o + d * t);
+                    assert!(
+                        sigma <= seg.sigma_max + 1e-6,
+                        "σ {sigma} > {}",
+                        seg.sigma_max
+                    );
+                }
+                for (i, t_voxel) in [0.0, length].into_iter().enumerate() {
+                    let t_near = if k % 2 == 0 {
+                        t_voxel
+                    } else {
+                        length - t_voxel
+                    };
+                    if seg.sigma_max > 0.0 && seg.t0 <= t_near + 0.25 && seg.t1 >= t_near - 0.25 {
+                        seen[i] = true;
+                    }
+                }
+            }
+            assert_eq!(
+                seen,
+                [true, true],
+                "cell {cell}, ray {k}: a voxel's cells were skipped"
+            );
+        }
+    }
 }

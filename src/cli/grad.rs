@@ -263,7 +263,11 @@ fn fd_directions(
 ) -> Result<Vec<(String, fd::Direction)>> {
     let grid = &scene.medium.grid;
     let (lo, hi) = fd::domain_bounds(grid).context("the grid is empty")?;
-    let domain = || fd::box_voxels(grid, lo, hi, active_only);
+    // Every voxel of the domain, listed: refused (before any work) if there are too many.
+    let domain = || -> Result<Vec<IVec3>> {
+        fd::ensure_enumerable(grid, lo, hi)?;
+        Ok(fd::box_voxels(grid, lo, hi, active_only))
+    };
     Ok(match values::fd_direction(spec)? {
         FdDirection::Voxels(voxels) => voxels
             .into_iter()
@@ -284,15 +288,16 @@ fn fd_directions(
             .collect::<Result<_>>()?,
         FdDirection::Box(b) => {
             let (a, c) = resolve_box(b, scene, "--fd box")?;
+            fd::ensure_enumerable(grid, a, c)?;
             vec![(
                 format!("box {a}..{c}"),
                 fd::ones(&fd::box_voxels(grid, a, c, active_only)),
             )]
         }
-        FdDirection::Ones => vec![("⟨g, 1⟩".into(), fd::ones(&domain()))],
+        FdDirection::Ones => vec![("⟨g, 1⟩".into(), fd::ones(&domain()?))],
         FdDirection::Random => vec![(
             format!("random ±1 (seed {seed})"),
-            fd::random_signs(grid, &domain(), seed, floor),
+            fd::random_signs(grid, &domain()?, seed, floor),
         )],
     })
 }

@@ -262,6 +262,7 @@ pub fn check_reference(
         })
         .collect::<Result<_>>()?;
     if let Some((lo, hi)) = fd::domain_bounds(grid) {
+        fd::ensure_enumerable(grid, lo, hi)?;
         let domain = fd::box_voxels(grid, lo, hi, false);
         let ones = FdOptions {
             eps: ones_eps(scene),

@@ -33,6 +33,32 @@ pub fn domain_bounds(grid: &BrickMap) -> Option<(IVec3, IVec3)> {
     grid.active_bounds().map(|(lo, hi)| (lo - 1, hi + 1))
 }
 
+/// The most voxels a finite-difference direction may enumerate (12 bytes each: 768 MiB).
+pub const MAX_BOX_VOXELS: u64 = 1 << 26;
+
+/// Fails, before anything is allocated, when the inclusive box `[lo, hi]` clipped to the domain
+/// holds more voxels than a direction can list: a sparse grid's domain can span 10⁶ voxels per
+/// axis while its data is small. Call before `box_voxels` on a box the user did not size.
+pub fn ensure_enumerable(grid: &BrickMap, lo: IVec3, hi: IVec3) -> anyhow::Result<()> {
+    let Some((dlo, dhi)) = domain_bounds(grid) else {
+        return Ok(());
+    };
+    let (lo, hi) = (lo.max(dlo), hi.min(dhi));
+    let count = (0..3).try_fold(1u64, |acc, a| {
+        acc.checked_mul((hi[a] as i64 - lo[a] as i64 + 1).max(0) as u64)
+    });
+    match count {
+        Some(n) if n <= MAX_BOX_VOXELS => Ok(()),
+        _ => anyhow::bail!(
+            "the box {lo}..{hi} spans {} voxels, more than the {MAX_BOX_VOXELS} a finite-difference direction can list: choose a smaller box",
+            (0..3)
+                .map(|a| ((hi[a] as i64 - lo[a] as i64 + 1).max(0)).to_string())
+                .collect::<Vec<_>>()
+                .join(" × ")
+        ),
+    }
+}
+
 /// Voxels of the inclusive box `[lo, hi]` clipped to the domain (only active ones if asked).
 pub fn box_voxels(grid: &BrickMap, lo: IVec3, hi: IVec3, active_only: bool) -> Vec<IVec3> {
     let Some((dlo, dhi)) = domain_bounds(grid) else {

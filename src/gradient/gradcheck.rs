@@ -82,6 +82,7 @@ pub fn gradcheck(scene: &Scene, options: &GradcheckOptions) -> anyhow::Result<Ve
     let Some((lo, hi)) = fd::domain_bounds(grid) else {
         return Ok(Vec::new());
     };
+    fd::ensure_enumerable(grid, lo, hi)?;
     let pixels = (scene.camera.width * scene.camera.height) as usize;
     let adjoint = vec![Vec3::ONE / (3 * pixels) as f32; pixels];
     let repeats = options.repeats.max(2);

@@ -24,7 +24,7 @@ pub struct GradientGrid {
 impl GradientGrid {
     /// An empty accumulator covering the voxels from `lo` to `hi` (inclusive).
     pub fn new(lo: IVec3, hi: IVec3) -> Self {
-        Self::with_flat_budget(lo, hi, 1 << 15)
+        Self::with_flat_budget(lo, hi, 1 << 12)
     }
 
     /// As `new`; the brick index is one flat table when the box holds at most `flat_budget`
@@ -42,9 +42,12 @@ impl GradientGrid {
     /// Covers every voxel a lookup in `grid`'s medium can weight.
     pub fn for_grid(grid: &BrickMap) -> Self {
         match grid.active_bounds() {
-            Some((lo, hi)) => {
-                Self::new(lo.saturating_sub(IVec3::ONE), hi.saturating_add(IVec3::ONE))
-            }
+            // The brick map's flat-table rule: at most 16 slots per leaf.
+            Some((lo, hi)) => Self::with_flat_budget(
+                lo.saturating_sub(IVec3::ONE),
+                hi.saturating_add(IVec3::ONE),
+                (16 * grid.leaves().len() as u64).max(1 << 12),
+            ),
             None => Self::new(IVec3::ZERO, IVec3::splat(-1)),
         }
     }

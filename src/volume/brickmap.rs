@@ -272,9 +272,9 @@ impl BrickMap {
 }
 
 /// Bricks a flat slot table may cover: 16 per leaf or tile (64 bytes next to a leaf's 2 KiB, 3 %),
-/// or 2¹⁵ (128 KiB) for tiny grids. Beyond it the table is a sparse index.
+/// or 2¹² (16 KiB) for tiny grids. Beyond it the table is a sparse index.
 fn flat_slot_budget(leaves: &[Leaf], tiles: &[Tile]) -> u64 {
-    (16 * (leaves.len() + tiles.len()) as u64).max(1 << 15)
+    (16 * (leaves.len() + tiles.len()) as u64).max(1 << 12)
 }
 
 /// The brick holding voxel `v`, for voxel coordinates one step beyond the i32 range (an apron).

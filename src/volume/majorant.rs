@@ -17,7 +17,7 @@ use glam::{IVec3, Vec3};
 use crate::volume::brickmap::{leaf_offset, BrickMap, BRICK_VOXELS};
 use crate::volume::sparse_index::SparseIndex;
 
-pub use crate::volume::majorant_walk::DdaWalk;
+pub use crate::volume::majorant_walk::{DdaWalk, FlatWalk, Walk};
 
 #[derive(
     Debug,
@@ -68,6 +68,8 @@ impl Majorant {
 pub(super) const BLOCK_LOG2: i32 = 3;
 const BLOCK_CELLS: usize = 1 << (3 * BLOCK_LOG2);
 pub(super) const BLOCK_EDGE: i32 = 1 << BLOCK_LOG2;
+/// Ranges at least this many blocks wide are raised block by block, not cell by cell.
+const WIDE_RANGE_BLOCKS: i32 = 16;
 
 /// A block of 8³ cells: one majorant for all of them, or one per cell.
 #[derive(Clone)]
@@ -112,10 +114,11 @@ pub(super) fn cell_offset(local: IVec3, dims: IVec3) -> usize {
     (local.x as usize * dims.y as usize + local.y as usize) * dims.z as usize + local.z as usize
 }
 
-/// The most cells a flat majorant may have: one f32 per 64 bytes of leaf values (an eighth of the
-/// data, 512 per leaf), or 2¹⁵ for tiny grids. Beyond it (wide or fine grids) cells live in blocks.
+/// The most cells a flat majorant may have: 2048 per leaf or tile (8 KiB next to a leaf's 2 KiB, so
+/// that a compact grid keeps the fastest walk even with 1³ cells: the cloud's are 2.6 × its leaf
+/// data, as before), or 2¹² for tiny grids. Beyond it (wide grids) cells live in blocks.
 fn flat_cell_budget(bricks: &BrickMap) -> u64 {
-    (512 * (bricks.leaves().len() + bricks.tiles().len()) as u64).max(1 << 15)
+    (2048 * (bricks.leaves().len() + bricks.tiles().len()) as u64).max(1 << 12)
 }
 
 /// Builds the cells of a grid-mode majorant.
@@ -175,10 +178,20 @@ impl Builder {
             return;
         }
         let (b_lo, b_hi) = (lo >> BLOCK_LOG2, hi >> BLOCK_LOG2);
-        // Blocks entirely inside the range share one constant block (a tile's interior).
-        let full_lo = (lo + (1 << BLOCK_LOG2) - 1) >> BLOCK_LOG2;
-        let full_hi = ((hi + 1) >> BLOCK_LOG2) - 1;
-        if full_lo.cmple(full_hi).all() {
+        // Blocks entirely inside the range share one constant block (a tile's interior). A range
+        // many blocks wide (a large tile) gives its partly covered blocks the constant too: a
+        // looser bound one block thick around it, so that its cost grows with its surface in
+        // index nodes and not in cells (a 4096³ tile's apron would otherwise be 10⁵ cell arrays).
+        let wide = (b_hi - b_lo).max_element() >= WIDE_RANGE_BLOCKS;
+        let (fill_lo, fill_hi) = if wide {
+            (b_lo, b_hi)
+        } else {
+            (
+                (lo + (1 << BLOCK_LOG2) - 1) >> BLOCK_LOG2,
+                ((hi + 1) >> BLOCK_LOG2) - 1,
+            )
+        };
+        if fill_lo.cmple(fill_hi).all() {
             self.blocks.push(Block {
                 floor: sigma,
                 cells: None,
@@ -186,11 +199,15 @@ impl Builder {
             });
             let handle = self.blocks.len() as u32;
             let blocks = &mut self.blocks;
-            self.index.fill(full_lo, full_hi, handle, |slot| {
+            self.index.fill(fill_lo, fill_hi, handle, |slot| {
                 let b = Self::own(blocks, slot);
                 Self::raise_floor(&mut blocks[b], sigma);
             });
         }
+        if wide {
+            return;
+        }
+        let (full_lo, full_hi) = (fill_lo, fill_hi);
         for bx in b_lo.x..=b_hi.x {
             for by in b_lo.y..=b_hi.y {
                 for bz in b_lo.z..=b_hi.z {

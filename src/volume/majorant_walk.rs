@@ -7,12 +7,14 @@ use glam::{IVec3, Vec3};
 
 use crate::volume::brickmap::floor_ivec3;
 use crate::volume::majorant::{cell_offset, MajorantGrid, MajorantSegment, BLOCK_EDGE, BLOCK_LOG2};
+use crate::volume::sparse_index::NODE_LOG2;
 
 impl MajorantGrid {
     /// Walks the cells the index-space ray `o + t·d` crosses for `t` in `[t0, t1)`, skipping
-    /// regions without data (their majorant is 0).
+    /// regions without data (their majorant is 0). Match on the result once per walk (as the
+    /// trackers do) to get a loop specialised for the grid's layout.
     #[inline]
-    pub fn walk(&self, o: Vec3, d: Vec3, t0: f32, t1: f32) -> DdaWalk<'_> {
+    pub fn walk(&self, o: Vec3, d: Vec3, t0: f32, t1: f32) -> Walk<'_> {
         // The ray in cell units: cell c spans [c, c + 1).
         let o_cells = (o - self.origin) * self.inv_cell_size;
         let d_cells = d * self.inv_cell_size;
@@ -20,34 +22,82 @@ impl MajorantGrid {
         let step = IVec3::from(d.cmpgt(Vec3::ZERO)) - IVec3::from(d.cmplt(Vec3::ZERO));
         // Edge / |d| rather than 1 / |d_cells|: exact for the global mode's single cell.
         let cell_delta_t = self.cell_size / d.abs();
-        let (outer, inner) = if self.flat.is_empty() {
-            let block = BLOCK_EDGE as f32;
-            let outer = Dda::new(p0 / block, step, cell_delta_t * block, t0, None);
-            (outer, None)
-        } else {
-            // Flat mode: the whole box is one block of cells, walked to the end; no outer walk.
-            let dda = Dda::new(p0, step, cell_delta_t, t0, Some((self.c_lo, self.c_hi)));
-            let inner = Inner {
-                dda,
-                base: self.c_lo,
-                lo: self.c_lo,
-                hi: self.c_hi,
-                dims: self.c_hi - self.c_lo + 1,
+        if !self.flat.is_empty() {
+            // In the flat array's own coordinates: cell c_lo is (0, 0, 0).
+            let dims = self.c_hi - self.c_lo + 1;
+            let local = p0 - self.c_lo.as_vec3();
+            return Walk::Flat(FlatWalk {
                 cells: &self.flat,
-                exit: t1,
-            };
-            (dda, Some(inner))
-        };
-        DdaWalk {
+                dims,
+                dda: Dda::new(local, step, cell_delta_t, t0, Some((IVec3::ZERO, dims - 1))),
+                t: t0,
+                t_end: t1,
+            });
+        }
+        let block = BLOCK_EDGE as f32;
+        Walk::Blocks(DdaWalk {
             grid: self,
             o_cells,
             d_cells,
             cell_delta_t,
             t: t0,
             t_end: t1,
-            outer,
-            inner,
+            outer: Dda::new(p0 / block, step, cell_delta_t * block, t0, None),
+            inner: None,
+        })
+    }
+}
+
+/// A walk over a majorant grid, by layout.
+pub enum Walk<'a> {
+    Flat(FlatWalk<'a>),
+    Blocks(DdaWalk<'a>),
+}
+
+impl Iterator for Walk<'_> {
+    type Item = MajorantSegment;
+
+    #[inline]
+    fn next(&mut self) -> Option<MajorantSegment> {
+        match self {
+            Walk::Flat(w) => w.next(),
+            Walk::Blocks(w) => w.next(),
         }
+    }
+}
+
+/// The walk over a flat grid: one DDA over its cells, ending where the ray leaves the array.
+pub struct FlatWalk<'a> {
+    cells: &'a [f32],
+    dims: IVec3,
+    dda: Dda,
+    t: f32,
+    t_end: f32,
+}
+
+impl Iterator for FlatWalk<'_> {
+    type Item = MajorantSegment;
+
+    #[inline]
+    fn next(&mut self) -> Option<MajorantSegment> {
+        // Not `t >= t_end`: a walk whose bounds are NaN must end too.
+        if self.t.partial_cmp(&self.t_end) != Some(std::cmp::Ordering::Less) {
+            return None;
+        }
+        let dda = &mut self.dda;
+        let a = dda.exit_axis();
+        let t1 = dda.next_t[a].min(self.t_end);
+        let segment = MajorantSegment {
+            t0: self.t,
+            t1,
+            sigma_max: self.cells[cell_offset(dda.cell, self.dims)],
+        };
+        self.t = t1;
+        dda.advance(a);
+        if dda.cell[a] < 0 || dda.cell[a] >= self.dims[a] {
+            self.t_end = t1; // left the grid
+        }
+        Some(segment)
     }
 }
 
@@ -99,6 +149,37 @@ impl Dda {
             1
         } else {
             2
+        }
+    }
+
+    /// Where the ray leaves the index node (`NODE_LOG2`-aligned group of cells) it is in.
+    #[inline]
+    fn node_exit(&self) -> f32 {
+        let mask = (1 << NODE_LOG2) - 1;
+        (0..3)
+            .map(|a| {
+                let local = self.cell[a] & mask;
+                let remaining = match self.step[a] {
+                    1 => mask - local,
+                    -1 => local,
+                    _ => return f32::INFINITY,
+                };
+                self.next_t[a] + remaining as f32 * self.delta_t[a]
+            })
+            .fold(f32::INFINITY, f32::min)
+    }
+
+    /// Crosses every boundary at or before `t` (at most a node's worth per axis, so that rounding
+    /// can never make this loop long).
+    #[inline]
+    fn advance_to(&mut self, t: f32) {
+        for a in 0..3 {
+            for _ in 0..(1 << NODE_LOG2) {
+                if self.next_t[a] > t || self.step[a] == 0 {
+                    break;
+                }
+                self.advance(a);
+            }
         }
     }
 
@@ -158,17 +239,20 @@ impl Iterator for DdaWalk<'_> {
                 let c = inner.dda.cell[a];
                 if t1 >= inner.exit || c < inner.lo[a] || c > inner.hi[a] {
                     self.inner = None;
-                    if !grid.flat.is_empty() {
-                        self.t_end = t1; // left the flat grid: the walk is over
-                    }
                 }
                 return Some(segment);
             }
+            let key = self.outer.cell;
+            let Some(handle) = grid.index.get_or_empty_node(key) else {
+                // A whole index node (8³ blocks) without data: jump to where the ray leaves it.
+                let skip_to = self.outer.node_exit().min(self.t_end).max(self.t);
+                self.outer.advance_to(skip_to);
+                self.t = skip_to;
+                continue;
+            };
             let a = self.outer.exit_axis();
             let exit = self.outer.next_t[a].min(self.t_end).max(self.t);
-            let key = self.outer.cell;
             self.outer.advance(a);
-            let handle = grid.index.get(key);
             if handle == 0 {
                 self.t = exit; // no data: majorant 0, nothing to sample
                 continue;

@@ -18,7 +18,8 @@ use std::hash::{BuildHasherDefault, Hasher};
 
 use glam::IVec3;
 
-const NODE_LOG2: i32 = 3;
+/// Keys per node edge (log2).
+pub const NODE_LOG2: i32 = 3;
 const NODE_MASK: i32 = (1 << NODE_LOG2) - 1;
 const NODE_ENTRIES: usize = 1 << (3 * NODE_LOG2);
 /// Largest dense top table, in entries (4 bytes each), whatever the caller's budget: 16 KiB.
@@ -178,6 +179,20 @@ impl SparseIndex {
                 entries,
             } => flat_index(node, *origin, *dims).map(|i| &mut entries[i]),
             Top::Hashed(map) => Some(map.entry(node).or_insert(NO_NODE)),
+        }
+    }
+
+    /// The handle stored for `key`, `Some(0)` when absent, and `None` when its whole node is
+    /// absent (a walk can skip the node at once): one top-level read for both answers.
+    #[inline]
+    pub fn get_or_empty_node(&self, key: IVec3) -> Option<u32> {
+        if matches!(self.top, Top::Flat { .. }) {
+            return Some(self.get(key));
+        }
+        match self.top_entry(node_of(key)) {
+            NO_NODE => None,
+            e if e & UNIFORM_BIT != 0 => Some(self.uniform[(e & !UNIFORM_BIT) as usize]),
+            e => Some(self.nodes[e as usize - 1][entry_of(key)]),
         }
     }
 
@@ -352,6 +367,11 @@ mod tests {
             assert_eq!(index.get(IVec3::new(8, 15, 8)), 9);
             assert_eq!(index.get(IVec3::new(31, 15, 15)), 9);
             assert_eq!(index.get(IVec3::new(32, 15, 15)), 0);
+            if !matches!(index.top, Top::Flat { .. }) {
+                assert_eq!(index.get_or_empty_node(IVec3::new(40, 0, 0)), None);
+                assert_eq!(index.get_or_empty_node(IVec3::new(9, 8, 8)), Some(9));
+                assert_eq!(index.get_or_empty_node(IVec3::new(-10, 3, 100)), Some(0));
+            }
             assert!(index.slot_mut(IVec3::new(0, 101, 0)).is_none());
             // Splitting a uniform node keeps its other keys.
             *index.slot_mut(IVec3::new(17, 9, 9)).unwrap() = 4;

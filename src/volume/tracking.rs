@@ -7,6 +7,7 @@
 
 use rand::Rng;
 
+use crate::volume::majorant::{MajorantSegment, Walk};
 use crate::volume::medium::{IndexRay, Medium};
 
 /// Counters kept per thread and summed once at the end.
@@ -48,10 +49,23 @@ fn walk_tentative<R: Rng>(
     t0: f32,
     t1: f32,
     rng: &mut R,
+    visit: impl FnMut(f32, f32, &mut R) -> bool,
+) -> Option<f32> {
+    // One dispatch per walk: each layout gets its own specialised loop.
+    match medium.majorant.walk(ray.o, ray.d, t0, t1) {
+        Walk::Flat(segments) => walk_segments(segments, rng, visit),
+        Walk::Blocks(segments) => walk_segments(segments, rng, visit),
+    }
+}
+
+#[inline(always)]
+fn walk_segments<R: Rng>(
+    segments: impl Iterator<Item = MajorantSegment>,
+    rng: &mut R,
     mut visit: impl FnMut(f32, f32, &mut R) -> bool,
 ) -> Option<f32> {
     let mut budget = exponential(rng);
-    for seg in medium.majorant.walk(ray.o, ray.d, t0, t1) {
+    for seg in segments {
         if seg.sigma_max <= 0.0 {
             continue;
         }
