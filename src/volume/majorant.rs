@@ -98,6 +98,9 @@ pub struct MajorantGrid {
     /// Block mode: block coordinates → index + 1 into `blocks`.
     pub(super) index: SparseIndex,
     pub(super) blocks: Vec<Block>,
+    /// Whether walks refine loose cells along the ray (`volume::refine`): the grid mode does; the
+    /// global mode is the plain one-majorant baseline that speed comparisons measure against.
+    pub refine: bool,
 }
 
 /// One stretch of a ray inside one majorant cell: `[t0, t1)` in world distance.
@@ -259,6 +262,7 @@ impl MajorantGrid {
                 flat: vec![bricks.max_value().max(0.0) * density_scale],
                 index: SparseIndex::new(IVec3::ZERO, IVec3::splat(-1)),
                 blocks: Vec::new(),
+                refine: true,
             },
             MajorantMode::Grid => Self::build_cells(
                 bricks,
@@ -335,6 +339,7 @@ impl MajorantGrid {
             flat: builder.flat,
             index: builder.index,
             blocks: builder.blocks,
+            refine: true,
         }
     }
 

@@ -5,6 +5,7 @@ pub mod brickmap;
 pub mod majorant;
 pub mod majorant_walk;
 pub mod medium;
+pub mod refine;
 pub mod sparse_index;
 pub mod tracking;
 pub mod transform;

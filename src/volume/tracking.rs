@@ -9,6 +9,7 @@ use rand::Rng;
 
 use crate::volume::majorant::{MajorantSegment, Walk};
 use crate::volume::medium::{IndexRay, Medium};
+use crate::volume::refine::{Refine, SPLIT_DEPTH};
 
 /// Counters kept per thread and summed once at the end.
 #[derive(Debug, Default, Clone, Copy)]
@@ -51,41 +52,71 @@ fn walk_tentative<R: Rng>(
     rng: &mut R,
     visit: impl FnMut(f32, f32, &mut R) -> bool,
 ) -> Option<f32> {
-    // One dispatch per walk: each layout gets its own specialised loop.
+    // One dispatch per walk: each layout gets its own specialised loop. Loose cells are refined
+    // along the ray (`volume::refine`) except in the global mode, the plain baseline.
+    let refine = medium.majorant.refine.then_some((medium, ray));
     match medium.majorant.walk(ray.o, ray.d, t0, t1) {
-        Walk::Flat(segments) => walk_segments(segments, rng, visit),
-        Walk::Blocks(segments) => walk_segments(segments, rng, visit),
+        Walk::Flat(segments) => walk_segments(segments, refine, rng, visit),
+        Walk::Blocks(segments) => walk_segments(segments, refine, rng, visit),
     }
 }
 
 #[inline(always)]
 fn walk_segments<R: Rng>(
     segments: impl Iterator<Item = MajorantSegment>,
+    refine: Option<(&Medium, &IndexRay)>,
     rng: &mut R,
     mut visit: impl FnMut(f32, f32, &mut R) -> bool,
 ) -> Option<f32> {
     let mut budget = exponential(rng);
     for seg in segments {
-        if seg.sigma_max <= 0.0 {
-            continue;
-        }
-        let mut t = seg.t0;
-        loop {
-            let reach = budget / seg.sigma_max;
-            if t + reach >= seg.t1 {
-                budget = (budget - (seg.t1 - t) * seg.sigma_max).max(0.0);
-                break;
+        match refine {
+            // Only a cell whose walk would cost many tentative collisions is worth refining; the
+            // test keeps the common case (a few collisions per cell) as fast as an unrefined walk.
+            Some((medium, ray)) if seg.sigma_max * (seg.t1 - seg.t0) > SPLIT_DEPTH => {
+                for sub in Refine::new(std::iter::once(seg), medium, ray) {
+                    if let Some(t) = cross(sub, &mut budget, rng, &mut visit) {
+                        return Some(t);
+                    }
+                }
             }
-            // In absurdly dense media a step can fall below f32 resolution: moving by at least
-            // one ulp keeps every walk finite.
-            t = (t + reach).max(t.next_up());
-            if visit(t, seg.sigma_max, rng) {
-                return Some(t);
+            _ => {
+                if let Some(t) = cross(seg, &mut budget, rng, &mut visit) {
+                    return Some(t);
+                }
             }
-            budget = exponential(rng);
         }
     }
     None
+}
+
+/// Spends the optical-depth budget across one majorant segment; the first tentative collision that
+/// `visit` accepts ends the walk.
+#[inline(always)]
+fn cross<R: Rng>(
+    seg: MajorantSegment,
+    budget: &mut f32,
+    rng: &mut R,
+    visit: &mut impl FnMut(f32, f32, &mut R) -> bool,
+) -> Option<f32> {
+    if seg.sigma_max <= 0.0 {
+        return None;
+    }
+    let mut t = seg.t0;
+    loop {
+        let reach = *budget / seg.sigma_max;
+        if t + reach >= seg.t1 {
+            *budget = (*budget - (seg.t1 - t) * seg.sigma_max).max(0.0);
+            return None;
+        }
+        // In absurdly dense media a step can fall below f32 resolution: moving by at least one
+        // ulp keeps every walk finite.
+        t = (t + reach).max(t.next_up());
+        if visit(t, seg.sigma_max, rng) {
+            return Some(t);
+        }
+        *budget = exponential(rng);
+    }
 }
 
 /// Delta tracking on `[t0, t1)`: the distance of the first real collision, sampled with pdf
