@@ -23,17 +23,6 @@ pub struct RenderOptions {
     pub progress: bool,
 }
 
-impl RenderOptions {
-    pub fn from_scene(scene: &Scene) -> Self {
-        RenderOptions {
-            spp: scene.settings.spp,
-            seed: scene.settings.seed,
-            max_depth: scene.settings.max_depth,
-            progress: false,
-        }
-    }
-}
-
 #[derive(Debug, Default, Clone, Copy)]
 pub struct RenderStats {
     pub paths: u64,
