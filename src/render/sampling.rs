@@ -56,32 +56,35 @@ pub struct HenyeyGreenstein {
 impl HenyeyGreenstein {
     /// p(cos θ) = (1 − g²) / (4π (1 + g² − 2g cos θ)^{3/2}).
     ///
-    /// In f64 and with the denominator written as (1 − g)² + 2g(1 − cos θ): in f32, 1 + g² − 2g·cosθ
-    /// cancels to exactly 0 at cos θ = 1 once |g| ≳ 0.9995 (an infinite density, then NaN). This
-    /// form stays positive for every |g| < 1 and the value fits an f32 (≈ 1.6e9 at g = 0.99999).
+    /// In f32, 1 + g² − 2g·cosθ cancels to exactly 0 at the peak once |g| ≳ 0.9995 (an infinite
+    /// density, then NaN). With a = |g| and the cosine mirrored for g < 0 (HG(g, c) = HG(|g|, ±c)),
+    /// the denominator is (1 − a)² + 2a(1 − c): 1 − a is exact for a ≥ ½ (Sterbenz), the form stays
+    /// positive for every |g| < 1, and the value fits an f32 (≈ 1.6e9 at |g| = 0.99999).
     #[inline]
     pub fn eval(&self, cos_theta: f32) -> f32 {
-        let g = self.g as f64;
-        let one_minus_cos = (1.0 - cos_theta as f64).clamp(0.0, 2.0);
-        let denom = (1.0 - g) * (1.0 - g) + 2.0 * g * one_minus_cos;
-        ((1.0 - g * g) / (4.0 * std::f64::consts::PI * denom * denom.sqrt())) as f32
+        let a = self.g.abs();
+        let c = if self.g >= 0.0 { cos_theta } else { -cos_theta };
+        let one_minus_c = (1.0 - c).clamp(0.0, 2.0);
+        let denom = (1.0 - a) * (1.0 - a) + 2.0 * a * one_minus_c;
+        (1.0 - a) * (1.0 + a) / (4.0 * PI * denom * denom.sqrt())
     }
 
-    /// A direction scattered from `dir`, with pdf `eval(dir · result)` (exact sampling). The
-    /// inversion runs in f64 for the same reason as `eval`: near |g| = 1 the f32 form loses every
-    /// digit of cos θ.
+    /// A direction scattered from `dir`, with pdf `eval(dir · result)` (exact sampling). For
+    /// a = |g| the inversion gives q = 1 − c directly, q = (1 − a)(1 − u)(s + 1 − a) / (1 − a + 2au)
+    /// with s = (1 − a²) / (1 − a + 2au) — what the textbook form (1 + a² − s²)/2a loses to
+    /// cancellation near a = 1 — and c is mirrored back for g < 0.
     #[inline]
     pub fn sample(&self, dir: Vec3, u: [f32; 2]) -> Vec3 {
-        let g = self.g as f64;
-        let u0 = u[0] as f64;
-        let cos_theta = if g.abs() < 1e-3 {
-            1.0 - 2.0 * u0
+        let a = self.g.abs();
+        let q = if a < 1e-3 {
+            2.0 * u[0]
         } else {
-            let s = (1.0 - g * g) / (1.0 - g + 2.0 * g * u0);
-            ((1.0 + g * g - s * s) / (2.0 * g)).clamp(-1.0, 1.0)
+            let d = 1.0 - a + 2.0 * a * u[0];
+            let s = (1.0 - a) * (1.0 + a) / d;
+            ((1.0 - a) * (1.0 - u[0]) * (s + 1.0 - a) / d).clamp(0.0, 2.0)
         };
-        let sin_theta = (1.0 - cos_theta * cos_theta).max(0.0).sqrt() as f32;
-        let cos_theta = cos_theta as f32;
+        let cos_theta = if self.g >= 0.0 { 1.0 - q } else { q - 1.0 };
+        let sin_theta = (q * (2.0 - q)).max(0.0).sqrt();
         let phi = 2.0 * PI * u[1];
         let (t, b) = basis(dir);
         (t * (sin_theta * phi.cos()) + b * (sin_theta * phi.sin()) + dir * cos_theta).normalize()
