@@ -25,7 +25,7 @@ pub enum Class {
     #[default]
     Fog,
     /// Signed distances in world units (negative inside) in a narrow band of
-    /// `LEVEL_SET_HALF_WIDTH` voxels either side of the surface; background the half-width.
+    /// 3 voxels (OpenVDB's default half-width) either side of the surface; background the half-width.
     /// Sphere only, cubic voxels only (the distance is then exact).
     Levelset,
 }
