@@ -6,9 +6,13 @@
 
 use std::collections::HashMap;
 
+use anyhow::{bail, Result};
 use glam::IVec3;
 
 use crate::volume::brickmap::{leaf_offset, BrickMap, BrickMapBuilder, BRICK_VOXELS};
+
+/// The most voxels `from_grid` voxelises from tiles (2^28: 3 GiB of θ and moments).
+pub const MAX_VOXELS: u64 = 1 << 28;
 
 /// Adam's settings (Kingma & Ba 2015); θ is projected onto θ ≥ 0 after every step.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -58,25 +62,39 @@ pub struct Parameters {
 }
 
 impl Parameters {
-    /// θ from a grid's voxel values (its tiles are voxelised: every value is a parameter).
-    pub fn from_grid(grid: &BrickMap) -> Self {
+    /// θ from a grid's voxel values. Tiles are voxelised (every value is a parameter), so a grid
+    /// whose tiles hold more than `MAX_VOXELS` voxels is an error naming the count, before any
+    /// allocation.
+    pub fn from_grid(grid: &BrickMap) -> Result<Self> {
+        let tile_voxels = grid
+            .tiles()
+            .iter()
+            .try_fold(0u64, |n, t| n.checked_add((t.size as u64).checked_pow(3)?));
+        match tile_voxels {
+            Some(n) if n <= MAX_VOXELS => {}
+            _ => bail!(
+                "the grid's tiles hold {} voxels; as parameters every voxel is stored with its optimiser state, at most {MAX_VOXELS}",
+                tile_voxels.map_or("more than 2^64".into(), |n| n.to_string())
+            ),
+        }
         let mut p = Parameters::default();
         for leaf in grid.leaves() {
-            let brick = p.brick(leaf.origin >> 3);
-            brick.theta = leaf.values.map(|x| x.max(0.0));
+            p.brick(leaf.origin >> 3).theta = leaf.values.map(|x| x.max(0.0));
         }
+        // Tiles are aligned to bricks (their size is a multiple of 8): fill brick by brick.
         for tile in grid.tiles() {
-            let size = tile.size as i32;
-            for x in 0..size {
-                for y in 0..size {
-                    for z in 0..size {
-                        p.set(tile.origin + IVec3::new(x, y, z), tile.value);
+            let bricks = (tile.size as i32 / 8).max(1);
+            for x in 0..bricks {
+                for y in 0..bricks {
+                    for z in 0..bricks {
+                        let key = (tile.origin >> 3) + IVec3::new(x, y, z);
+                        p.brick(key).theta = [tile.value.max(0.0); BRICK_VOXELS];
                     }
                 }
             }
         }
         p.prune();
-        p
+        Ok(p)
     }
 
     fn brick(&mut self, brick: IVec3) -> &mut ParameterBrick {
@@ -87,9 +105,20 @@ impl Parameters {
 
     /// θ at a voxel (0 where no brick is).
     pub fn get(&self, voxel: IVec3) -> f32 {
-        self.bricks
-            .get(&(voxel >> 3))
-            .map_or(0.0, |b| b.theta[leaf_offset(voxel & 7)])
+        self.state(voxel).0
+    }
+
+    /// (θ, m, v) at a voxel (zeros where no brick is).
+    pub fn state(&self, voxel: IVec3) -> (f32, f32, f32) {
+        self.bricks.get(&(voxel >> 3)).map_or((0.0, 0.0, 0.0), |b| {
+            let i = leaf_offset(voxel & 7);
+            (b.theta[i], b.m[i], b.v[i])
+        })
+    }
+
+    /// The brick coordinates (voxel >> 3) that hold parameters.
+    pub fn brick_keys(&self) -> impl Iterator<Item = IVec3> + '_ {
+        self.bricks.keys().copied()
     }
 
     /// Sets θ at a voxel (clamped to ≥ 0), creating its brick.
@@ -249,10 +278,27 @@ mod tests {
         assert!(p.memory_bytes() >= 3 * BRICK_VOXELS * 4);
     }
 
+    /// Tiles become parameters brick by brick; one too large to store is refused, not voxelised.
+    #[test]
+    fn tiles_are_voxelised_within_a_cap() {
+        use crate::volume::brickmap::Tile;
+        let tile = |size: u32| Tile {
+            origin: IVec3::ZERO,
+            size,
+            value: 0.5,
+        };
+        let small = Parameters::from_grid(&BrickMap::new(Vec::new(), vec![tile(16)])).unwrap();
+        assert_eq!(small.brick_count(), 8);
+        assert_eq!(small.get(IVec3::new(15, 0, 9)), 0.5);
+        let huge = Parameters::from_grid(&BrickMap::new(Vec::new(), vec![tile(4096)]));
+        let err = huge.err().unwrap().to_string();
+        assert!(err.contains("68719476736 voxels"), "{err}");
+    }
+
     #[test]
     fn grids_convert_both_ways() {
         let grid = BrickMap::block(10, |v| (v.x + 2 * v.y) as f32 * 0.1);
-        let p = Parameters::from_grid(&grid);
+        let p = Parameters::from_grid(&grid).unwrap();
         let back = p.to_brickmap();
         for v in [IVec3::ZERO, IVec3::new(9, 9, 9), IVec3::new(3, 7, 1)] {
             assert_eq!(back.voxel(v), grid.voxel(v));

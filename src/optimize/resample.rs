@@ -7,7 +7,7 @@
 //! (`Moments::Reset`); which one keeps an optimisation stable after an upsampling is the
 //! `optimize` layer's choice, measured there.
 
-use std::collections::HashMap;
+use std::collections::HashSet;
 
 use glam::{DAffine3, DQuat, DVec3, IVec3, Vec3};
 
@@ -29,7 +29,7 @@ fn old_index(j: IVec3) -> Vec3 {
 }
 
 /// Trilinear interpolation of θ, m and v between voxel centres (OpenVDB's box-sampler convention).
-fn trilinear(p: &Parameters, moments: &HashMap<IVec3, (f32, f32)>, c: Vec3) -> (f32, f32, f32) {
+fn trilinear(p: &Parameters, c: Vec3) -> (f32, f32, f32) {
     let base = floor_ivec3(c);
     let f = c - base.as_vec3();
     let mut out = (0.0, 0.0, 0.0);
@@ -39,43 +39,49 @@ fn trilinear(p: &Parameters, moments: &HashMap<IVec3, (f32, f32)>, c: Vec3) -> (
             * (if o.y == 1 { f.y } else { 1.0 - f.y })
             * (if o.z == 1 { f.z } else { 1.0 - f.z });
         if w > 0.0 {
-            let v = base + o;
-            let (m, s) = moments.get(&v).copied().unwrap_or((0.0, 0.0));
-            out.0 += w * p.get(v);
+            let (theta, m, v) = p.state(base + o);
+            out.0 += w * theta;
             out.1 += w * m;
-            out.2 += w * s;
+            out.2 += w * v;
         }
     }
     out
 }
 
-/// The unknown at twice the resolution per axis, and its transform.
+/// The unknown at twice the resolution per axis, and its transform. Work and memory follow the
+/// stored bricks: each old brick b reaches the new bricks 2b − 1 ..= 2b + 2 (its voxels' trilinear
+/// footprint), and only those are sampled.
 pub fn upsample(
     p: &Parameters,
     transform: &IndexTransform,
     moments: Moments,
 ) -> anyhow::Result<(Parameters, IndexTransform)> {
-    let stored: HashMap<IVec3, (f32, f32)> = p.voxels().map(|(v, _, m, s)| (v, (m, s))).collect();
-    let mut fine = Parameters::default();
-    // Every new voxel whose trilinear footprint touches a stored old voxel: old voxel i reaches
-    // new voxels 2i − 2 ..= 2i + 2.
-    let mut targets: Vec<IVec3> = Vec::new();
-    for &v in stored.keys() {
-        for dx in -2..=2 {
-            for dy in -2..=2 {
-                for dz in -2..=2 {
-                    targets.push(v * 2 + IVec3::new(dx, dy, dz));
+    let mut targets: HashSet<IVec3> = HashSet::new();
+    for b in p.brick_keys() {
+        for dx in -1..=2 {
+            for dy in -1..=2 {
+                for dz in -1..=2 {
+                    targets.insert(b * 2 + IVec3::new(dx, dy, dz));
                 }
             }
         }
     }
-    targets.sort_unstable_by_key(|v| (v.x, v.y, v.z));
-    targets.dedup();
-    for j in targets {
-        let (theta, m, s) = trilinear(p, &stored, old_index(j));
-        match moments {
-            Moments::Resample => fine.set_with_moments(j, theta, m, s),
-            Moments::Reset => fine.set(j, theta),
+    let mut fine = Parameters::default();
+    for key in targets {
+        for x in 0..8 {
+            for y in 0..8 {
+                for z in 0..8 {
+                    let j = (key << 3) + IVec3::new(x, y, z);
+                    let (theta, m, v) = trilinear(p, old_index(j));
+                    if theta == 0.0 && m == 0.0 && v == 0.0 {
+                        continue;
+                    }
+                    match moments {
+                        Moments::Resample => fine.set_with_moments(j, theta, m, v),
+                        Moments::Reset => fine.set(j, theta),
+                    }
+                }
+            }
         }
     }
     fine.prune();
