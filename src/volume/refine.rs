@@ -75,8 +75,9 @@ impl<'a, I> Refine<'a, I> {
         if self.medium.filter == Filter::Trilinear && first + IVec3::ONE == last {
             return Some(self.medium.density_scale * self.trilinear_max(first, lo, hi));
         }
-        let extent = last - first + IVec3::ONE;
-        if extent.x * extent.y * extent.z > MAX_BOUND_VOXELS {
+        // In i64: a stretch across a huge tile spans more voxels than an i32 product can count.
+        let extent = (last - first + IVec3::ONE).as_i64vec3();
+        if extent.x * extent.y * extent.z > MAX_BOUND_VOXELS as i64 {
             return None;
         }
         let grid = &self.medium.grid;
@@ -256,5 +257,49 @@ mod tests {
                 "{filter}: refined {refined_depth:.3e} vs coarse {coarse_depth:.3e}"
             );
         }
+    }
+
+    /// A stretch across a huge constant tile spans more voxels than an i32 product can count: it is
+    /// split without being bounded voxel by voxel, and the walk ends.
+    #[test]
+    fn a_huge_tile_is_refined_without_counting_its_voxels() {
+        use crate::volume::brickmap::Tile;
+        let grid = BrickMap::new(
+            Vec::new(),
+            vec![Tile {
+                origin: IVec3::ZERO,
+                size: 4096,
+                value: 2.0,
+            }],
+        );
+        let medium = Medium::new(
+            grid,
+            IndexTransform::uniform(1.0, DVec3::ZERO),
+            1.0,
+            Filter::Trilinear,
+            Majorant::global(),
+        );
+        let ray = IndexRay {
+            o: Vec3::splat(-0.5),
+            d: Vec3::ONE.normalize(),
+        };
+        let (t0, t1) = medium.intersect(&ray).unwrap();
+        let whole = MajorantSegment {
+            t0,
+            t1,
+            sigma_max: 2.0,
+        };
+        let refined: Vec<_> = Refine::new(std::iter::once(whole), &medium, &ray).collect();
+        // Splitting goes on while a stretch would cost more than KEEP_SPLITTING_DEPTH tentative
+        // collisions (a walk through it ends at its first ones): about τ̄ / 64 pieces, in order.
+        let depth = 2.0 * (t1 - t0);
+        assert!(
+            refined.len() as f32 <= 2.0 * depth / KEEP_SPLITTING_DEPTH + 2.0,
+            "{}",
+            refined.len()
+        );
+        assert!(refined.iter().all(|s| s.sigma_max == 2.0));
+        assert!(refined.windows(2).all(|w| w[0].t1 == w[1].t0));
+        assert_eq!((refined[0].t0, refined.last().unwrap().t1), (t0, t1));
     }
 }
