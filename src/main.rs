@@ -39,6 +39,9 @@ enum Command {
     Compare(cli::compare::Args),
     /// Combine gradient VDBs from runs with different seeds, weighted by their spp.
     Merge(cli::merge::Args),
+    /// Reconstruct a density grid from images (inverse rendering), or compare estimators on it
+    /// at equal time (--estimators).
+    Optimize(cli::optimize::Args),
 }
 
 fn main() -> ExitCode {
@@ -50,6 +53,7 @@ fn main() -> ExitCode {
         Command::Gradcheck(args) => cli::gradcheck::run(&args),
         Command::Compare(args) => cli::compare::run(&args),
         Command::Merge(args) => cli::merge::run(&args),
+        Command::Optimize(args) => cli::optimize::run(&args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -8,6 +8,7 @@ pub mod gradcheck;
 pub mod info;
 pub mod make_grid;
 pub mod merge;
+pub mod optimize;
 pub mod render;
 pub mod values;
 

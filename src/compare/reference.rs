@@ -42,7 +42,7 @@ pub struct ReferenceOptions {
 /// Mean of `seeds` joint runs and `seeds` drt runs at `spp` each, with per-voxel standard errors.
 pub fn build_reference(scene: &Scene, o: &ReferenceOptions) -> Reference {
     let adjoint = mean_adjoint(scene);
-    let mut sum = GradientGrid::for_grid(&scene.medium.grid);
+    let mut sum = GradientGrid::for_medium(&scene.medium);
     let mut squares = sum.empty_like();
     let runs = 2 * o.seeds.max(1);
     let bar = crate::io::progress::bar(o.progress, runs as u64, "reference");
@@ -175,7 +175,7 @@ pub fn load_reference(path: &Path, scene: &Scene) -> Result<Reference> {
     let runs = number("volgrad_reference_runs")? as u32;
     let spp_per_run = number("volgrad_reference_spp")? as u32;
     let to_gradient = |grid: &vdb::Grid| -> Result<GradientGrid> {
-        let mut g = GradientGrid::for_grid(&scene.medium.grid);
+        let mut g = GradientGrid::for_medium(&scene.medium);
         let domain = fd::domain_bounds(&scene.medium.grid);
         for leaf in grid.bricks.leaves() {
             for (o, &value) in leaf.values.iter().enumerate() {

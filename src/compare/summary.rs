@@ -8,7 +8,7 @@ use std::path::Path;
 use anyhow::{Context, Result};
 
 use crate::compare::Row;
-use crate::io::chart::{Chart, Series};
+use crate::io::chart::{Chart, Scale, Series};
 use crate::io::table::{Align, Table};
 
 fn cell(v: f64) -> String {
@@ -66,6 +66,8 @@ pub fn chart(rows: &[Row], title: &str, y_label: &str) -> Chart {
         title: title.into(),
         x_label: "wall time (s)".into(),
         y_label: y_label.into(),
+        x_scale: Scale::Log,
+        y_scale: Scale::Log,
         series,
     }
 }

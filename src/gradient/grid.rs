@@ -7,8 +7,9 @@
 use glam::IVec3;
 
 use crate::volume::brickmap::{
-    corner, leaf_offset, BrickMap, BrickMapBuilder, BRICK_VOXELS, CORNER_OFFSETS,
+    corner, floor_ivec3, leaf_offset, BrickMap, BrickMapBuilder, BRICK_VOXELS, CORNER_OFFSETS,
 };
+use crate::volume::medium::Medium;
 use crate::volume::sparse_index::SparseIndex;
 
 #[derive(Clone)]
@@ -50,6 +51,24 @@ impl GradientGrid {
             ),
             None => Self::new(IVec3::ZERO, IVec3::splat(-1)),
         }
+    }
+
+    /// Covers every voxel a lookup inside `medium`'s bounds can weight (the same as `for_grid` for
+    /// a medium that ends at its active voxels; an optimisation's fixed domain otherwise).
+    pub fn for_medium(medium: &Medium) -> Self {
+        let (lo, hi) = medium.bounds;
+        if !(lo.cmplt(hi).all()) {
+            return Self::new(IVec3::ZERO, IVec3::splat(-1));
+        }
+        // A trilinear lookup at p weights the voxels floor(p) and floor(p) + 1 (voxel centres sit
+        // at integer indices).
+        let first = floor_ivec3(lo);
+        let last = floor_ivec3(hi).saturating_add(IVec3::ONE);
+        Self::with_flat_budget(
+            first,
+            last,
+            (16 * medium.grid.leaves().len() as u64).max(1 << 12),
+        )
     }
 
     /// An empty accumulator of the same extent.

@@ -120,6 +120,9 @@ impl GradientSink for BoxSink {
     }
 }
 
+/// Row bands of a gradient pass (see `over_pixels`).
+const ROW_BANDS: u32 = 16;
+
 /// What one thread keeps from path to path: its tracking counters and its replay buffers.
 #[derive(Default)]
 struct Worker {
@@ -143,23 +146,23 @@ fn over_pixels<T: Send>(
     let start = Instant::now();
     let (w, h) = (scene.camera.width, scene.camera.height);
     let bar = crate::io::progress::bar(progress, h as u64, what);
-    // A few row bands per thread: enough to balance the load, few enough that the per-band
-    // accumulators (whole gradient grids) stay cheap to allocate and merge.
-    let band = h.div_ceil(4 * rayon::current_num_threads() as u32).max(1) as usize;
-    let results: Vec<(T, Worker)> = (0..h)
+    // A fixed number of row bands, whatever the thread count: the per-band sums are merged in
+    // band order, so a pass's floating-point result depends on its seed only (an optimisation
+    // resumed on another machine continues bit for bit). 16 bands balance the load on a few cores
+    // and keep the per-band accumulators (whole gradient grids) cheap to allocate and merge.
+    let bands = h.clamp(1, ROW_BANDS);
+    let results: Vec<(T, Worker)> = (0..bands)
         .into_par_iter()
-        .with_min_len(band)
-        .fold(
-            || (init(), Worker::default()),
-            |(mut acc, mut worker), y| {
+        .map(|band| {
+            let (mut acc, mut worker) = (init(), Worker::default());
+            for y in band * h / bands..(band + 1) * h / bands {
                 for x in 0..w {
                     per_pixel(&mut acc, x, y, &mut worker);
                 }
                 bar.inc(1);
-                (acc, worker)
-            },
-        )
-        .map(|(acc, worker)| (acc, worker))
+            }
+            (acc, worker)
+        })
         .collect();
     bar.finish_and_clear();
     let mut stats = RenderStats {
@@ -217,7 +220,7 @@ impl GradientPass<'_> {
 pub fn gradient(scene: &Scene, adjoint: &[Vec3], options: &GradOptions) -> GradientRun {
     let camera = &scene.camera;
     let w = camera.width;
-    let template = GradientGrid::for_grid(&scene.medium.grid);
+    let template = GradientGrid::for_medium(&scene.medium);
     let active = options.active_only.then_some(&scene.medium.grid);
     let spp = options.spp;
     let pass = GradientPass { scene, options };

@@ -1,5 +1,6 @@
-//! Log–log line charts, written as SVG and as PNG by `plotters`: one drawing routine, generic over
-//! the backend, so the two files show the same chart.
+//! Line charts (each axis log or linear), written as SVG and as PNG by `plotters`: one drawing
+//! routine, generic over the backend, so the two files show the same chart. Several charts can be
+//! stacked in one file.
 //!
 //! PNG text is rasterised by plotters' pure-Rust `ab_glyph` backend from DejaVu Sans read at run
 //! time (Debian: fonts-dejavu-core, or `$VOLGRAD_FONT`). Nothing here asks plotters to measure
@@ -26,7 +27,16 @@ pub struct Chart {
     pub title: String,
     pub x_label: String,
     pub y_label: String,
+    pub x_scale: Scale,
+    pub y_scale: Scale,
     pub series: Vec<Series>,
+}
+
+/// How an axis maps values: errors and costs span decades (log); dB and seconds of one run do not.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Scale {
+    Log,
+    Linear,
 }
 
 const WIDTH: u32 = 820;
@@ -85,8 +95,33 @@ fn font_registered() -> bool {
     })
 }
 
-fn usable(p: &(f64, f64)) -> bool {
-    p.0.is_finite() && p.1.is_finite() && p.0 > 0.0 && p.1 > 0.0
+impl Chart {
+    /// Whether a point can be drawn: finite, and positive on a log axis.
+    fn usable(&self, p: &(f64, f64)) -> bool {
+        let fits = |v: f64, scale: Scale| v.is_finite() && (scale == Scale::Linear || v > 0.0);
+        fits(p.0, self.x_scale) && fits(p.1, self.y_scale)
+    }
+
+    fn usable_points(&self) -> impl Iterator<Item = (f64, f64)> + '_ {
+        self.series
+            .iter()
+            .flat_map(|s| s.points.iter().copied().filter(|p| self.usable(p)))
+    }
+}
+
+/// A linear axis range around `values`, padded by 5 % (a flat series gets ±1).
+fn linear_range(values: impl Iterator<Item = f64>) -> std::ops::Range<f64> {
+    let (lo, hi) = values.fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), v| {
+        (lo.min(v), hi.max(v))
+    });
+    let pad = if hi > lo { 0.05 * (hi - lo) } else { 1.0 };
+    lo - pad..hi + pad
+}
+
+/// A linear axis's tick label: as many decimals as the range needs.
+fn linear_label(v: f64, range: &std::ops::Range<f64>) -> String {
+    let decimals = (2.0 - (range.end - range.start).log10().floor()).clamp(0.0, 6.0) as usize;
+    format!("{v:.decimals$}")
 }
 
 /// The whole decades that cover `values`, as a data range. The ends are widened by a relative
@@ -117,23 +152,68 @@ fn tick_label(v: f64) -> String {
 /// thins them. Fewer than 8 labels also keeps plotters' minor lines at 2…9 × 10^k.
 const MAX_DECADE_LABELS: usize = 7;
 
-/// Draws `chart` on `root` (WIDTH × HEIGHT). Text is drawn in `ink`: transparent when the backend
-/// has no font to draw it with (plotters then skips it instead of failing).
+/// Draws `chart` on `root` (WIDTH × HEIGHT), each axis on its scale. Text is drawn in `ink`:
+/// transparent when the backend has no font to draw it with (plotters then skips it instead of
+/// failing).
 fn draw<DB: DrawingBackend>(
     root: &DrawingArea<DB, Shift>,
     chart: &Chart,
     ink: RGBAColor,
 ) -> Result<(), DrawingAreaErrorKind<DB::ErrorType>> {
+    let xs = chart.usable_points().map(|p| p.0);
+    let ys = chart.usable_points().map(|p| p.1);
+    match (chart.x_scale, chart.y_scale) {
+        (Scale::Log, Scale::Log) => draw_on(
+            root,
+            chart,
+            ink,
+            decade_range(xs).log_scale(),
+            decade_range(ys).log_scale(),
+        ),
+        (Scale::Log, Scale::Linear) => draw_on(
+            root,
+            chart,
+            ink,
+            decade_range(xs).log_scale(),
+            linear_range(ys),
+        ),
+        (Scale::Linear, Scale::Log) => draw_on(
+            root,
+            chart,
+            ink,
+            linear_range(xs),
+            decade_range(ys).log_scale(),
+        ),
+        (Scale::Linear, Scale::Linear) => {
+            draw_on(root, chart, ink, linear_range(xs), linear_range(ys))
+        }
+    }
+}
+
+/// Tick labels of an axis: decades on a log axis, evenly spaced numbers on a linear one.
+fn ticks(scale: Scale, range: std::ops::Range<f64>) -> impl Fn(&f64) -> String {
+    move |v| match scale {
+        Scale::Log => tick_label(*v),
+        Scale::Linear => linear_label(*v, &range),
+    }
+}
+
+fn draw_on<DB, X, Y>(
+    root: &DrawingArea<DB, Shift>,
+    chart: &Chart,
+    ink: RGBAColor,
+    x_axis: X,
+    y_axis: Y,
+) -> Result<(), DrawingAreaErrorKind<DB::ErrorType>>
+where
+    DB: DrawingBackend,
+    X: plotters::coord::ranged1d::AsRangedCoord<Value = f64>,
+    Y: plotters::coord::ranged1d::AsRangedCoord<Value = f64>,
+    X::CoordDescType: plotters::coord::ranged1d::ValueFormatter<f64>,
+    Y::CoordDescType: plotters::coord::ranged1d::ValueFormatter<f64>,
+{
     let text = |size: f64| TextStyle::from((FAMILY, size).into_font()).color(&ink);
     root.fill(&WHITE)?;
-    let usable_points = || {
-        chart
-            .series
-            .iter()
-            .flat_map(|s| s.points.iter().copied().filter(usable))
-    };
-    let x_range = decade_range(usable_points().map(|p| p.0));
-    let y_range = decade_range(usable_points().map(|p| p.1));
     let mut plot = ChartBuilder::on(root)
         .margin_top(TOP)
         .margin_right(RIGHT)
@@ -141,12 +221,14 @@ fn draw<DB: DrawingBackend>(
         .margin_bottom(EDGE)
         .x_label_area_size(BOTTOM - EDGE)
         .y_label_area_size(LEFT - EDGE)
-        .build_cartesian_2d(x_range.log_scale(), y_range.log_scale())?;
+        .build_cartesian_2d(x_axis, y_axis)?;
+    let (x_range, y_range) = (plot.x_range(), plot.y_range());
+    let (x_ticks, y_ticks) = (ticks(chart.x_scale, x_range), ticks(chart.y_scale, y_range));
     plot.configure_mesh()
         .x_labels(MAX_DECADE_LABELS)
         .y_labels(MAX_DECADE_LABELS)
-        .x_label_formatter(&|v| tick_label(*v))
-        .y_label_formatter(&|v| tick_label(*v))
+        .x_label_formatter(&x_ticks)
+        .y_label_formatter(&y_ticks)
         .bold_line_style(DECADE_LINE.stroke_width(1))
         .light_line_style(MINOR_LINE.stroke_width(1))
         .axis_style(INK.stroke_width(1))
@@ -168,7 +250,12 @@ fn draw<DB: DrawingBackend>(
     )?;
     for (i, series) in chart.series.iter().enumerate() {
         let colour = PALETTE[i % PALETTE.len()];
-        let points: Vec<(f64, f64)> = series.points.iter().copied().filter(usable).collect();
+        let points: Vec<(f64, f64)> = series
+            .points
+            .iter()
+            .copied()
+            .filter(|p| chart.usable(p))
+            .collect();
         plot.draw_series(LineSeries::new(points, colour.filled().stroke_width(2)).point_size(3))?;
         // The legend, by hand (plotters' own measures text): a short bar and the name, in the
         // right margin. A bar is a rect, so each series has one polyline of its colour in the SVG.
@@ -183,13 +270,25 @@ fn draw<DB: DrawingBackend>(
             (x + 32, y),
         )?;
     }
+    Ok(())
+}
+
+/// Draws `charts` one above the other on `root`.
+fn draw_stack<DB: DrawingBackend>(
+    root: DrawingArea<DB, Shift>,
+    charts: &[&Chart],
+    ink: RGBAColor,
+) -> Result<(), DrawingAreaErrorKind<DB::ErrorType>> {
+    for (area, chart) in root.split_evenly((charts.len(), 1)).iter().zip(charts) {
+        draw(area, chart, ink)?;
+    }
     root.present()
 }
 
 fn check_drawable(chart: &Chart) -> Result<()> {
-    if !chart.series.iter().any(|s| s.points.iter().any(usable)) {
+    if chart.usable_points().next().is_none() {
         bail!(
-            "chart '{}' has no finite positive point to draw on log axes",
+            "chart '{}' has no point to draw (finite, and positive on a log axis)",
             chart.title
         );
     }
@@ -199,30 +298,46 @@ fn check_drawable(chart: &Chart) -> Result<()> {
 /// The chart as an SVG document: each series a `<polyline>` in its colour (the axes are ink
 /// polylines), its points `<circle>`s, every label a `<text>`.
 pub fn to_svg(chart: &Chart) -> Result<String> {
-    check_drawable(chart)?;
+    stack_to_svg(&[chart])
+}
+
+/// Charts one above the other in one SVG document.
+pub fn stack_to_svg(charts: &[&Chart]) -> Result<String> {
+    charts.iter().try_for_each(|c| check_drawable(c))?;
     let mut svg = String::new();
-    {
-        let root = SVGBackend::with_string(&mut svg, (WIDTH, HEIGHT)).into_drawing_area();
-        draw(&root, chart, INK.to_rgba()).map_err(|e| anyhow!("drawing the SVG chart: {e}"))?;
-    }
+    let height = HEIGHT * charts.len() as u32;
+    draw_stack(
+        SVGBackend::with_string(&mut svg, (WIDTH, height)).into_drawing_area(),
+        charts,
+        INK.to_rgba(),
+    )
+    .map_err(|e| anyhow!("drawing the SVG chart: {e}"))?;
     Ok(svg)
 }
 
 /// Draws the chart as a PNG. Returns false when no font was found: the lines are drawn, the
 /// labels are not (the SVG has them), and the caller should say so.
 pub fn write_png(chart: &Chart, path: &Path) -> Result<bool> {
-    check_drawable(chart)?;
+    write_stack_png(&[chart], path)
+}
+
+/// Charts one above the other in one PNG (see `write_png`).
+pub fn write_stack_png(charts: &[&Chart], path: &Path) -> Result<bool> {
+    charts.iter().try_for_each(|c| check_drawable(c))?;
     let labelled = font_registered();
     let ink = if labelled { INK.to_rgba() } else { TRANSPARENT };
-    let mut rgb = vec![0u8; (WIDTH * HEIGHT * 3) as usize];
-    {
-        let root = BitMapBackend::with_buffer(&mut rgb, (WIDTH, HEIGHT)).into_drawing_area();
-        draw(&root, chart, ink).map_err(|e| anyhow!("drawing the PNG chart: {e}"))?;
-    }
+    let height = HEIGHT * charts.len() as u32;
+    let mut rgb = vec![0u8; (WIDTH * height * 3) as usize];
+    draw_stack(
+        BitMapBackend::with_buffer(&mut rgb, (WIDTH, height)).into_drawing_area(),
+        charts,
+        ink,
+    )
+    .map_err(|e| anyhow!("drawing the PNG chart: {e}"))?;
     // Encoded here rather than by plotters' `bitmap_encoder`, which would bring in a second
     // `image` and `png` (and a JPEG decoder) for this one file.
     let file = File::create(path).with_context(|| format!("cannot create '{}'", path.display()))?;
-    let mut encoder = png::Encoder::new(BufWriter::new(file), WIDTH, HEIGHT);
+    let mut encoder = png::Encoder::new(BufWriter::new(file), WIDTH, height);
     encoder.set_color(png::ColorType::Rgb);
     encoder.set_depth(png::BitDepth::Eight);
     encoder
@@ -241,6 +356,8 @@ mod tests {
             title: "t".into(),
             x_label: "x".into(),
             y_label: "y".into(),
+            x_scale: Scale::Log,
+            y_scale: Scale::Log,
             series: vec![
                 Series {
                     name: "a".into(),

@@ -1,7 +1,16 @@
-//! Inverse rendering: the unknown grid θ ≥ 0 with Adam's state (sparse by brick), its
-//! coarse-to-fine resampling, and orbit views. Uses `volume` and `render` (and, as the loop grows,
-//! `gradient`).
+//! Inverse rendering: reconstructing the density grid from images. The unknown θ ≥ 0 with Adam's
+//! state (sparse by brick), its coarse-to-fine resampling, orbit views, run files, the loop,
+//! checkpoints and the equal-time study of estimators. Uses `volume`, `io`, `render` and
+//! `gradient`.
 
+pub mod checkpoint;
+pub mod evaluate;
+pub mod log;
 pub mod parameters;
+pub mod prior;
+pub mod problem;
+pub mod reconstruct;
 pub mod resample;
+pub mod run_file;
+pub mod study;
 pub mod views;

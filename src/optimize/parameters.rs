@@ -53,6 +53,19 @@ impl ParameterBrick {
     }
 }
 
+/// A brick's key (voxel >> 3) with its θ, m and v, as a checkpoint stores them.
+pub type BrickState<'a> = (
+    IVec3,
+    &'a [f32; BRICK_VOXELS],
+    &'a [f32; BRICK_VOXELS],
+    &'a [f32; BRICK_VOXELS],
+);
+
+/// The voxel within its brick at `leaf_offset` i.
+fn local_of(i: usize) -> IVec3 {
+    IVec3::new((i >> 6) as i32, ((i >> 3) & 7) as i32, (i & 7) as i32)
+}
+
 /// The grid's values θ and Adam's state, sparse by brick (keyed by brick coordinate, voxel >> 3).
 #[derive(Clone, Default)]
 pub struct Parameters {
@@ -108,6 +121,11 @@ impl Parameters {
         self.state(voxel).0
     }
 
+    /// Whether the voxel's brick is stored.
+    pub fn is_stored(&self, voxel: IVec3) -> bool {
+        self.bricks.contains_key(&(voxel >> 3))
+    }
+
     /// (θ, m, v) at a voxel (zeros where no brick is).
     pub fn state(&self, voxel: IVec3) -> (f32, f32, f32) {
         self.bricks.get(&(voxel >> 3)).map_or((0.0, 0.0, 0.0), |b| {
@@ -132,6 +150,14 @@ impl Parameters {
 
     pub fn steps(&self) -> u32 {
         self.steps
+    }
+
+    /// Voxels with θ > 0.
+    pub fn active_voxels(&self) -> u64 {
+        self.bricks
+            .values()
+            .map(|b| b.theta.iter().filter(|&&x| x > 0.0).count() as u64)
+            .sum()
     }
 
     /// Bytes of θ and the moments (what a checkpoint reports).
@@ -187,10 +213,7 @@ impl Parameters {
     /// Every stored voxel as (voxel, θ, m, v).
     pub fn voxels(&self) -> impl Iterator<Item = (IVec3, f32, f32, f32)> + '_ {
         self.bricks.iter().flat_map(|(key, b)| {
-            (0..BRICK_VOXELS).map(move |i| {
-                let local = IVec3::new((i >> 6) as i32, ((i >> 3) & 7) as i32, (i & 7) as i32);
-                ((*key << 3) + local, b.theta[i], b.m[i], b.v[i])
-            })
+            (0..BRICK_VOXELS).map(move |i| ((*key << 3) + local_of(i), b.theta[i], b.m[i], b.v[i]))
         })
     }
 
@@ -213,13 +236,55 @@ impl Parameters {
         self.drop_empty(&HashMap::<IVec3, ()>::new());
     }
 
-    /// θ as a brick map (every stored voxel active), e.g. to render or to write as a VDB.
+    /// The brick keys in (x, y, z) order, which does not depend on the hash map's.
+    fn sorted_keys(&self) -> Vec<IVec3> {
+        let mut keys: Vec<IVec3> = self.bricks.keys().copied().collect();
+        keys.sort_by_key(|k| k.to_array());
+        keys
+    }
+
+    /// θ as a brick map (every stored voxel active), e.g. to render or to write as a VDB. The
+    /// builder orders the leaves, so the map does not depend on the hash map's order.
     pub fn to_brickmap(&self) -> BrickMap {
         let mut b = BrickMapBuilder::new();
         for (voxel, theta, _, _) in self.voxels() {
             b.set(voxel, theta, true);
         }
         b.build()
+    }
+
+    /// Every brick as (key, θ, m, v), in key order: what a checkpoint stores.
+    pub fn sorted_bricks(&self) -> Vec<BrickState<'_>> {
+        self.sorted_keys()
+            .into_iter()
+            .map(|key| {
+                let b = &self.bricks[&key];
+                (key, &b.theta, &b.m, &b.v)
+            })
+            .collect()
+    }
+
+    /// Restores a brick as `sorted_bricks` gave it (θ clamped to ≥ 0).
+    pub fn insert_brick(
+        &mut self,
+        key: IVec3,
+        theta: [f32; BRICK_VOXELS],
+        m: [f32; BRICK_VOXELS],
+        v: [f32; BRICK_VOXELS],
+    ) {
+        self.bricks.insert(
+            key,
+            Box::new(ParameterBrick {
+                theta: theta.map(|x| x.max(0.0)),
+                m,
+                v,
+            }),
+        );
+    }
+
+    /// Restores Adam's step count (a checkpoint's).
+    pub fn set_steps(&mut self, steps: u32) {
+        self.steps = steps;
     }
 }
 

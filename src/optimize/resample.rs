@@ -3,9 +3,11 @@
 //! i splits into new voxels 2i and 2i + 1 at c = i ∓ ¼), so the grid keeps its world box and the
 //! new transform is the old one composed with j ↦ j/2 − ¼.
 //!
-//! Adam's moments are carried over the same way (`Moments::Resample`) or started afresh
-//! (`Moments::Reset`); which one keeps an optimisation stable after an upsampling is the
-//! `optimize` layer's choice, measured there.
+//! Adam's moments are carried over the same way (`Moments::Resample`, scaled to the finer voxels'
+//! gradients) or started afresh (`Moments::Reset`). A fresh Adam's first step moves every voxel by
+//! the full learning rate whatever its gradient (m̂/√v̂ = ±1 at t = 1): with noisy per-voxel
+//! gradients that is a random walk the θ ≥ 0 projection turns into haze, so run files default to
+//! `Resample`.
 
 use std::collections::HashSet;
 
@@ -15,9 +17,17 @@ use crate::optimize::parameters::Parameters;
 use crate::volume::brickmap::{corner, floor_ivec3};
 use crate::volume::transform::IndexTransform;
 
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+/// A new voxel holds 1/8 of an old voxel's volume, so the loss's gradient with respect to it is
+/// about 1/8 of the old one's (the chain rule through the trilinear field): resampled first
+/// moments are scaled by 1/8 and second moments by 1/64, which keeps Adam's step m/√v, and so the
+/// size of the first steps after an upsampling, what they were.
+const FINE_GRADIENT_SCALE: f32 = 1.0 / 8.0;
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Deserialize)]
+#[serde(rename_all = "kebab-case")]
 pub enum Moments {
-    /// The moments are resampled like θ and the step count continues.
+    /// The moments are resampled like θ (scaled to the finer voxels' gradients) and the step
+    /// count continues: Adam goes on at the pace it had.
     Resample,
     /// The moments start at 0 with the step count (Adam starts over).
     Reset,
@@ -77,7 +87,12 @@ pub fn upsample(
                         continue;
                     }
                     match moments {
-                        Moments::Resample => fine.set_with_moments(j, theta, m, v),
+                        Moments::Resample => fine.set_with_moments(
+                            j,
+                            theta,
+                            m * FINE_GRADIENT_SCALE,
+                            v * FINE_GRADIENT_SCALE * FINE_GRADIENT_SCALE,
+                        ),
                         Moments::Reset => fine.set(j, theta),
                     }
                 }
@@ -170,7 +185,7 @@ mod tests {
         // New voxel 2v sits at old index v − ¼: weight (¾)³ on v.
         let m_at =
             |q: &Parameters, j: IVec3| q.voxels().find(|(w, ..)| *w == j).map(|(_, _, m, _)| m);
-        let expected = 0.75f32.powi(3) * 0.1;
+        let expected = 0.75f32.powi(3) * 0.1 * FINE_GRADIENT_SCALE;
         assert!((m_at(&kept, v * 2).unwrap() - expected).abs() < 1e-6);
         assert_eq!(m_at(&reset, v * 2), Some(0.0));
     }

@@ -19,6 +19,8 @@ pub struct Orbit {
     pub fov_deg: f32,
     pub width: u32,
     pub height: u32,
+    /// Turns the spiral about +y (e.g. held-out views between the training views).
+    pub azimuth_offset_deg: f32,
 }
 
 /// Elevations this close to the poles would make +y (the cameras' up) parallel to the view.
@@ -51,7 +53,10 @@ impl Orbit {
             .map(|i| {
                 // Midpoints of `count` equal steps in sin(elevation): equal areas of the band.
                 let s = s_lo + (s_hi - s_lo) * (i as f32 + 0.5) / self.count as f32;
-                let (elevation, azimuth) = (s.asin(), i as f32 * golden_angle);
+                let (elevation, azimuth) = (
+                    s.asin(),
+                    i as f32 * golden_angle + self.azimuth_offset_deg.to_radians(),
+                );
                 let offset = Vec3::new(
                     elevation.cos() * azimuth.sin(),
                     elevation.sin(),
@@ -83,6 +88,7 @@ mod tests {
             fov_deg: 30.0,
             width: 8,
             height: 8,
+            azimuth_offset_deg: 0.0,
         };
         let centre = Vec3::new(1.0, -2.0, 3.0);
         let cameras = orbit.cameras(centre).unwrap();
@@ -122,6 +128,7 @@ mod tests {
             fov_deg: 40.0,
             width: 4,
             height: 4,
+            azimuth_offset_deg: 10.0,
         };
         for (orbit, key) in [
             (Orbit { count: 0, ..good }, "count"),

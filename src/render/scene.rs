@@ -56,6 +56,21 @@ pub struct CameraFile {
     pub height: u32,
 }
 
+impl CameraFile {
+    /// The camera, after `validate`.
+    pub fn camera(&self) -> Result<Camera> {
+        let c = self;
+        // Camera::new normalises in f32: give it a target at a distance it resolves (|position|,
+        // at least 1) along the direction found in f64, and a unit up.
+        let (forward, up) = scene_check::view_frame(c.position, c.target, c.up)?;
+        let position = Vec3::from(c.position);
+        let target = position + forward * position.length().max(1.0);
+        Ok(Camera::new(
+            position, target, up, c.fov_deg, c.width, c.height,
+        ))
+    }
+}
+
 fn default_up() -> [f32; 3] {
     [0.0, 1.0, 0.0]
 }
@@ -214,13 +229,7 @@ impl Scene {
             (None, None) => GridSelector::Default,
         };
         let grid = vdb::read_density(&vdb_path, &selector, file.medium.levelset)?;
-        let c = &file.camera;
-        // Camera::new normalises in f32: give it a target at a distance it resolves (|position|,
-        // at least 1) along the direction found in f64, and a unit up.
-        let (forward, up) = scene_check::view_frame(c.position, c.target, c.up)?;
-        let position = Vec3::from(c.position);
-        let target = position + forward * position.length().max(1.0);
-        let camera = Camera::new(position, target, up, c.fov_deg, c.width, c.height);
+        let camera = file.camera.camera()?;
         let filter = file.medium.filter;
         let mode = file.render.majorant();
         if grid.bricks.min_value() < 0.0 {

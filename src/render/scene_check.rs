@@ -6,7 +6,7 @@
 use anyhow::{bail, Result};
 use glam::{DVec3, Vec3};
 
-use crate::render::scene::{LightFile, SceneFile};
+use crate::render::scene::{CameraFile, LightFile, SceneFile};
 
 /// Largest |coordinate| of camera.position and camera.target. The renderer traces in f32: beyond
 /// this, squared distances (up to ~1e31) approach f32::MAX (3.4e38) once scaled into index space,
@@ -21,10 +21,10 @@ pub const MAX_EXTINCTION: f64 = 1e15;
 /// Largest image, in pixels (2^28: a 16384 × 16384 render); beyond, buffers run to gigabytes.
 pub const MAX_PIXELS: u64 = 1 << 28;
 
-impl SceneFile {
-    /// Checks every value a render depends on; the message names the key.
+impl CameraFile {
+    /// Checks the camera; messages name `camera.*` keys.
     pub fn validate(&self) -> Result<()> {
-        let c = &self.camera;
+        let c = self;
         coordinates("camera.position", c.position)?;
         coordinates("camera.target", c.target)?;
         view_frame(c.position, c.target, c.up)?;
@@ -49,6 +49,14 @@ impl SceneFile {
                 c.width as u64 * c.height as u64
             );
         }
+        Ok(())
+    }
+}
+
+impl SceneFile {
+    /// Checks every value a render depends on; the message names the key.
+    pub fn validate(&self) -> Result<()> {
+        self.camera.validate()?;
         let m = &self.medium;
         if m.grid.is_some() && m.grid_index.is_some() {
             bail!("medium.grid and medium.grid_index are exclusive: give one");

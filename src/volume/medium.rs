@@ -49,7 +49,8 @@ impl IndexRay {
 pub struct Medium {
     pub grid: BrickMap,
     pub transform: IndexTransform,
-    /// Continuous index box the medium fills: the active voxels' box grown by half a voxel.
+    /// Continuous index box the medium fills: the active voxels' box grown by half a voxel (or a
+    /// box given with `with_bounds`).
     pub bounds: (Vec3, Vec3),
     pub density_scale: f32,
     pub filter: Filter,
@@ -70,6 +71,19 @@ impl Medium {
             Some((lo, hi)) => (lo.as_vec3() - 0.5, hi.as_vec3() + 0.5),
             None => (Vec3::ZERO, Vec3::ZERO),
         };
+        Self::with_bounds(grid, transform, bounds, density_scale, filter, majorant)
+    }
+
+    /// A medium filling the continuous index box `bounds`, whatever the grid's active voxels: an
+    /// optimisation's unknown keeps its domain while bricks come and go.
+    pub fn with_bounds(
+        grid: BrickMap,
+        transform: IndexTransform,
+        bounds: (Vec3, Vec3),
+        density_scale: f32,
+        filter: Filter,
+        majorant: Majorant,
+    ) -> Self {
         let majorant = MajorantGrid::build(&grid, bounds, density_scale, majorant);
         Medium {
             grid,

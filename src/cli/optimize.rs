@@ -1,0 +1,166 @@
+//! `volgrad optimize`: reconstruct the density grid of a run file from its views, or, with
+//! several `--estimators`, the equal-time study of the estimators on that reconstruction. The loop
+//! and the study live in the library (`volgrad::optimize`).
+
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::Duration;
+
+use anyhow::{bail, Context, Result};
+
+use super::{set_threads, values};
+use volgrad::gradient::adjoint::Estimator;
+use volgrad::optimize::checkpoint;
+use volgrad::optimize::problem::Problem;
+use volgrad::optimize::reconstruct::{reconstruct, RunOptions, Stop};
+use volgrad::optimize::study;
+
+#[derive(clap::Args)]
+pub struct Args {
+    /// The run file (TOML): scene, views, unknown grid, optimiser.
+    pub run: PathBuf,
+    /// Output folder (default: the run file's name with `.out`, in the current folder; with
+    /// --resume, the folder resumed from).
+    #[arg(long)]
+    pub out: Option<PathBuf>,
+    /// Seconds of optimisation (evaluation excluded), e.g. 90s, 10m. Exclusive with --iterations.
+    #[arg(long, value_parser = values::duration, conflicts_with = "iterations")]
+    pub budget: Option<Duration>,
+    /// Iterations (default: the run file's optimizer.iterations).
+    #[arg(long)]
+    pub iterations: Option<u64>,
+    /// The gradient estimator.
+    #[arg(long, value_enum, default_value_t = Estimator::Joint, conflicts_with = "estimators")]
+    pub estimator: Estimator,
+    /// Several estimators, comma-separated: the equal-time study, one run each into OUT/<name>/.
+    #[arg(long, value_enum, value_delimiter = ',', num_args = 1..)]
+    pub estimators: Option<Vec<Estimator>>,
+    /// Random seed (default: the run file's).
+    #[arg(long)]
+    pub seed: Option<u64>,
+    /// Worker threads (default: all cores); the result does not depend on it.
+    #[arg(long)]
+    pub threads: Option<usize>,
+    /// Continue from the latest checkpoint in this folder (same run file, estimator and seed).
+    #[arg(long, conflicts_with = "estimators")]
+    pub resume: Option<PathBuf>,
+    /// Overwrite the output folder's files.
+    #[arg(long)]
+    pub force: bool,
+    /// No progress bar.
+    #[arg(long, short)]
+    pub quiet: bool,
+}
+
+/// Set by Ctrl-C; the loop stops after the current iteration and writes a checkpoint.
+static INTERRUPTED: AtomicBool = AtomicBool::new(false);
+
+pub fn run(args: &Args) -> Result<()> {
+    set_threads(args.threads)?;
+    if args.iterations == Some(0) || args.budget == Some(Duration::ZERO) {
+        bail!("--iterations and --budget must be above 0");
+    }
+    if let Some(estimators) = &args.estimators {
+        if estimators.is_empty() {
+            bail!("--estimators needs at least one estimator");
+        }
+    }
+    let resume = args.resume.as_deref().map(checkpoint::latest).transpose()?;
+    let out = match (&args.out, &args.resume) {
+        (Some(out), _) => out.clone(),
+        (None, Some(dir)) => dir.clone(),
+        (None, None) => default_out(&args.run),
+    };
+    let resuming_in_place = args
+        .resume
+        .as_ref()
+        .is_some_and(|dir| same_folder(dir, &out));
+    if !args.force && !resuming_in_place {
+        refuse_non_empty(&out)?;
+    }
+    let problem = Problem::load(&args.run, args.seed, !args.quiet)?;
+    let stop = match (args.iterations, args.budget) {
+        (Some(n), _) => Stop::Iterations(n),
+        (None, Some(b)) => Stop::Budget(b),
+        (None, None) => Stop::Iterations(problem.settings.iterations.into()),
+    };
+    ctrlc::set_handler(|| INTERRUPTED.store(true, Ordering::SeqCst))
+        .context("cannot install the Ctrl-C handler")?;
+    let options = RunOptions {
+        estimator: args.estimator,
+        stop,
+        out: out.clone(),
+        resume,
+        progress: !args.quiet,
+        interrupt: Some(&INTERRUPTED),
+    };
+    if let Some(estimators) = &args.estimators {
+        let runs = study::equal_time(&problem, estimators, &options)?;
+        print!("{}", study::summary(&runs));
+        println!(
+            "wrote inverse.png/.svg, inverse.csv, renders.png and summary.md in '{}'",
+            out.display()
+        );
+        return Ok(());
+    }
+    let outcome = reconstruct(&problem, &options)?;
+    let p = &outcome.position;
+    if outcome.interrupted {
+        bail!(
+            "interrupted at iteration {}: checkpoint written; continue with `volgrad optimize {} --resume {}`",
+            p.iteration,
+            args.run.display(),
+            out.display()
+        );
+    }
+    let e = &outcome.evaluation;
+    println!(
+        "{} iterations in {:.1} s (+ {:.1} s evaluating): held-out PSNR {:.2} dB, relative RMSE {:.4}{}",
+        p.iteration,
+        p.optimisation_seconds,
+        p.evaluation_seconds,
+        e.psnr,
+        e.relative_rmse,
+        match (e.volume_rmse, e.haze) {
+            (Some(rmse), Some(haze)) => format!(", volume RMSE {rmse:.4}, haze {haze:.3}"),
+            _ => String::new(),
+        }
+    );
+    println!(
+        "active voxels {}, grid + optimiser state {}; wrote '{}'",
+        outcome.parameters.active_voxels(),
+        super::bytes(outcome.parameters.memory_bytes()),
+        out.join("final.vdb").display()
+    );
+    Ok(())
+}
+
+fn default_out(run: &Path) -> PathBuf {
+    let stem = run
+        .file_stem()
+        .map_or("optimize".into(), |s| s.to_string_lossy().into_owned());
+    PathBuf::from(format!("{stem}.out"))
+}
+
+fn same_folder(a: &Path, b: &Path) -> bool {
+    match (a.canonicalize(), b.canonicalize()) {
+        (Ok(a), Ok(b)) => a == b,
+        _ => a == b,
+    }
+}
+
+/// A run writes many files into its folder: it starts only in an empty or new one (or with
+/// --force), so that nothing the user had is overwritten.
+fn refuse_non_empty(out: &Path) -> Result<()> {
+    let has_files = std::fs::read_dir(out).is_ok_and(|mut d| d.next().is_some());
+    if has_files {
+        bail!(
+            "'{}' is not empty: pass --force to write into it, --resume to continue the run in it, or another --out",
+            out.display()
+        );
+    }
+    if out.exists() && !out.is_dir() {
+        bail!("'{}' exists and is not a folder", out.display());
+    }
+    Ok(())
+}

@@ -1,0 +1,221 @@
+//! How good the unknown is: held-out views rendered at a fixed seed and `eval_spp` (PSNR and
+//! relative RMSE against their targets), and, when the truth is known, the volume's error and how
+//! much density sits where the truth is empty ("haze").
+
+use std::path::Path;
+
+use anyhow::Result;
+use glam::IVec3;
+use rayon::prelude::*;
+
+use crate::io::images::{self, RgbImage};
+use crate::optimize::problem::{Problem, View};
+use crate::render::image::{render, RenderOptions};
+use crate::render::scene::Scene;
+
+/// Seeds the held-out renders apart from training and targets; the same for every evaluation, so
+/// two evaluations differ only by the unknown.
+const EVALUATION_SEED_SALT: u64 = 0x3e7a_1c0d_e5ee_d000;
+
+/// PSNR = 10·log10(max(target)² / MSE), over pixels and channels.
+pub fn psnr(image: &RgbImage, target: &RgbImage) -> f64 {
+    let peak = target
+        .pixels
+        .iter()
+        .fold(0.0f32, |m, c| m.max(c.max_element())) as f64;
+    10.0 * (peak * peak / mean_squared_error(image, target).max(1e-30)).log10()
+}
+
+fn mean_squared_error(image: &RgbImage, target: &RgbImage) -> f64 {
+    let sum: f64 = image
+        .pixels
+        .iter()
+        .zip(&target.pixels)
+        .map(|(&a, &b)| (a - b).length_squared() as f64)
+        .sum();
+    sum / (3 * image.pixels.len().max(1)) as f64
+}
+
+/// ‖image − target‖ / ‖target‖.
+pub fn relative_rmse(image: &RgbImage, target: &RgbImage) -> f64 {
+    let norm: f64 = target
+        .pixels
+        .iter()
+        .map(|c| c.length_squared() as f64)
+        .sum();
+    (mean_squared_error(image, target) * (3 * image.pixels.len()) as f64 / norm.max(1e-30)).sqrt()
+}
+
+#[derive(Debug, Clone, Default)]
+pub struct Evaluation {
+    /// Averages over the held-out views.
+    pub psnr: f64,
+    pub relative_rmse: f64,
+    /// RMS difference to the truth over the final level's voxels (grid-value units).
+    pub volume_rmse: Option<f64>,
+    /// Mean density where the truth is 0 over the mean where it is not.
+    pub haze: Option<f64>,
+    pub renders: Vec<RgbImage>,
+}
+
+/// Evaluates `scene` (the unknown at level `level`) on the held-out views and against the truth.
+pub fn evaluate(problem: &Problem, scene: &Scene, level: usize) -> Evaluation {
+    let mut scene = scene.clone();
+    let mut e = Evaluation::default();
+    for view in &problem.holdouts {
+        scene.camera = view.camera;
+        let options = RenderOptions {
+            spp: problem.settings.eval_spp,
+            seed: problem.settings.seed ^ EVALUATION_SEED_SALT,
+            max_depth: problem.settings.max_depth,
+            progress: false,
+        };
+        let image = render(&scene, &options).0;
+        e.psnr += psnr(&image, &view.target);
+        e.relative_rmse += relative_rmse(&image, &view.target);
+        e.renders.push(image);
+    }
+    let n = problem.holdouts.len().max(1) as f64;
+    e.psnr /= n;
+    e.relative_rmse /= n;
+    if let Some(truth) = &problem.truth {
+        let (rmse, haze) = volume_error(problem, truth, &scene, level);
+        e.volume_rmse = Some(rmse);
+        e.haze = Some(haze);
+    }
+    e
+}
+
+/// (RMSE, haze) of the unknown's field against the truth at the final level's voxel centres.
+fn volume_error(
+    problem: &Problem,
+    truth: &crate::volume::brickmap::BrickMap,
+    scene: &Scene,
+    level: usize,
+) -> (f64, f64) {
+    let d = &problem.domain;
+    let grid = &scene.medium.grid;
+    // (squared error, empty voxels, density in them, occupied voxels, density in them)
+    let sums = (d.lo.x..=d.hi.x)
+        .into_par_iter()
+        .map(|x| {
+            let mut s = [0.0f64; 5];
+            for y in d.lo.y..=d.hi.y {
+                for z in d.lo.z..=d.hi.z {
+                    let v = IVec3::new(x, y, z);
+                    let t = truth.voxel(v) as f64;
+                    let c = grid.trilinear(d.to_level(level, v.as_vec3())) as f64;
+                    s[0] += (c - t) * (c - t);
+                    if t > 0.0 {
+                        s[3] += 1.0;
+                        s[4] += c;
+                    } else {
+                        s[1] += 1.0;
+                        s[2] += c;
+                    }
+                }
+            }
+            s
+        })
+        .reduce(|| [0.0; 5], |a, b| std::array::from_fn(|i| a[i] + b[i]));
+    let rmse = (sums[0] / d.voxel_count().max(1) as f64).sqrt();
+    let mean_empty = sums[2] / sums[1].max(1.0);
+    let mean_occupied = sums[4] / sums[3].max(1.0);
+    (rmse, mean_empty / mean_occupied.max(1e-30))
+}
+
+/// One row per held-out view: target | render | |render − target| × 4, tonemapped as the scene's
+/// PNGs are; small views are enlarged (pixel copies) to at least `MIN_PANEL` pixels high.
+pub fn write_holdout_picture(
+    path: &Path,
+    views: &[View],
+    renders: &[RgbImage],
+    exposure: f32,
+) -> Result<()> {
+    let rows: Vec<RgbImage> = views
+        .iter()
+        .zip(renders)
+        .map(|(view, image)| {
+            let t = &view.target;
+            let mut difference = image.clone();
+            for (d, &t) in difference.pixels.iter_mut().zip(&t.pixels) {
+                *d = (*d - t).abs() * 4.0;
+            }
+            enlarge(
+                &side_by_side(&[t, image, &difference]),
+                MIN_PANEL / t.height.max(1),
+            )
+        })
+        .collect();
+    images::write_png(path, &stacked(&rows), exposure.max(f32::MIN_POSITIVE))
+}
+
+/// Panels smaller than this are enlarged in the held-out pictures.
+const MIN_PANEL: u32 = 128;
+
+/// Each pixel repeated `factor` × `factor` times (nothing changes for factor ≤ 1).
+fn enlarge(image: &RgbImage, factor: u32) -> RgbImage {
+    let f = factor.max(1);
+    let mut out = RgbImage::new(image.width * f, image.height * f);
+    for y in 0..out.height {
+        for x in 0..out.width {
+            out.pixels[(y * out.width + x) as usize] =
+                image.pixels[((y / f) * image.width + x / f) as usize];
+        }
+    }
+    out
+}
+
+/// Images one above the other, left-aligned.
+fn stacked(images: &[RgbImage]) -> RgbImage {
+    let width = images.iter().map(|i| i.width).max().unwrap_or(1).max(1);
+    let height = images.iter().map(|i| i.height).sum::<u32>().max(1);
+    let mut out = RgbImage::new(width, height);
+    let mut top = 0;
+    for image in images {
+        for y in 0..image.height {
+            let row = ((top + y) * width) as usize;
+            let source = (y * image.width) as usize;
+            out.pixels[row..row + image.width as usize]
+                .copy_from_slice(&image.pixels[source..source + image.width as usize]);
+        }
+        top += image.height;
+    }
+    out
+}
+
+/// Images side by side, top-aligned.
+pub fn side_by_side(images: &[&RgbImage]) -> RgbImage {
+    let width = images.iter().map(|i| i.width).sum::<u32>().max(1);
+    let height = images.iter().map(|i| i.height).max().unwrap_or(1);
+    let mut out = RgbImage::new(width, height);
+    let mut left = 0;
+    for image in images {
+        for y in 0..image.height {
+            for x in 0..image.width {
+                out.pixels[(y * width + left + x) as usize] =
+                    image.pixels[(y * image.width + x) as usize];
+            }
+        }
+        left += image.width;
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use glam::Vec3;
+
+    #[test]
+    fn psnr_of_a_known_error() {
+        let mut target = RgbImage::new(2, 1);
+        target.pixels = vec![Vec3::splat(2.0), Vec3::ZERO];
+        let mut image = target.clone();
+        image.pixels[1] = Vec3::splat(0.2);
+        // MSE = 3·0.04 / 6 = 0.02, peak 2: 10·log10(4 / 0.02) = 23.01 dB.
+        assert!((psnr(&image, &target) - 23.0103).abs() < 1e-3);
+        // ‖e‖ = √(3·0.04), ‖t‖ = √(3·4): ratio 0.1.
+        assert!((relative_rmse(&image, &target) - 0.1).abs() < 1e-6);
+    }
+}

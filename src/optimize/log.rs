@@ -1,0 +1,156 @@
+//! `log.csv`: one row per iteration. Evaluation columns are empty on iterations without an
+//! evaluation; volume columns are empty without a truth.
+
+use anyhow::{bail, Context, Result};
+
+use crate::io::table::{Align, Table};
+use crate::optimize::evaluate::Evaluation;
+
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct LogRow {
+    pub iteration: u64,
+    pub level: u32,
+    /// Optimisation seconds so far (evaluation and checkpoints excluded).
+    pub seconds: f64,
+    /// Evaluation and checkpoint seconds so far.
+    pub evaluation_seconds: f64,
+    /// Training loss of this iteration (batch mean, prior included).
+    pub loss: f64,
+    pub psnr: Option<f64>,
+    pub relative_rmse: Option<f64>,
+    pub volume_rmse: Option<f64>,
+    /// Mean density in the truth's empty voxels over the mean in its occupied ones.
+    pub haze: Option<f64>,
+    pub active_voxels: u64,
+    /// Memory of θ and Adam's moments.
+    pub state_bytes: u64,
+}
+
+const COLUMNS: [&str; 11] = [
+    "iteration",
+    "level",
+    "seconds",
+    "evaluation_seconds",
+    "loss",
+    "heldout_psnr",
+    "heldout_rel_rmse",
+    "volume_rmse",
+    "haze",
+    "active_voxels",
+    "state_bytes",
+];
+
+fn optional(v: Option<f64>) -> String {
+    v.map_or(String::new(), |x| format!("{x}"))
+}
+
+impl LogRow {
+    /// Fills the evaluation columns.
+    pub fn record(&mut self, e: &Evaluation) {
+        self.psnr = Some(e.psnr);
+        self.relative_rmse = Some(e.relative_rmse);
+        self.volume_rmse = e.volume_rmse;
+        self.haze = e.haze;
+    }
+
+    fn cells(&self) -> [String; 11] {
+        [
+            self.iteration.to_string(),
+            self.level.to_string(),
+            format!("{}", self.seconds),
+            format!("{}", self.evaluation_seconds),
+            format!("{}", self.loss),
+            optional(self.psnr),
+            optional(self.relative_rmse),
+            optional(self.volume_rmse),
+            optional(self.haze),
+            self.active_voxels.to_string(),
+            self.state_bytes.to_string(),
+        ]
+    }
+
+    /// The whole file: header and rows.
+    pub fn csv(rows: &[LogRow]) -> String {
+        let mut table = Table::new(COLUMNS.map(|c| (c, Align::Right)));
+        for r in rows {
+            table.push(r.cells());
+        }
+        table.csv()
+    }
+
+    /// The rows without the header (what a checkpoint keeps).
+    pub fn csv_rows(rows: &[LogRow]) -> String {
+        let csv = Self::csv(rows);
+        csv.split_once('\n')
+            .map_or(String::new(), |(_, rest)| rest.to_string())
+    }
+
+    /// Rows written by `csv_rows`.
+    pub fn parse_all(text: &str) -> Result<Vec<LogRow>> {
+        text.lines()
+            .filter(|l| !l.is_empty())
+            .map(|line| Self::parse(line).with_context(|| format!("log row '{line}'")))
+            .collect()
+    }
+
+    fn parse(line: &str) -> Result<LogRow> {
+        let cells: Vec<&str> = line.split(',').collect();
+        if cells.len() != COLUMNS.len() {
+            bail!("{} cells, expected {}", cells.len(), COLUMNS.len());
+        }
+        let opt = |i: usize| -> Result<Option<f64>> {
+            Ok(if cells[i].is_empty() {
+                None
+            } else {
+                Some(cells[i].parse()?)
+            })
+        };
+        Ok(LogRow {
+            iteration: cells[0].parse()?,
+            level: cells[1].parse()?,
+            seconds: cells[2].parse()?,
+            evaluation_seconds: cells[3].parse()?,
+            loss: cells[4].parse()?,
+            psnr: opt(5)?,
+            relative_rmse: opt(6)?,
+            volume_rmse: opt(7)?,
+            haze: opt(8)?,
+            active_voxels: cells[9].parse()?,
+            state_bytes: cells[10].parse()?,
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn rows_round_trip_through_csv() {
+        let rows = vec![
+            LogRow {
+                iteration: 1,
+                seconds: 0.5,
+                loss: 1.25e-3,
+                active_voxels: 10,
+                ..Default::default()
+            },
+            LogRow {
+                iteration: 2,
+                level: 1,
+                seconds: 1.0,
+                loss: 1e-3,
+                psnr: Some(31.5),
+                relative_rmse: Some(0.1),
+                volume_rmse: Some(0.02),
+                haze: Some(0.01),
+                state_bytes: 4096,
+                ..Default::default()
+            },
+        ];
+        let csv = LogRow::csv(&rows);
+        assert!(csv.starts_with("iteration,level,seconds"), "{csv}");
+        assert_eq!(LogRow::parse_all(&LogRow::csv_rows(&rows)).unwrap(), rows);
+        assert!(LogRow::parse_all("1,2").is_err());
+    }
+}

@@ -1,0 +1,508 @@
+//! A run file loaded: the known scene, the views with their target images, the held-out views,
+//! the truth (if any), and the unknown's domain and start. Everything here is fixed for the whole
+//! run; the loop (`reconstruct`) changes only the unknown.
+
+use std::path::Path;
+
+use anyhow::{bail, Context, Result};
+use glam::{DAffine3, DQuat, DVec3, IVec3, Vec3};
+
+use crate::gradient::loss::Loss;
+use crate::io::fingerprint::Fingerprint;
+use crate::io::images::{self, RgbImage};
+use crate::io::vdb::{self, GridSelector, LevelSet};
+use crate::optimize::parameters::{Adam, Parameters, MAX_VOXELS};
+use crate::optimize::prior::Prior;
+use crate::optimize::resample::Moments;
+use crate::optimize::run_file::{BoundsFile, RunFile, StartFile, ViewFile};
+use crate::render::camera::Camera;
+use crate::render::image::{render, RenderOptions};
+use crate::render::scene::{CameraFile, Scene};
+use crate::volume::brickmap::{floor_ivec3, BrickMap};
+use crate::volume::medium::Medium;
+use crate::volume::transform::IndexTransform;
+
+/// A camera and the image it should see.
+#[derive(Clone)]
+pub struct View {
+    pub camera: Camera,
+    pub target: RgbImage,
+}
+
+/// Where the unknown lives: the final level's transform and inclusive voxel box, and how many ×2
+/// upsamplings lead there. Level k (0 = coarsest) has voxels s = 2^(levels − k) times larger; its
+/// index c maps to the final index f = s·c + (s − 1)/2 (what `resample::upsample` inverts), so
+/// every level fills the same world box.
+#[derive(Debug, Clone)]
+pub struct Domain {
+    pub transform: IndexTransform,
+    pub lo: IVec3,
+    pub hi: IVec3,
+    pub levels: usize,
+}
+
+impl Domain {
+    /// Voxel size of level `level` over the final one.
+    pub fn scale(&self, level: usize) -> f64 {
+        f64::from(1u32 << (self.levels - level.min(self.levels)))
+    }
+
+    /// Level `level`'s index → world transform.
+    pub fn transform(&self, level: usize) -> IndexTransform {
+        let s = self.scale(level);
+        let coarse_to_fine = DAffine3::from_scale_rotation_translation(
+            DVec3::splat(s),
+            DQuat::IDENTITY,
+            DVec3::splat((s - 1.0) / 2.0),
+        );
+        IndexTransform::new(self.transform.index_to_world() * coarse_to_fine)
+            .expect("a scaled invertible transform stays invertible")
+    }
+
+    /// A final-level continuous index in level `level`'s index space.
+    pub fn to_level(&self, level: usize, fine: Vec3) -> Vec3 {
+        let s = self.scale(level) as f32;
+        (fine - (s - 1.0) / 2.0) / s
+    }
+
+    /// The continuous index box of level `level` (the final voxels' box grown by half a voxel).
+    pub fn bounds(&self, level: usize) -> (Vec3, Vec3) {
+        (
+            self.to_level(level, self.lo.as_vec3() - 0.5),
+            self.to_level(level, self.hi.as_vec3() + 0.5),
+        )
+    }
+
+    /// The voxels of level `level` whose centres lie in its bounds.
+    pub fn voxel_box(&self, level: usize) -> (IVec3, IVec3) {
+        let (lo, hi) = self.bounds(level);
+        (lo.ceil().as_ivec3(), floor_ivec3(hi))
+    }
+
+    /// The world-space box around the domain (the corners of the final box, transformed).
+    pub fn world_box(&self) -> (Vec3, Vec3) {
+        let (lo, hi) = self.bounds(self.levels);
+        let mut out = (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY));
+        for k in 0..8 {
+            let corner = Vec3::new(
+                if k & 1 == 0 { lo.x } else { hi.x },
+                if k & 2 == 0 { lo.y } else { hi.y },
+                if k & 4 == 0 { lo.z } else { hi.z },
+            );
+            let w = self.transform.point_to_world(corner);
+            out = (out.0.min(w), out.1.max(w));
+        }
+        out
+    }
+
+    /// Voxels in the final box.
+    pub fn voxel_count(&self) -> u64 {
+        let n = (self.hi - self.lo + IVec3::ONE).as_i64vec3();
+        (n.x * n.y * n.z).max(0) as u64
+    }
+}
+
+/// The optimiser's settings, resolved.
+#[derive(Debug, Clone)]
+pub struct Settings {
+    pub adam: Adam,
+    pub lr_decay: f32,
+    pub level_lr: f32,
+    pub loss: Loss,
+    pub batch: u32,
+    pub spp: u32,
+    pub max_depth: u32,
+    pub prior: Option<Prior>,
+    pub moments: Moments,
+    /// Fractions of the budget at which level k + 1 begins.
+    pub level_starts: Vec<f32>,
+    pub iterations: u32,
+    pub eval_spp: u32,
+    pub eval_every: u32,
+    pub checkpoint_every: u32,
+    pub seed: u64,
+}
+
+pub struct Problem {
+    /// Lights, medium constants and render settings (its grid is replaced by the unknown's).
+    pub scene: Scene,
+    pub views: Vec<View>,
+    pub holdouts: Vec<View>,
+    /// The true grid, in the final level's index space.
+    pub truth: Option<BrickMap>,
+    pub domain: Domain,
+    /// θ at level 0.
+    pub start: Parameters,
+    /// The name the written grids take (the scene's grid name).
+    pub grid_name: String,
+    pub settings: Settings,
+    /// What a checkpoint must match to be resumed: every setting that changes the computation.
+    pub fingerprint: String,
+}
+
+/// Seeds the target renders apart from the training passes.
+const TARGET_SEED_SALT: u64 = 0x7a26_e7b1_d0c5_1a11;
+
+impl Problem {
+    /// Reads the run file and everything it names; renders the targets a truth gives. `seed`
+    /// overrides the run file's.
+    pub fn load(run_path: &Path, seed: Option<u64>, progress: bool) -> Result<Problem> {
+        let mut file = RunFile::read(run_path)?;
+        file.seed = seed.unwrap_or(file.seed);
+        let resolve = |name: &str| RunFile::resolve(run_path, name);
+        let mut scene = Scene::load(&resolve(&file.scene)).context("scene")?;
+        let read = |key: &str, name: &str, grid: Option<&String>| -> Result<vdb::Grid> {
+            let selector = grid.map_or(GridSelector::Default, |g| GridSelector::Name(g.clone()));
+            let grid = vdb::read_density(&resolve(name), &selector, LevelSet::Refuse)
+                .with_context(|| key.to_string())?;
+            if grid.bricks.min_value() < 0.0 {
+                bail!(
+                    "{key}: grid '{}' has negative values (min {}): densities are ≥ 0",
+                    grid.name,
+                    grid.bricks.min_value()
+                );
+            }
+            Ok(grid)
+        };
+        let truth = file
+            .truth
+            .as_ref()
+            .map(|t| read("truth", t, file.truth_grid.as_ref()))
+            .transpose()?;
+        let start_grid = match &file.unknown.start {
+            StartFile::Vdb(name) => Some(read("unknown.start", name, None)?),
+            StartFile::Constant(_) => None,
+        };
+        let levels = file.unknown.levels.len();
+        let (transform, lo, hi) = match &file.unknown.bounds {
+            BoundsFile::Named(name) => {
+                let grid = if name == "truth" {
+                    truth.as_ref()
+                } else {
+                    start_grid.as_ref()
+                };
+                let grid = grid.context("validated: the grid named by unknown.bounds exists")?;
+                let Some((lo, hi)) = grid.bricks.active_bounds() else {
+                    bail!(
+                        "unknown.bounds = \"{name}\": grid '{}' has no active voxels",
+                        grid.name
+                    );
+                };
+                (grid.transform, lo, hi)
+            }
+            BoundsFile::Box { min, max } => {
+                let voxel = file.unknown.voxel_size.context("validated")? as f64;
+                let (min, max) = (
+                    DVec3::from(min.map(f64::from)),
+                    DVec3::from(max.map(f64::from)),
+                );
+                let n = ((max - min) / voxel).ceil();
+                if n.max_element() > i32::MAX as f64 / 2.0 {
+                    bail!("unknown.bounds / unknown.voxel_size: {n} voxels per axis is too many");
+                }
+                let transform = IndexTransform::uniform(voxel, min + voxel / 2.0);
+                (transform, IVec3::ZERO, n.as_ivec3() - IVec3::ONE)
+            }
+        };
+        let domain = Domain {
+            transform,
+            lo,
+            hi,
+            levels,
+        };
+        if domain.voxel_count() > MAX_VOXELS {
+            bail!(
+                "unknown.bounds: the unknown has {} voxels at the final level; at most {MAX_VOXELS} (each is stored with Adam's two moments)",
+                domain.voxel_count()
+            );
+        }
+        file.unknown
+            .check_levels_reach(transform.voxel_size().max_element())?;
+        let start = start_parameters(&domain, &file.unknown.start, start_grid.as_ref());
+        let truth_in_domain = truth
+            .map(|t| in_final_index_space(t, &domain))
+            .transpose()?;
+
+        let world_box = domain.world_box();
+        let truth_scene = truth_in_domain.as_ref().map(|grid| {
+            let mut s = scene.clone();
+            s.medium = medium_like(
+                &scene,
+                grid.clone(),
+                domain.transform,
+                domain.bounds(levels),
+            );
+            s
+        });
+        let mut targets = TargetRenderer {
+            truth: truth_scene.as_ref(),
+            spp: file.target_spp,
+            seed: file.seed,
+            progress,
+            rendered: 0,
+        };
+        let views = targets.views(
+            run_path,
+            "view",
+            &file.view,
+            file.views.orbit.as_ref(),
+            world_box,
+        )?;
+        let holdouts = targets.views(
+            run_path,
+            "holdout",
+            &file.holdout,
+            file.holdouts.orbit.as_ref(),
+            world_box,
+        )?;
+        if file.optimizer.batch as usize > views.len() {
+            bail!(
+                "optimizer.batch is {} but there are only {} views",
+                file.optimizer.batch,
+                views.len()
+            );
+        }
+        let o = &file.optimizer;
+        let settings = Settings {
+            adam: o.adam(),
+            lr_decay: o.lr_decay,
+            level_lr: o.level_lr,
+            loss: o.loss,
+            batch: o.batch,
+            spp: o.spp,
+            max_depth: scene.settings.max_depth,
+            prior: o.prior(),
+            moments: file.unknown.moments,
+            level_starts: file.unknown.levels.clone(),
+            iterations: o.iterations,
+            eval_spp: file.eval_spp,
+            eval_every: file.eval_every,
+            checkpoint_every: file.checkpoint_every,
+            seed: file.seed,
+        };
+        let fingerprint = fingerprint(&file, &scene);
+        // The scene's own grid is not the unknown: drop it, so that the per-iteration scenes
+        // cloned from this one carry only the constants.
+        scene.medium = medium_like(
+            &scene,
+            BrickMap::new(Vec::new(), Vec::new()),
+            transform,
+            (Vec3::ZERO, Vec3::ZERO),
+        );
+        Ok(Problem {
+            grid_name: scene.grid_name.clone(),
+            scene,
+            views,
+            holdouts,
+            truth: truth_in_domain,
+            domain,
+            start,
+            settings,
+            fingerprint,
+        })
+    }
+
+    /// The scene with `theta` (at level `level`) as its medium.
+    pub fn scene_at(&self, theta: BrickMap, level: usize) -> Scene {
+        let mut scene = self.scene.clone();
+        scene.medium = medium_like(
+            &self.scene,
+            theta,
+            self.domain.transform(level),
+            self.domain.bounds(level),
+        );
+        scene
+    }
+}
+
+/// A medium with `scene`'s optical constants and majorant settings over `grid`.
+fn medium_like(
+    scene: &Scene,
+    grid: BrickMap,
+    transform: IndexTransform,
+    bounds: (Vec3, Vec3),
+) -> Medium {
+    let m = &scene.medium;
+    let mut medium = Medium::with_bounds(
+        grid,
+        transform,
+        bounds,
+        m.density_scale,
+        m.filter,
+        scene.settings.majorant(),
+    );
+    medium.albedo = m.albedo;
+    medium.phase_g = m.phase_g;
+    medium
+}
+
+/// θ at the first level: the constant, or the start grid's trilinear field at each voxel centre.
+fn start_parameters(domain: &Domain, start: &StartFile, grid: Option<&vdb::Grid>) -> Parameters {
+    let (lo, hi) = domain.voxel_box(0);
+    let transform = domain.transform(0);
+    let mut p = Parameters::default();
+    for x in lo.x..=hi.x {
+        for y in lo.y..=hi.y {
+            for z in lo.z..=hi.z {
+                let v = IVec3::new(x, y, z);
+                let value = match (start, grid) {
+                    (StartFile::Constant(c), _) => *c,
+                    (StartFile::Vdb(_), Some(g)) => {
+                        let world = transform.point_to_world(v.as_vec3());
+                        g.bricks.trilinear(g.transform.point_to_index(world))
+                    }
+                    (StartFile::Vdb(_), None) => 0.0,
+                };
+                if value > 0.0 {
+                    p.set(v, value);
+                }
+            }
+        }
+    }
+    p
+}
+
+/// The truth's values at the final level's voxels: the grid itself when it defines the domain's
+/// transform, else its trilinear field sampled at the voxel centres.
+fn in_final_index_space(truth: vdb::Grid, domain: &Domain) -> Result<BrickMap> {
+    if truth.transform.to_rows() == domain.transform.to_rows() {
+        return Ok(truth.bricks);
+    }
+    if domain.voxel_count() > MAX_VOXELS {
+        bail!("unknown.bounds: too many voxels to resample the truth onto");
+    }
+    let mut b = crate::volume::brickmap::BrickMapBuilder::new();
+    for x in domain.lo.x..=domain.hi.x {
+        for y in domain.lo.y..=domain.hi.y {
+            for z in domain.lo.z..=domain.hi.z {
+                let v = IVec3::new(x, y, z);
+                let world = domain.transform.point_to_world(v.as_vec3());
+                let value = truth
+                    .bricks
+                    .trilinear(truth.transform.point_to_index(world));
+                if value > 0.0 {
+                    b.set(v, value, true);
+                }
+            }
+        }
+    }
+    Ok(b.build())
+}
+
+/// Builds views (cameras + targets), rendering from the truth the targets no image gives.
+struct TargetRenderer<'a> {
+    truth: Option<&'a Scene>,
+    spp: u32,
+    seed: u64,
+    progress: bool,
+    /// Targets rendered so far (each gets its own random streams).
+    rendered: u64,
+}
+
+impl TargetRenderer<'_> {
+    fn views(
+        &mut self,
+        run_path: &Path,
+        key: &str,
+        listed: &[ViewFile],
+        orbit: Option<&crate::optimize::run_file::OrbitFile>,
+        world_box: (Vec3, Vec3),
+    ) -> Result<Vec<View>> {
+        let mut cameras: Vec<(String, Camera, Option<&str>)> = Vec::new();
+        for (i, v) in listed.iter().enumerate() {
+            let name = format!("{key}[{i}]");
+            let file = CameraFile {
+                position: v.position,
+                target: v.target,
+                up: v.up,
+                fov_deg: v.fov_deg,
+                width: v.width,
+                height: v.height,
+            };
+            let camera = file
+                .validate()
+                .and_then(|_| file.camera())
+                .with_context(|| name.clone())?;
+            cameras.push((name, camera, v.image.as_deref()));
+        }
+        if let Some(o) = orbit {
+            let name = format!("{key}s.orbit");
+            let centre = (world_box.0 + world_box.1) / 2.0;
+            let orbit_cameras = o.orbit().cameras(centre).with_context(|| name.clone())?;
+            for (i, camera) in orbit_cameras.into_iter().enumerate() {
+                cameras.push((format!("{name} camera {i}"), camera, None));
+            }
+        }
+        let mut views = Vec::with_capacity(cameras.len());
+        for (name, camera, image) in cameras {
+            let p = camera.position;
+            if p.cmpge(world_box.0).all() && p.cmple(world_box.1).all() {
+                bail!(
+                    "{name}: the camera at {p} is inside the unknown's box {:?}..{:?} (move it out, or for an orbit raise `distance`)",
+                    world_box.0,
+                    world_box.1
+                );
+            }
+            let target = match image {
+                Some(file) => {
+                    let path = RunFile::resolve(run_path, file);
+                    let image = images::read_rgb(&path).with_context(|| format!("{name}.image"))?;
+                    if (image.width, image.height) != (camera.width, camera.height) {
+                        bail!(
+                            "{name}.image: '{}' is {}×{} but the view is {}×{}",
+                            path.display(),
+                            image.width,
+                            image.height,
+                            camera.width,
+                            camera.height
+                        );
+                    }
+                    if image.pixels.iter().any(|c| !c.is_finite()) {
+                        bail!("{name}.image: '{}' has non-finite pixels", path.display());
+                    }
+                    image
+                }
+                None => self.render(&camera, &name)?,
+            };
+            views.push(View { camera, target });
+        }
+        Ok(views)
+    }
+
+    fn render(&mut self, camera: &Camera, name: &str) -> Result<RgbImage> {
+        let truth = self
+            .truth
+            .with_context(|| format!("{name}: no image and no truth to render one from"))?;
+        let mut scene = truth.clone();
+        scene.camera = *camera;
+        self.rendered += 1;
+        let options = RenderOptions {
+            spp: self.spp,
+            seed: self.seed ^ TARGET_SEED_SALT ^ self.rendered.wrapping_mul(0x9e37_79b9_7f4a_7c15),
+            max_depth: truth.settings.max_depth,
+            progress: self.progress,
+        };
+        Ok(render(&scene, &options).0)
+    }
+}
+
+/// Every run-file value that changes the computation (not the evaluation or checkpoint cadence,
+/// nor the iteration count: a run may be resumed and extended), and the scene's.
+fn fingerprint(file: &RunFile, scene: &Scene) -> String {
+    let mut optimizer = file.optimizer.clone();
+    optimizer.iterations = 0;
+    let mut f = Fingerprint::default();
+    f.text(&format!(
+        "{:?}|{:?}|{:?}|{:?}|{:?}|{:?}|{}|{}",
+        file.truth,
+        file.view,
+        file.views,
+        file.unknown,
+        optimizer,
+        file.truth_grid,
+        file.seed,
+        file.target_spp
+    ))
+    .text(&crate::render::fingerprint::scene(scene));
+    f.hex()
+}
