@@ -515,7 +515,10 @@ mod tests {
             (format!("target_spp = 0\n{GOOD}"), "target_spp"),
             (format!("colour = 1\n{GOOD}"), "unknown field"),
             (format!("eval_every = 0\n{GOOD}"), "eval_every"),
-            (format!("{GOOD}\n[optimizer]\nlevel_lr = 0"), "optimizer.level_lr"),
+            (
+                format!("{GOOD}\n[optimizer]\nlevel_lr = 0"),
+                "optimizer.level_lr",
+            ),
         ];
         for (text, key) in cases {
             let err = format!("{:#}", check(&text).unwrap_err());
