@@ -45,6 +45,7 @@ enum Command {
 }
 
 fn main() -> ExitCode {
+    restore_sigpipe();
     let result = match Cli::parse().command {
         Command::Info(args) => cli::info::run(&args),
         Command::Render(args) => cli::render::run(&args),
@@ -61,5 +62,15 @@ fn main() -> ExitCode {
             eprintln!("error: {e:#}");
             ExitCode::FAILURE
         }
+    }
+}
+
+/// `volgrad info big.vdb | head` closes the pipe early. Rust ignores SIGPIPE, so the next
+/// `println!` would panic; with the default action the process ends quietly, as `cat` would.
+fn restore_sigpipe() {
+    #[cfg(unix)]
+    // SAFETY: called first thing in main, before any thread exists; SIG_DFL is a valid action.
+    unsafe {
+        libc::signal(libc::SIGPIPE, libc::SIG_DFL);
     }
 }

@@ -276,6 +276,26 @@ fn a_resumed_run_equals_the_uninterrupted_one_bit_for_bit() {
     assert_eq!(meta("volgrad_estimator"), "joint");
     assert!(meta("volgrad_heldout_psnr").parse::<f64>().unwrap() > 10.0);
 
+    // The result is an ordinary grid: a scene pointing at it renders.
+    std::fs::write(
+        d.join("result.toml"),
+        SCENE.replace("vdb = \"ball.vdb\"", "vdb = \"whole/final.vdb\""),
+    )
+    .unwrap();
+    ok(volgrad_in(
+        d,
+        &[
+            "render",
+            "result.toml",
+            "-o",
+            "result.exr",
+            "--spp",
+            "2",
+            "-q",
+        ],
+    ));
+    assert!(d.join("result.png").is_file());
+
     // A checkpoint of another run is refused.
     std::fs::write(d.join("run.toml"), run.replace("lr = 0.1", "lr = 0.2")).unwrap();
     assert_clean_error(

@@ -120,7 +120,7 @@ fn linear_range(values: impl Iterator<Item = f64>) -> std::ops::Range<f64> {
 
 /// A linear axis's tick label: as many decimals as the range needs.
 fn linear_label(v: f64, range: &std::ops::Range<f64>) -> String {
-    let decimals = (2.0 - (range.end - range.start).log10().floor()).clamp(0.0, 6.0) as usize;
+    let decimals = (1.0 - (range.end - range.start).log10().floor()).clamp(0.0, 6.0) as usize;
     format!("{v:.decimals$}")
 }
 
@@ -404,6 +404,28 @@ mod tests {
                 "no label {decade}"
             );
         }
+    }
+
+    /// Zero and negative values are drawn on linear axes (dB, seconds from 0) and refused on log
+    /// axes.
+    #[test]
+    fn linear_axes_take_zero_and_negative_values() {
+        let mut c = chart();
+        for s in &mut c.series {
+            s.points = vec![(0.0, -1.0), (0.0, 2.5), (10.0, -0.5)];
+        }
+        assert!(to_svg(&c).is_err());
+        c.x_scale = Scale::Linear;
+        c.y_scale = Scale::Linear;
+        let svg = to_svg(&c).unwrap();
+        assert_eq!(
+            svg.lines()
+                .filter(|l| l.starts_with("<polyline") && l.contains("stroke=\"#0072B2\""))
+                .count(),
+            1
+        );
+        assert_eq!(linear_label(2.5, &(-1.2..2.7)), "2.5");
+        assert_eq!(linear_label(25.0, &(20.0..40.0)), "25");
     }
 
     #[test]

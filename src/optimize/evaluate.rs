@@ -141,10 +141,7 @@ pub fn write_holdout_picture(
             for (d, &t) in difference.pixels.iter_mut().zip(&t.pixels) {
                 *d = (*d - t).abs() * 4.0;
             }
-            enlarge(
-                &side_by_side(&[t, image, &difference]),
-                MIN_PANEL / t.height.max(1),
-            )
+            enlarged(&side_by_side(&[t, image, &difference]))
         })
         .collect();
     images::write_png(path, &stacked(&rows), exposure.max(f32::MIN_POSITIVE))
@@ -153,9 +150,9 @@ pub fn write_holdout_picture(
 /// Panels smaller than this are enlarged in the held-out pictures.
 const MIN_PANEL: u32 = 128;
 
-/// Each pixel repeated `factor` × `factor` times (nothing changes for factor ≤ 1).
-fn enlarge(image: &RgbImage, factor: u32) -> RgbImage {
-    let f = factor.max(1);
+/// A picture of small panels enlarged (pixel copies) to at least `MIN_PANEL` pixels high.
+pub fn enlarged(image: &RgbImage) -> RgbImage {
+    let f = (MIN_PANEL / image.height.max(1)).max(1);
     let mut out = RgbImage::new(image.width * f, image.height * f);
     for y in 0..out.height {
         for x in 0..out.width {

@@ -9,7 +9,7 @@ use std::collections::HashMap;
 use anyhow::{bail, Result};
 use glam::IVec3;
 
-use crate::volume::brickmap::{leaf_offset, BrickMap, BrickMapBuilder, BRICK_VOXELS};
+use crate::volume::brickmap::{leaf_offset, BrickMap, Leaf, BRICK_VOXELS};
 
 /// The most voxels `from_grid` voxelises from tiles (2^28: 3 GiB of θ and moments).
 pub const MAX_VOXELS: u64 = 1 << 28;
@@ -243,14 +243,19 @@ impl Parameters {
         keys
     }
 
-    /// θ as a brick map (every stored voxel active), e.g. to render or to write as a VDB. The
-    /// builder orders the leaves, so the map does not depend on the hash map's order.
+    /// θ as a brick map (every stored voxel active), e.g. to render or to write as a VDB: each
+    /// brick becomes a leaf as it is (same voxel order), in key order.
     pub fn to_brickmap(&self) -> BrickMap {
-        let mut b = BrickMapBuilder::new();
-        for (voxel, theta, _, _) in self.voxels() {
-            b.set(voxel, theta, true);
-        }
-        b.build()
+        let leaves = self
+            .sorted_keys()
+            .into_iter()
+            .map(|key| Leaf {
+                origin: key << 3,
+                values: self.bricks[&key].theta,
+                active: [u64::MAX; BRICK_VOXELS / 64],
+            })
+            .collect();
+        BrickMap::new(leaves, Vec::new())
     }
 
     /// Every brick as (key, θ, m, v), in key order: what a checkpoint stores.

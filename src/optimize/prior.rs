@@ -4,7 +4,7 @@
 //!
 //! over the pairs of neighbours (a ∈ x, y, z) with at least one of the N stored voxels, with φ(d) = √(d² + ε²) − ε (total variation, smoothed at ε so its
 //! gradient exists at 0) or φ(d) = d² (the "laplacian" prior: its gradient is the discrete
-//! Laplacian). Dividing by N keeps a weight meaningful across levels of the coarse-to-fine schedule.
+//! Laplacian); or R(θ) = weight · (1/N) · Σ_v θ_v ("l1", a sparsity prior). Dividing by N keeps a weight meaningful across levels of the coarse-to-fine schedule.
 
 use glam::IVec3;
 
@@ -17,6 +17,10 @@ pub enum PriorKind {
     Tv,
     /// Squared differences: penalises edges by their height squared, smooths them.
     Laplacian,
+    /// The mean of θ itself (θ ≥ 0, so its L1 norm): a constant pull towards 0. Where the images
+    /// say nothing about a voxel its gradient is noise, and the θ ≥ 0 projection turns a random
+    /// walk into haze; this pull is what clears it, while voxels the images need hardly feel it.
+    L1,
 }
 
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -35,6 +39,7 @@ impl Prior {
         match self.kind {
             PriorKind::Tv => (d * d + TV_EPSILON * TV_EPSILON).sqrt() - TV_EPSILON,
             PriorKind::Laplacian => d * d,
+            PriorKind::L1 => 0.0, // not a difference prior (see `evaluate`)
         }
     }
 
@@ -42,6 +47,7 @@ impl Prior {
         match self.kind {
             PriorKind::Tv => d / (d * d + TV_EPSILON * TV_EPSILON).sqrt(),
             PriorKind::Laplacian => 2.0 * d,
+            PriorKind::L1 => 0.0,
         }
     }
 
@@ -56,6 +62,11 @@ impl Prior {
         let scale = self.weight as f64 / stored as f64;
         let mut value = 0.0;
         let mut gradient = Vec::with_capacity(stored);
+        if self.kind == PriorKind::L1 {
+            let value = p.voxels().map(|(_, theta, ..)| theta as f64).sum::<f64>();
+            let gradient = p.voxels().map(|(v, ..)| (v, scale)).collect();
+            return (scale * value, gradient);
+        }
         for (v, theta, ..) in p.voxels() {
             let theta = theta as f64;
             let mut g = 0.0;
@@ -83,7 +94,7 @@ mod tests {
     /// The gradient against central differences of R, on a random-looking field.
     #[test]
     fn gradient_matches_finite_differences() {
-        for kind in [PriorKind::Tv, PriorKind::Laplacian] {
+        for kind in [PriorKind::Tv, PriorKind::Laplacian, PriorKind::L1] {
             let prior = Prior { kind, weight: 2.0 };
             let mut p = Parameters::default();
             for x in 0..8 {

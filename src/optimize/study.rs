@@ -13,7 +13,7 @@ use crate::gradient::adjoint::Estimator;
 use crate::io::chart::{self, Chart, Scale, Series};
 use crate::io::images;
 use crate::io::table::{Align, Table};
-use crate::optimize::evaluate::{side_by_side, Evaluation};
+use crate::optimize::evaluate::{enlarged, side_by_side, Evaluation};
 use crate::optimize::log::LogRow;
 use crate::optimize::problem::Problem;
 use crate::optimize::reconstruct::{reconstruct, RunOptions};
@@ -48,6 +48,20 @@ impl StudyRun {
             .into_iter()
             .find(|&(_, p)| p >= psnr)
             .map(|(t, _)| t)
+    }
+
+    /// The largest fall of the held-out PSNR below its running best, counting evaluations after
+    /// `after` seconds (the best may come from before): how far the run ever went back.
+    pub fn largest_dip(&self, after: f64) -> Option<f64> {
+        let mut best = f64::NEG_INFINITY;
+        let mut dip: Option<f64> = None;
+        for (t, p) in self.curve() {
+            best = best.max(p);
+            if t >= after {
+                dip = Some(dip.unwrap_or(0.0).max(best - p));
+            }
+        }
+        dip
     }
 
     fn final_row(&self) -> Option<&LogRow> {
@@ -141,12 +155,16 @@ fn write_outputs(problem: &Problem, runs: &[StudyRun], out: &Path) -> Result<()>
         images.extend(runs.iter().filter_map(|r| r.evaluation.renders.first()));
         images::write_png(
             &out.join("renders.png"),
-            &side_by_side(&images),
+            &enlarged(&side_by_side(&images)),
             problem.scene.settings.exposure,
         )?;
     }
     write("summary.md", summary(runs))
 }
+
+/// The held-out PSNR should never fall far below its running best after this (the first minute
+/// is allowed to wander while the coarse shape forms).
+const STABLE_AFTER_SECONDS: f64 = 60.0;
 
 /// A time as a column header: tenths below 10 s.
 fn seconds(t: f64) -> String {
@@ -180,6 +198,7 @@ pub fn summary(runs: &[StudyRun]) -> String {
         columns.push((format!("PSNR at {} s", seconds(f * budget)), Align::Right));
     }
     columns.push(("time to DRT's final PSNR (s)".into(), Align::Right));
+    columns.push(("largest dip after 60 s (dB)".into(), Align::Right));
     let mut table = Table::new(columns);
     let number =
         |v: Option<f64>, digits: usize| v.map_or("–".into(), |x| format!("{x:.digits$}"));
@@ -202,6 +221,7 @@ pub fn summary(runs: &[StudyRun]) -> String {
             row.push(number(run.psnr_at(f * budget), 2));
         }
         row.push(number(drt_final.and_then(|p| run.time_to(p)), 1));
+        row.push(number(run.largest_dip(STABLE_AFTER_SECONDS), 2));
         table.push(row);
     }
     let mut text = String::from("# Inverse rendering: estimators at equal time\n\n");
