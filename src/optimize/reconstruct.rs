@@ -117,7 +117,6 @@ pub fn reconstruct(problem: &Problem, options: &RunOptions) -> Result<Outcome> {
         };
         row.record(&evaluation);
         log = vec![row];
-        position.log = LogRow::csv_rows(&log);
     }
     let mut interrupted = false;
     while options.stop.fraction(&position) < 1.0 {
@@ -181,19 +180,24 @@ pub fn reconstruct(problem: &Problem, options: &RunOptions) -> Result<Outcome> {
             position.evaluation_seconds += started.elapsed().as_secs_f64();
             row.evaluation_seconds = position.evaluation_seconds;
         }
+        let evaluated = row.psnr.is_some();
         log.push(row);
-        position.log = LogRow::csv_rows(&log);
         bar.set_message(format!(
             "it {it} · level {level} · loss {loss:.3e} · held-out PSNR {:.2} dB",
             evaluation.psnr
         ));
         bar.set_position(bar_position(options.stop, &position));
-        write_log(&options.out, &log)?;
+        if evaluated {
+            write_log(&options.out, &log)?;
+        }
         if interrupted {
             break;
         }
     }
     bar.finish_and_clear();
+    // Kept as text only here and in checkpoints: rebuilding it every iteration would cost time
+    // quadratic in the run's length.
+    position.log = LogRow::csv_rows(&log);
     if !interrupted {
         let level = position.level as usize;
         checkpoint::write_grid(
