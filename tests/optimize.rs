@@ -442,8 +442,11 @@ fn bad_run_files_name_the_key() {
         "{head}[holdouts.orbit]{}",
         rest.split_once("[holdouts.orbit]").unwrap().1
     );
+    let (head, rest) = good.split_once("[holdouts.orbit]").unwrap();
+    let no_holdouts = format!("{head}[unknown]{}", rest.split_once("[unknown]").unwrap().1);
     let cases: Vec<(String, Vec<&str>)> = vec![
         (no_views.clone(), vec!["no views"]),
+        (no_holdouts, vec!["no held-out views"]),
         (
             good.replacen("distance = 12", "distance = 2", 1),
             vec!["views.orbit", "inside"],

@@ -62,7 +62,7 @@ pub type BrickState<'a> = (
 );
 
 /// The voxel within its brick at `leaf_offset` i.
-fn local_of(i: usize) -> IVec3 {
+pub(crate) fn local_of(i: usize) -> IVec3 {
     IVec3::new((i >> 6) as i32, ((i >> 3) & 7) as i32, (i & 7) as i32)
 }
 
@@ -121,9 +121,9 @@ impl Parameters {
         self.state(voxel).0
     }
 
-    /// Whether the voxel's brick is stored.
-    pub fn is_stored(&self, voxel: IVec3) -> bool {
-        self.bricks.contains_key(&(voxel >> 3))
+    /// θ of the brick with key `key` (voxel >> 3), if it is stored.
+    pub fn brick_theta(&self, key: IVec3) -> Option<&[f32; BRICK_VOXELS]> {
+        self.bricks.get(&key).map(|b| &b.theta)
     }
 
     /// (θ, m, v) at a voxel (zeros where no brick is).

@@ -8,7 +8,8 @@
 
 use glam::IVec3;
 
-use crate::optimize::parameters::Parameters;
+use crate::optimize::parameters::{local_of, Parameters};
+use crate::volume::brickmap::{leaf_offset, BRICK_VOXELS};
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Deserialize)]
 #[serde(rename_all = "kebab-case")]
@@ -52,10 +53,10 @@ impl Prior {
     }
 
     /// R(θ) and ∂R/∂θ_v for every stored voxel v. Each voxel's derivative is computed from its
-    /// own neighbourhood, in one expression, so the result does not depend on the order in which
-    /// the voxels are visited.
+    /// own neighbourhood, in one expression, and the bricks are visited in key order, so the
+    /// result does not depend on the hash map's order.
     pub fn evaluate(&self, p: &Parameters) -> (f64, Vec<(IVec3, f64)>) {
-        let stored = p.brick_count() * crate::volume::brickmap::BRICK_VOXELS;
+        let stored = p.brick_count() * BRICK_VOXELS;
         if stored == 0 || self.weight == 0.0 {
             return (0.0, Vec::new());
         }
@@ -67,23 +68,57 @@ impl Prior {
             let gradient = p.voxels().map(|(v, ..)| (v, scale)).collect();
             return (scale * value, gradient);
         }
-        for (v, theta, ..) in p.voxels() {
-            let theta = theta as f64;
-            let mut g = 0.0;
-            for e in AXES {
-                let forward = p.get(v + e) as f64 - theta;
-                let backward = theta - p.get(v - e) as f64;
-                // Each pair of neighbours counts once: as the forward pair of its lower voxel
-                // when that one is stored, else here.
-                value += self.phi(forward);
-                if !p.is_stored(v - e) {
-                    value += self.phi(backward);
+        for (key, theta, ..) in p.sorted_bricks() {
+            let around = Neighbourhood::new(p, key, theta);
+            for (i, &t) in theta.iter().enumerate() {
+                let (local, t) = (local_of(i), t as f64);
+                let mut g = 0.0;
+                for e in AXES {
+                    let (after, _) = around.at(local + e);
+                    let (before, before_stored) = around.at(local - e);
+                    let forward = after as f64 - t;
+                    let backward = t - before as f64;
+                    // Each pair of neighbours counts once: as the forward pair of its lower
+                    // voxel when that one is stored, else here.
+                    value += self.phi(forward);
+                    if !before_stored {
+                        value += self.phi(backward);
+                    }
+                    g += self.phi_derivative(backward) - self.phi_derivative(forward);
                 }
-                g += self.phi_derivative(backward) - self.phi_derivative(forward);
+                gradient.push(((key << 3) + local, scale * g));
             }
-            gradient.push((v, scale * g));
         }
         (scale * value, gradient)
+    }
+}
+
+/// θ around one brick: the brick and its six face neighbours, looked up once, so that a voxel's
+/// neighbours are array reads rather than hash lookups.
+struct Neighbourhood<'a> {
+    own: &'a [f32; BRICK_VOXELS],
+    /// +x, −x, +y, −y, +z, −z.
+    faces: [Option<&'a [f32; BRICK_VOXELS]>; 6],
+}
+
+impl<'a> Neighbourhood<'a> {
+    fn new(p: &'a Parameters, key: IVec3, own: &'a [f32; BRICK_VOXELS]) -> Self {
+        let faces = std::array::from_fn(|f| {
+            let step = if f % 2 == 0 { 1 } else { -1 };
+            p.brick_theta(key + AXES[f / 2] * step)
+        });
+        Neighbourhood { own, faces }
+    }
+
+    /// θ at a brick-local index one step from the brick at most (one coordinate in −1 or 8),
+    /// and whether its brick is stored.
+    fn at(&self, local: IVec3) -> (f32, bool) {
+        let outside = (0..3).find(|&a| !(0..8).contains(&local[a]));
+        let brick = match outside {
+            None => Some(self.own),
+            Some(a) => self.faces[2 * a + usize::from(local[a] < 0)],
+        };
+        brick.map_or((0.0, false), |b| (b[leaf_offset(local & 7)], true))
     }
 }
 

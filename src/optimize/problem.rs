@@ -235,7 +235,7 @@ impl Problem {
             s
         });
         let mut targets = TargetRenderer {
-            truth: truth_scene.as_ref(),
+            truth: truth_scene,
             spp: file.target_spp,
             seed: file.seed,
             progress,
@@ -280,7 +280,7 @@ impl Problem {
             checkpoint_every: file.checkpoint_every,
             seed: file.seed,
         };
-        let fingerprint = fingerprint(&file, &scene);
+        let fingerprint = fingerprint(&file, &scene, views.iter().chain(&holdouts));
         // The scene's own grid is not the unknown: drop it, so that the per-iteration scenes
         // cloned from this one carry only the constants.
         scene.medium = medium_like(
@@ -390,8 +390,9 @@ fn in_final_index_space(truth: vdb::Grid, domain: &Domain) -> Result<BrickMap> {
 }
 
 /// Builds views (cameras + targets), rendering from the truth the targets no image gives.
-struct TargetRenderer<'a> {
-    truth: Option<&'a Scene>,
+struct TargetRenderer {
+    /// The scene with the true grid; each render sets its camera.
+    truth: Option<Scene>,
     spp: u32,
     seed: u64,
     progress: bool,
@@ -399,7 +400,7 @@ struct TargetRenderer<'a> {
     rendered: u64,
 }
 
-impl TargetRenderer<'_> {
+impl TargetRenderer {
     fn views(
         &mut self,
         run_path: &Path,
@@ -472,9 +473,9 @@ impl TargetRenderer<'_> {
     fn render(&mut self, camera: &Camera, name: &str) -> Result<RgbImage> {
         let truth = self
             .truth
+            .as_mut()
             .with_context(|| format!("{name}: no image and no truth to render one from"))?;
-        let mut scene = truth.clone();
-        scene.camera = *camera;
+        truth.camera = *camera;
         self.rendered += 1;
         let options = RenderOptions {
             spp: self.spp,
@@ -482,13 +483,14 @@ impl TargetRenderer<'_> {
             max_depth: truth.settings.max_depth,
             progress: self.progress,
         };
-        Ok(render(&scene, &options).0)
+        Ok(render(truth, &options).0)
     }
 }
 
 /// Every run-file value that changes the computation (not the evaluation or checkpoint cadence,
-/// nor the iteration count: a run may be resumed and extended), and the scene's.
-fn fingerprint(file: &RunFile, scene: &Scene) -> String {
+/// nor the iteration count: a run may be resumed and extended), the scene's content and the
+/// target images' (an image file replaced under the same name is another run).
+fn fingerprint<'a>(file: &RunFile, scene: &Scene, views: impl Iterator<Item = &'a View>) -> String {
     let mut optimizer = file.optimizer.clone();
     optimizer.iterations = 0;
     let mut f = Fingerprint::default();
@@ -504,5 +506,8 @@ fn fingerprint(file: &RunFile, scene: &Scene) -> String {
         file.target_spp
     ))
     .text(&crate::render::fingerprint::scene(scene));
+    for view in views {
+        f.text(&crate::io::fingerprint::image(&view.target));
+    }
     f.hex()
 }

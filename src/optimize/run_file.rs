@@ -75,7 +75,7 @@ fn default_seed() -> u64 {
 pub struct ViewFile {
     pub position: [f32; 3],
     pub target: [f32; 3],
-    #[serde(default = "default_up")]
+    #[serde(default = "crate::render::scene::default_up")]
     pub up: [f32; 3],
     pub fov_deg: f32,
     pub width: u32,
@@ -83,10 +83,6 @@ pub struct ViewFile {
     /// The target image (linear; any format OpenImageIO reads). Without it the view's target is
     /// rendered from `truth`.
     pub image: Option<String>,
-}
-
-fn default_up() -> [f32; 3] {
-    [0.0, 1.0, 0.0]
 }
 
 #[derive(Debug, Clone, Default, Deserialize)]
@@ -261,6 +257,9 @@ impl RunFile {
     pub fn validate(&self) -> Result<()> {
         if self.view.is_empty() && self.views.orbit.is_none() {
             bail!("no views: give [[view]] entries or a [views.orbit]");
+        }
+        if self.holdout.is_empty() && self.holdouts.orbit.is_none() {
+            bail!("no held-out views: give [[holdout]] entries or a [holdouts.orbit] (quality is measured on views the gradients never see)");
         }
         for (key, spp) in [("target_spp", self.target_spp), ("eval_spp", self.eval_spp)] {
             if spp == 0 {
@@ -442,6 +441,12 @@ mod tests {
         fov_deg = 40
         width = 8
         height = 8
+        [[holdout]]
+        position = [0, 0, 10]
+        target = [0, 0, 0]
+        fov_deg = 40
+        width = 8
+        height = 8
         [unknown]
         bounds = "truth"
         start = 0.1
@@ -512,6 +517,7 @@ mod tests {
                 GOOD.replace("[views.orbit]", "[holdouts.orbit]"),
                 "no views",
             ),
+            (GOOD.replace("[[holdout]]", "[[view]]"), "no held-out views"),
             (format!("target_spp = 0\n{GOOD}"), "target_spp"),
             (format!("colour = 1\n{GOOD}"), "unknown field"),
             (format!("eval_every = 0\n{GOOD}"), "eval_every"),

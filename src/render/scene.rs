@@ -71,7 +71,8 @@ impl CameraFile {
     }
 }
 
-fn default_up() -> [f32; 3] {
+/// A camera's up when the file gives none (+y), for scene and run files alike.
+pub fn default_up() -> [f32; 3] {
     [0.0, 1.0, 0.0]
 }
 
