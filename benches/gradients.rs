@@ -77,11 +77,11 @@ fn main() {
     // Variance over seeds.
     let mut rows = Vec::new();
     for (i, &e) in estimators.iter().enumerate() {
-        let runs: Vec<GradientGrid> = (0..seeds)
+        let runs: Vec<GradientGrid<f32>> = (0..seeds)
             .map(|s| gradient(&scene, &adjoint, &options(e, 1000 + s)).gradient)
             .collect();
-        let mut mean = runs[0].empty_like();
-        let mut square = runs[0].empty_like();
+        let mut mean = GradientGrid::<f64>::for_medium(&scene.medium);
+        let mut square = mean.empty_like();
         for r in &runs {
             mean.merge(r, 1.0 / seeds as f64);
             for (v, g) in r.voxels() {

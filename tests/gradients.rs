@@ -31,7 +31,7 @@ fn options(scene: &Scene, estimator: Estimator, spp: u32, seed: u64) -> GradOpti
 }
 
 /// Gradients of the mean pixel value from `repeats` seeds.
-fn runs(scene: &Scene, estimator: Estimator, spp: u32, repeats: u64) -> Vec<GradientGrid> {
+fn runs(scene: &Scene, estimator: Estimator, spp: u32, repeats: u64) -> Vec<GradientGrid<f32>> {
     let adjoint = Loss::Mean.adjoint(
         &volgrad::io::images::RgbImage::new(scene.camera.width, scene.camera.height),
         None,
@@ -42,7 +42,7 @@ fn runs(scene: &Scene, estimator: Estimator, spp: u32, repeats: u64) -> Vec<Grad
 }
 
 /// Mean and standard error of a linear functional over the runs.
-fn mean_se(runs: &[GradientGrid], f: impl Fn(&GradientGrid) -> f64) -> (f64, f64) {
+fn mean_se(runs: &[GradientGrid<f32>], f: impl Fn(&GradientGrid<f32>) -> f64) -> (f64, f64) {
     let values: Vec<f64> = runs.iter().map(f).collect();
     let m = MeanAndError::of(&values);
     (m.mean, m.se)
@@ -140,7 +140,7 @@ fn per_segment_suffixes_agree_with_per_path_ones_and_with_fd() {
     let scene = scene(Filter::Trilinear, true, 0.9);
     let fd_all = fd_along(&scene, &fd::ones(&all_voxels(&scene)));
     let adjoint = Loss::Mean.adjoint(&volgrad::io::images::RgbImage::new(8, 8), None);
-    let run = |suffix| -> Vec<GradientGrid> {
+    let run = |suffix| -> Vec<GradientGrid<f32>> {
         (0..8)
             .map(|r| {
                 let mut o = options(&scene, Estimator::Joint, 32, 300 + r);

@@ -158,7 +158,7 @@ fn two_voxels_a_million_apart_load_render_and_stay_small() {
             m.memory_bytes()
         );
     }
-    let g = GradientGrid::for_grid(&read.bricks);
+    let g = GradientGrid::<f32>::for_grid(&read.bricks);
     assert_eq!(g.brick_count(), 0);
 
     let scene = dir.path().join("apart.toml");

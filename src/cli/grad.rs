@@ -247,8 +247,13 @@ pub fn run(args: &Args) -> Result<()> {
         );
         println!("paths/s              {:.0}", run.stats.paths_per_second());
         println!("lookups per path     {:.2}", run.stats.lookups_per_path());
-        println!("gradient bricks      {}", run.gradient.brick_count());
+        println!(
+            "gradient grid        {} bricks, {}",
+            run.gradient.brick_count(),
+            super::bytes(run.gradient.memory_bytes())
+        );
         println!("non-finite samples   {} (dropped)", run.stats.non_finite);
+        super::print_peak_memory();
     }
     Ok(())
 }

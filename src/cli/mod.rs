@@ -173,6 +173,25 @@ pub fn report_non_finite(stats: &RenderStats) {
 }
 
 /// A byte count as people read it.
+/// The process's peak resident memory (Linux's VmHWM), for `--stats`; `None` where /proc does not
+/// say.
+pub fn peak_memory() -> Option<usize> {
+    let status = std::fs::read_to_string("/proc/self/status").ok()?;
+    let line = status.lines().find(|l| l.starts_with("VmHWM:"))?;
+    let kib: usize = line.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kib * 1024)
+}
+
+/// `peak memory` for `--stats`.
+pub fn print_peak_memory() {
+    if let Some(peak) = peak_memory() {
+        println!(
+            "peak memory          {} (resident high-water mark)",
+            bytes(peak)
+        );
+    }
+}
+
 pub fn bytes(n: usize) -> String {
     if n >= 1 << 20 {
         format!("{:.2} MiB", n as f64 / (1u64 << 20) as f64)

@@ -125,4 +125,5 @@ fn print_stats(scene: &Scene, stats: &RenderStats) {
         m.grid.tiles().len(),
         bytes(m.majorant.memory_bytes())
     );
+    super::print_peak_memory();
 }

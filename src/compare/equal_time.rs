@@ -69,7 +69,7 @@ pub fn score(
     method: &str,
     spp: u32,
     seconds: f64,
-    g: &GradientGrid,
+    g: &GradientGrid<f32>,
     r: &Reference,
     grid: &BrickMap,
 ) -> Row {

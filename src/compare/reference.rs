@@ -42,7 +42,7 @@ pub struct ReferenceOptions {
 /// Mean of `seeds` joint runs and `seeds` drt runs at `spp` each, with per-voxel standard errors.
 pub fn build_reference(scene: &Scene, o: &ReferenceOptions) -> Reference {
     let adjoint = mean_adjoint(scene);
-    let mut sum = GradientGrid::for_medium(&scene.medium);
+    let mut sum = GradientGrid::<f64>::for_medium(&scene.medium);
     let mut squares = sum.empty_like();
     let runs = 2 * o.seeds.max(1);
     let bar = crate::io::progress::bar(o.progress, runs as u64, "reference");

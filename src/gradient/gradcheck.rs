@@ -91,7 +91,7 @@ pub fn gradcheck(scene: &Scene, options: &GradcheckOptions) -> anyhow::Result<Ve
         (repeats as usize + options.voxels + 2) as u64,
         "gradcheck",
     );
-    let runs: Vec<GradientGrid> = seeded_runs(options.grad.seed, repeats, |_, seed| {
+    let runs: Vec<GradientGrid<f32>> = seeded_runs(options.grad.seed, repeats, |_, seed| {
         let o = GradOptions {
             seed,
             progress: false,

@@ -3,6 +3,12 @@
 //! accepts the medium's brick range (the active box plus the trilinear apron), so every voxel a
 //! lookup can weight has a place; accumulation is a few array reads plus, the first time a brick is
 //! touched, one allocation.
+//!
+//! The value type is a parameter: a pass splats into per-band f32 grids (half the memory traffic of
+//! the scattered adds that dominate its bookkeeping, and half the memory per band) and reduces them
+//! into an f64 grid, where sums over many bands and runs keep their precision.
+
+use std::ops::{AddAssign, Mul};
 
 use glam::IVec3;
 
@@ -12,17 +18,50 @@ use crate::volume::brickmap::{
 use crate::volume::medium::Medium;
 use crate::volume::sparse_index::SparseIndex;
 
+/// A value a gradient grid accumulates: f32 for a pass's splats, f64 for results.
+pub trait Accumulator:
+    Copy + Default + PartialEq + AddAssign + Mul<Output = Self> + Send + Sync + 'static
+{
+    fn from_f32(v: f32) -> Self;
+    fn from_f64(v: f64) -> Self;
+    fn to_f64(self) -> f64;
+}
+
+impl Accumulator for f32 {
+    fn from_f32(v: f32) -> Self {
+        v
+    }
+    fn from_f64(v: f64) -> Self {
+        v as f32
+    }
+    fn to_f64(self) -> f64 {
+        self as f64
+    }
+}
+
+impl Accumulator for f64 {
+    fn from_f32(v: f32) -> Self {
+        v as f64
+    }
+    fn from_f64(v: f64) -> Self {
+        v
+    }
+    fn to_f64(self) -> f64 {
+        self
+    }
+}
+
 #[derive(Clone)]
-pub struct GradientGrid {
+pub struct GradientGrid<T: Accumulator = f64> {
     /// Inclusive brick range accepted (voxels beyond it are never weighted by a lookup).
     brick_lo: IVec3,
     brick_hi: IVec3,
     /// Brick coordinates → index + 1 into `bricks` (0 = no brick yet).
     slots: SparseIndex,
-    bricks: Vec<(IVec3, Box<[f64; BRICK_VOXELS]>)>,
+    bricks: Vec<(IVec3, Box<[T; BRICK_VOXELS]>)>,
 }
 
-impl GradientGrid {
+impl<T: Accumulator> GradientGrid<T> {
     /// An empty accumulator covering the voxels from `lo` to `hi` (inclusive).
     pub fn new(lo: IVec3, hi: IVec3) -> Self {
         Self::with_flat_budget(lo, hi, 1 << 12)
@@ -84,10 +123,11 @@ impl GradientGrid {
     /// The values of the brick holding voxel `v`, created on first touch; `None` outside the
     /// extent.
     #[inline]
-    fn brick_mut(&mut self, v: IVec3) -> Option<&mut [f64; BRICK_VOXELS]> {
+    fn brick_mut(&mut self, v: IVec3) -> Option<&mut [T; BRICK_VOXELS]> {
         let slot = self.slots.slot_mut(v >> 3)?;
         if *slot == 0 {
-            self.bricks.push((v & !7, Box::new([0.0; BRICK_VOXELS])));
+            self.bricks
+                .push((v & !7, Box::new([T::default(); BRICK_VOXELS])));
             *slot = self.bricks.len() as u32;
         }
         let index = *slot as usize - 1;
@@ -96,7 +136,7 @@ impl GradientGrid {
 
     /// Adds `value` to voxel `v`; voxels outside the extent are ignored (no lookup reaches them).
     #[inline]
-    pub fn add(&mut self, v: IVec3, value: f64) {
+    pub fn add(&mut self, v: IVec3, value: T) {
         if let Some(values) = self.brick_mut(v) {
             values[leaf_offset(v & 7)] += value;
         }
@@ -105,19 +145,19 @@ impl GradientGrid {
     /// Adds `weights[k] · value` to corner k of the trilinear cell at `base`, resolving the brick
     /// once when the cell does not straddle bricks.
     #[inline]
-    pub fn add_cell(&mut self, base: IVec3, weights: &[f32; 8], value: f64) {
+    pub fn add_cell(&mut self, base: IVec3, weights: &[f32; 8], value: T) {
         if (base & 7).cmplt(IVec3::splat(7)).all() {
             let Some(values) = self.brick_mut(base) else {
                 return;
             };
             let o = leaf_offset(base & 7);
             for (k, &w) in weights.iter().enumerate() {
-                values[o + CORNER_OFFSETS[k]] += w as f64 * value;
+                values[o + CORNER_OFFSETS[k]] += T::from_f32(w) * value;
             }
         } else {
             for (k, &w) in weights.iter().enumerate() {
                 if w > 0.0 {
-                    self.add(base + corner(k), w as f64 * value);
+                    self.add(base + corner(k), T::from_f32(w) * value);
                 }
             }
         }
@@ -126,12 +166,24 @@ impl GradientGrid {
     pub fn get(&self, v: IVec3) -> f64 {
         match self.slots.get(v >> 3) {
             0 => 0.0,
-            i => self.bricks[i as usize - 1].1[leaf_offset(v & 7)],
+            i => self.bricks[i as usize - 1].1[leaf_offset(v & 7)].to_f64(),
         }
     }
 
-    /// `self += weight · other` (same extent), brick by brick.
-    pub fn merge(&mut self, other: &GradientGrid, weight: f64) {
+    pub fn brick_count(&self) -> usize {
+        self.bricks.len()
+    }
+
+    /// Bytes held: the bricks' values and the brick index.
+    pub fn memory_bytes(&self) -> usize {
+        self.bricks.len()
+            * (std::mem::size_of::<(IVec3, Box<[T; BRICK_VOXELS]>)>()
+                + std::mem::size_of::<[T; BRICK_VOXELS]>())
+            + self.slots.memory_bytes()
+    }
+
+    /// `self += weight · other` (same extent), brick by brick, computed in f64.
+    pub fn merge<U: Accumulator>(&mut self, other: &GradientGrid<U>, weight: f64) {
         assert_eq!(
             (self.brick_lo, self.brick_hi),
             (other.brick_lo, other.brick_hi),
@@ -140,7 +192,7 @@ impl GradientGrid {
         for (origin, values) in &other.bricks {
             let mine = self.brick_mut(*origin).expect("same extent");
             for (m, v) in mine.iter_mut().zip(values.iter()) {
-                *m += weight * v;
+                *m = T::from_f64(m.to_f64() + weight * v.to_f64());
             }
         }
     }
@@ -148,7 +200,7 @@ impl GradientGrid {
     pub fn scale(&mut self, factor: f64) {
         for (_, values) in &mut self.bricks {
             for v in values.iter_mut() {
-                *v *= factor;
+                *v = T::from_f64(v.to_f64() * factor);
             }
         }
     }
@@ -159,7 +211,7 @@ impl GradientGrid {
             values
                 .iter()
                 .enumerate()
-                .map(move |(o, &v)| (*origin + offset_voxel(o), v))
+                .map(move |(o, &v)| (*origin + offset_voxel(o), v.to_f64()))
         })
     }
 
@@ -173,10 +225,6 @@ impl GradientGrid {
 
     pub fn sum(&self) -> f64 {
         self.voxels().map(|(_, g)| g).sum()
-    }
-
-    pub fn brick_count(&self) -> usize {
-        self.bricks.len()
     }
 
     /// As a brick map of f32 values for export: voxels that received a non-zero gradient are

@@ -1,6 +1,9 @@
 //! Gradient passes over the image: per-voxel gradients of a loss (scattered into a sparse grid),
 //! and per-pixel derivative images d pixel / d ε for ε added to a box of voxels.
 
+use std::collections::BTreeMap;
+use std::sync::atomic::{AtomicU32, Ordering};
+use std::sync::Mutex;
 use std::time::Instant;
 
 use glam::{IVec3, Vec3};
@@ -13,7 +16,7 @@ use crate::io::images::RgbImage;
 use crate::render::image::RenderStats;
 use crate::render::sampling::{sample_rng, Pass};
 use crate::render::scene::Scene;
-use crate::volume::brickmap::BrickMap;
+use crate::volume::brickmap::{corner, BrickMap};
 use crate::volume::tracking::TrackingStats;
 
 #[derive(Debug, Clone, Copy)]
@@ -45,53 +48,74 @@ impl GradOptions {
 }
 
 pub struct GradientRun {
-    pub gradient: GradientGrid,
+    pub gradient: GradientGrid<f32>,
     /// The radiance of the adjoint pass's own paths (a by-product, same spp).
     pub image: RgbImage,
     pub stats: RenderStats,
 }
 
-struct GridSink<'a> {
-    grid: &'a mut GradientGrid,
+/// One gradient sample as a pass records it: `value` spread over the corners of a trilinear cell
+/// (corner k = `base + corner(k)` with weight `weights[k]`), or on one voxel (weight 1 on corner 0).
+struct Splat {
+    base: IVec3,
+    weights: [f32; 8],
+    value: f32,
+}
+
+/// Records a row's gradient samples in order, weighted by the pixel's δ / spp. A row keeps its
+/// samples (about 50 bytes each), not a grid: a grid per row or per thread would cost the domain's
+/// memory each (hundreds of MiB for a cloud of 30 million voxels).
+struct SplatSink<'a> {
+    splats: &'a mut Vec<Splat>,
     /// δ / spp for the current pixel.
     weight: Vec3,
-    active: Option<&'a BrickMap>,
     /// Non-finite samples dropped.
     dropped: u64,
 }
 
-impl GridSink<'_> {
+impl SplatSink<'_> {
     /// A non-finite sample would poison every voxel it touches and every merge after it: it is
     /// dropped and counted instead.
     #[inline]
-    fn finite(&mut self, d_pixel: Vec3) -> bool {
-        let ok = d_pixel.is_finite();
-        self.dropped += u64::from(!ok);
-        ok
+    fn push(&mut self, base: IVec3, weights: [f32; 8], d_pixel: Vec3) {
+        if d_pixel.is_finite() {
+            let value = self.weight.dot(d_pixel);
+            self.splats.push(Splat {
+                base,
+                weights,
+                value,
+            });
+        } else {
+            self.dropped += 1;
+        }
     }
 }
 
-impl GradientSink for GridSink<'_> {
+impl GradientSink for SplatSink<'_> {
     #[inline]
     fn add(&mut self, voxel: IVec3, d_pixel: Vec3) {
-        if self.active.is_some_and(|m| !m.is_active(voxel)) || !self.finite(d_pixel) {
-            return;
-        }
-        self.grid.add(voxel, self.weight.dot(d_pixel) as f64);
+        let mut weights = [0.0; 8];
+        weights[0] = 1.0;
+        self.push(voxel, weights, d_pixel);
     }
 
     #[inline]
     fn add_cell(&mut self, base: IVec3, weights: &[f32; 8], d_pixel: Vec3) {
-        if !self.finite(d_pixel) {
-            return;
-        }
-        match self.active {
-            None => self
-                .grid
-                .add_cell(base, weights, self.weight.dot(d_pixel) as f64),
-            Some(_) => {
-                for (k, &w) in weights.iter().enumerate() {
-                    self.add(base + crate::volume::brickmap::corner(k), d_pixel * w);
+        self.push(base, *weights, d_pixel);
+    }
+}
+
+/// Adds a row's samples to the pass's gradient, keeping only active voxels with `active`.
+fn apply(grid: &mut GradientGrid<f32>, splats: &[Splat], active: Option<&BrickMap>) {
+    for s in splats {
+        match active {
+            None => grid.add_cell(s.base, &s.weights, s.value),
+            Some(map) => {
+                for (k, &w) in s.weights.iter().enumerate() {
+                    let voxel = s.base + corner(k);
+                    if w > 0.0 && map.is_active(voxel) {
+                        grid.add(voxel, w * s.value);
+                    }
                 }
             }
         }
@@ -120,9 +144,6 @@ impl GradientSink for BoxSink {
     }
 }
 
-/// Row bands of a gradient pass (see `over_pixels`).
-const ROW_BANDS: u32 = 16;
-
 /// What one thread keeps from path to path: its tracking counters and its replay buffers.
 #[derive(Default)]
 struct Worker {
@@ -132,9 +153,21 @@ struct Worker {
     non_finite: u64,
 }
 
-/// Runs `per_pixel(acc, x, y, worker)` for every pixel in parallel over row bands, `spp` paths
-/// each. Returns the per-band accumulators and the pass's stats (paths, wall time, tracking
-/// counters, non-finite samples dropped).
+/// The rows finished so far and the next one `consume` is waiting for.
+struct InOrder<T, C> {
+    next: u32,
+    finished: BTreeMap<u32, T>,
+    consume: C,
+}
+
+/// Runs `per_pixel(acc, x, y, worker)` for every pixel in parallel, a row at a time, `spp` paths
+/// each, and hands each row's accumulator to `consume` in row order. Returns the pass's stats
+/// (paths, wall time, tracking counters, non-finite samples dropped).
+///
+/// Rows are consumed in row order whatever the thread count, so a pass's floating-point result
+/// depends on its seed only (an optimisation resumed on another machine continues bit for bit).
+/// Rows are started in order and consumed as soon as their predecessors are, so only about one
+/// accumulator per thread is alive at a time.
 fn over_pixels<T: Send>(
     scene: &Scene,
     spp: u32,
@@ -142,26 +175,40 @@ fn over_pixels<T: Send>(
     what: &str,
     init: impl Fn() -> T + Sync + Send,
     per_pixel: impl Fn(&mut T, u32, u32, &mut Worker) + Sync + Send,
-) -> (Vec<T>, RenderStats) {
+    consume: impl FnMut(T) + Send,
+) -> RenderStats {
     let start = Instant::now();
     let (w, h) = (scene.camera.width, scene.camera.height);
     let bar = crate::io::progress::bar(progress, h as u64, what);
-    // A fixed number of row bands, whatever the thread count: the per-band sums are merged in
-    // band order, so a pass's floating-point result depends on its seed only (an optimisation
-    // resumed on another machine continues bit for bit). 16 bands balance the load on a few cores
-    // and keep the per-band accumulators (whole gradient grids) cheap to allocate and merge.
-    let bands = h.clamp(1, ROW_BANDS);
-    let results: Vec<(T, Worker)> = (0..bands)
+    let next_row = AtomicU32::new(0);
+    let in_order = Mutex::new(InOrder {
+        next: 0,
+        finished: BTreeMap::new(),
+        consume,
+    });
+    let workers: Vec<Worker> = (0..rayon::current_num_threads().min(h as usize))
         .into_par_iter()
-        .map(|band| {
-            let (mut acc, mut worker) = (init(), Worker::default());
-            for y in band * h / bands..(band + 1) * h / bands {
+        .map(|_| {
+            let mut worker = Worker::default();
+            loop {
+                let y = next_row.fetch_add(1, Ordering::Relaxed);
+                if y >= h {
+                    break;
+                }
+                let mut acc = init();
                 for x in 0..w {
                     per_pixel(&mut acc, x, y, &mut worker);
                 }
                 bar.inc(1);
+                let mut guard = in_order.lock().expect("no row panicked");
+                let state = &mut *guard;
+                state.finished.insert(y, acc);
+                while let Some(acc) = state.finished.remove(&state.next) {
+                    (state.consume)(acc);
+                    state.next += 1;
+                }
             }
-            (acc, worker)
+            worker
         })
         .collect();
     bar.finish_and_clear();
@@ -169,16 +216,12 @@ fn over_pixels<T: Send>(
         paths: w as u64 * h as u64 * spp as u64,
         ..Default::default()
     };
-    let values = results
-        .into_iter()
-        .map(|(v, worker)| {
-            stats.tracking += worker.stats;
-            stats.non_finite += worker.non_finite;
-            v
-        })
-        .collect();
+    for worker in workers {
+        stats.tracking += worker.stats;
+        stats.non_finite += worker.non_finite;
+    }
     stats.wall = start.elapsed();
-    (values, stats)
+    stats
 }
 
 /// The scene and options that every gradient sample of a pass shares.
@@ -220,22 +263,22 @@ impl GradientPass<'_> {
 pub fn gradient(scene: &Scene, adjoint: &[Vec3], options: &GradOptions) -> GradientRun {
     let camera = &scene.camera;
     let w = camera.width;
-    let template = GradientGrid::for_medium(&scene.medium);
+    let mut gradient = GradientGrid::for_medium(&scene.medium);
+    let mut image = RgbImage::new(camera.width, camera.height);
     let active = options.active_only.then_some(&scene.medium.grid);
     let spp = options.spp;
     let pass = GradientPass { scene, options };
-    let (parts, stats) = over_pixels(
+    let stats = over_pixels(
         scene,
         spp,
         options.progress,
         "gradient",
-        || (template.empty_like(), Vec::<(u32, Vec3)>::new()),
-        |(grid, pixels), x, y, worker| {
+        || (Vec::<Splat>::new(), Vec::<(u32, Vec3)>::new()),
+        |(splats, pixels), x, y, worker| {
             let index = y * w + x;
-            let mut sink = GridSink {
-                grid,
+            let mut sink = SplatSink {
+                splats,
                 weight: adjoint[index as usize] / spp as f32,
-                active,
                 dropped: 0,
             };
             let mut sum = Vec3::ZERO;
@@ -248,15 +291,13 @@ pub fn gradient(scene: &Scene, adjoint: &[Vec3], options: &GradOptions) -> Gradi
             worker.non_finite += sink.dropped;
             pixels.push((index, sum / spp as f32));
         },
+        |(splats, pixels)| {
+            apply(&mut gradient, &splats, active);
+            for (i, c) in pixels {
+                image.pixels[i as usize] = c;
+            }
+        },
     );
-    let mut gradient = template;
-    let mut image = RgbImage::new(camera.width, camera.height);
-    for (grid, pixels) in parts {
-        gradient.merge(&grid, 1.0);
-        for (i, c) in pixels {
-            image.pixels[i as usize] = c;
-        }
-    }
     GradientRun {
         gradient,
         image,
@@ -275,7 +316,8 @@ pub fn derivative_image(
     let w = camera.width;
     let spp = options.spp;
     let pass = GradientPass { scene, options };
-    let (parts, stats) = over_pixels(
+    let mut image = RgbImage::new(camera.width, camera.height);
+    let stats = over_pixels(
         scene,
         spp,
         options.progress,
@@ -294,10 +336,11 @@ pub fn derivative_image(
             worker.non_finite += sink.dropped;
             pixels.push((y * w + x, sink.sum / spp as f32));
         },
+        |pixels| {
+            for (i, c) in pixels {
+                image.pixels[i as usize] = c;
+            }
+        },
     );
-    let mut image = RgbImage::new(camera.width, camera.height);
-    for (i, c) in parts.into_iter().flatten() {
-        image.pixels[i as usize] = c;
-    }
     (image, stats)
 }

@@ -228,7 +228,7 @@ fn step(
     adam: &Adam,
 ) -> Result<f64> {
     let s = &problem.settings;
-    let mut total = GradientGrid::for_medium(&scene.medium);
+    let mut total = GradientGrid::<f64>::for_medium(&scene.medium);
     let mut loss = 0.0;
     let views = batch(problem.views.len(), s.batch, s.seed, iteration);
     let weight = 1.0 / views.len() as f64;

@@ -9,3 +9,4 @@ pub mod refine;
 pub mod sparse_index;
 pub mod tracking;
 pub mod transform;
+pub mod upsample;
