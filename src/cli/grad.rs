@@ -14,7 +14,7 @@ use volgrad::gradient::adjoint::Estimator;
 use volgrad::gradient::fd;
 use volgrad::gradient::loss::Loss;
 use volgrad::gradient::objective::{adjoint_image, check_target, render_target};
-use volgrad::gradient::passes::{derivative_image, gradient};
+use volgrad::gradient::passes::{derivative_image, gradient, GradientRun};
 use volgrad::io::fingerprint::image as image_fingerprint;
 use volgrad::io::gradient_files::{self, Provenance};
 use volgrad::io::images::{self, RgbImage};
@@ -205,8 +205,20 @@ pub fn run(args: &Args) -> Result<()> {
         max_depth: options.adjoint.max_depth,
         suffix: options.adjoint.suffix.to_string(),
     };
+    // What the report needs of the gradient, then the gradient itself goes: the export's copies
+    // (brick map, the bridge's arrays, OpenVDB's tree) must not sit beside it.
+    let GradientRun {
+        gradient, stats, ..
+    } = run;
+    let (gradient_sum, gradient_bricks, gradient_bytes) = (
+        gradient.sum(),
+        gradient.brick_count(),
+        gradient.memory_bytes(),
+    );
+    let bricks = gradient.to_brickmap();
+    drop(gradient);
     let grid = gradient_files::gradient_grid(
-        run.gradient.to_brickmap(),
+        bricks,
         &scene.grid_name,
         scene.medium.transform,
         &provenance,
@@ -219,7 +231,7 @@ pub fn run(args: &Args) -> Result<()> {
         vdb_out.display(),
         grid.name,
         grid.bricks.active_voxel_count(),
-        run.gradient.sum(),
+        gradient_sum,
         png.display(),
         scale.unwrap_or(0.0)
     );
@@ -238,21 +250,20 @@ pub fn run(args: &Args) -> Result<()> {
         );
     }
     if args.stats {
-        let secs = run.stats.wall.as_secs_f64();
+        let secs = stats.wall.as_secs_f64();
         println!("estimator            {estimator}");
         println!("wall time            {secs:.3} s");
         println!(
             "ms per spp           {:.2}",
             1e3 * secs / options.spp as f64
         );
-        println!("paths/s              {:.0}", run.stats.paths_per_second());
-        println!("lookups per path     {:.2}", run.stats.lookups_per_path());
+        println!("paths/s              {:.0}", stats.paths_per_second());
+        println!("lookups per path     {:.2}", stats.lookups_per_path());
         println!(
-            "gradient grid        {} bricks, {}",
-            run.gradient.brick_count(),
-            super::bytes(run.gradient.memory_bytes())
+            "gradient grid        {gradient_bricks} bricks, {}",
+            super::bytes(gradient_bytes)
         );
-        println!("non-finite samples   {} (dropped)", run.stats.non_finite);
+        println!("non-finite samples   {} (dropped)", stats.non_finite);
         super::print_peak_memory();
     }
     Ok(())

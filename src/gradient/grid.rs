@@ -13,7 +13,7 @@ use std::ops::{AddAssign, Mul};
 use glam::IVec3;
 
 use crate::volume::brickmap::{
-    corner, floor_ivec3, leaf_offset, BrickMap, BrickMapBuilder, BRICK_VOXELS, CORNER_OFFSETS,
+    corner, floor_ivec3, leaf_offset, BrickMap, Leaf, BRICK_VOXELS, CORNER_OFFSETS,
 };
 use crate::volume::medium::Medium;
 use crate::volume::sparse_index::SparseIndex;
@@ -228,15 +228,26 @@ impl<T: Accumulator> GradientGrid<T> {
     }
 
     /// As a brick map of f32 values for export: voxels that received a non-zero gradient are
-    /// active.
+    /// active. Built brick by brick (no per-voxel map): the export of a large gradient must not
+    /// hold it twice over.
     pub fn to_brickmap(&self) -> BrickMap {
-        let mut b = BrickMapBuilder::new();
-        for (v, g) in self.voxels() {
-            if g != 0.0 {
-                b.set(v, g as f32, true);
+        let mut leaves = Vec::with_capacity(self.bricks.len());
+        leaves.extend(self.bricks.iter().filter_map(|(origin, values)| {
+            let mut leaf = Leaf {
+                origin: *origin,
+                values: [0.0; BRICK_VOXELS],
+                active: [0; 8],
+            };
+            for (o, v) in values.iter().enumerate() {
+                let g = v.to_f64() as f32;
+                if g != 0.0 {
+                    leaf.values[o] = g;
+                    leaf.active[o >> 6] |= 1 << (o & 63);
+                }
             }
-        }
-        b.build()
+            leaf.active.iter().any(|&w| w != 0).then_some(leaf)
+        }));
+        BrickMap::new(leaves, Vec::new())
     }
 }
 

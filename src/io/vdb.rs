@@ -169,6 +169,13 @@ impl Grid {
     pub fn to_data(&self) -> FloatGridData {
         let leaves = self.bricks.leaves();
         let tiles = self.bricks.tiles();
+        // Sized up front: a grown vector of a large grid's values would hold up to twice them.
+        let mut leaf_values = Vec::with_capacity(leaves.len() * BRICK_VOXELS);
+        let mut leaf_active = Vec::with_capacity(leaves.len() * 8);
+        for leaf in leaves {
+            leaf_values.extend_from_slice(&leaf.values);
+            leaf_active.extend_from_slice(&leaf.active);
+        }
         FloatGridData {
             name: self.name.clone(),
             grid_class: self.grid_class.clone(),
@@ -176,8 +183,8 @@ impl Grid {
             background: self.background,
             saved_as_half: self.saved_as_half,
             leaf_origins: leaves.iter().flat_map(|l| l.origin.to_array()).collect(),
-            leaf_values: leaves.iter().flat_map(|l| l.values).collect(),
-            leaf_active: leaves.iter().flat_map(|l| l.active).collect(),
+            leaf_values,
+            leaf_active,
             tile_origins: tiles.iter().flat_map(|t| t.origin.to_array()).collect(),
             tile_sizes: tiles.iter().map(|t| t.size).collect(),
             tile_values: tiles.iter().map(|t| t.value).collect(),

@@ -88,14 +88,19 @@ impl BrickMap {
             let last = b0.saturating_add(IVec3::splat(n - 1));
             map.slots.fill(b0, last, handle, |slot| *slot = handle);
         }
-        // Leaves after tiles: a leaf overrides the tile around it (see `with_added`).
-        for leaf in leaves {
-            let handle = map.leaves.len() as u32 + 1;
-            if let Some(slot) = map.slots.slot_mut(leaf.origin >> 3) {
+        // Leaves after tiles: a leaf overrides the tile around it (see `with_added`). They are
+        // kept in place (a second vector would hold a large grid twice while it fills).
+        let mut leaves = leaves;
+        let mut handle = 0u32;
+        leaves.retain(|leaf| match map.slots.slot_mut(leaf.origin >> 3) {
+            Some(slot) => {
+                handle += 1;
                 *slot = handle;
-                map.leaves.push(leaf);
+                true
             }
-        }
+            None => false,
+        });
+        map.leaves = leaves;
         map
     }
 

@@ -14,7 +14,7 @@
 
 use glam::{IVec3, Vec3};
 
-use crate::volume::brickmap::{leaf_offset, BrickMap, BRICK_VOXELS};
+use crate::volume::brickmap::{BrickMap, BRICK_EDGE as BRICK_EDGE_VOXELS, BRICK_VOXELS};
 use crate::volume::sparse_index::SparseIndex;
 
 pub use crate::volume::majorant_walk::{DdaWalk, FlatWalk, Walk};
@@ -308,15 +308,52 @@ impl MajorantGrid {
             let hi = (v_hi.as_i64vec3() + 1).div_euclid(s);
             (lo.as_ivec3(), hi.as_ivec3())
         };
+        // Per leaf, the maxima over each cell's share of it are gathered in a small local table
+        // first and each cell is raised once: raising the footprint of every voxel (512 per leaf)
+        // made this build most of the load time of a large grid.
+        let mut local = Vec::new();
         for leaf in bricks.leaves() {
+            let last = leaf.origin + (BRICK_EDGE_VOXELS - 1);
+            let (first_cell, _) = footprint(leaf.origin, leaf.origin);
+            let (_, last_cell) = footprint(last, last);
+            let dims = last_cell - first_cell + 1;
+            local.clear();
+            local.resize(dims.x as usize * dims.y as usize * dims.z as usize, 0.0f32);
+            // Per axis, the local cells a voxel at leaf coordinate i reaches.
+            let reach: [[(usize, usize); 8]; 3] = std::array::from_fn(|a| {
+                std::array::from_fn(|i| {
+                    let v = leaf.origin[a] as i64 + i as i64;
+                    let s = s as i64;
+                    let first = first_cell[a] as i64;
+                    (
+                        ((v - 1).div_euclid(s) - first) as usize,
+                        ((v + 1).div_euclid(s) - first) as usize,
+                    )
+                })
+            });
             for o in 0..BRICK_VOXELS {
                 let value = leaf.values[o];
                 if value > 0.0 {
-                    let v = leaf.origin
-                        + IVec3::new((o >> 6) as i32, ((o >> 3) & 7) as i32, (o & 7) as i32);
-                    debug_assert_eq!(leaf_offset(v - leaf.origin), o);
-                    let (lo, hi) = footprint(v, v);
-                    builder.raise(lo, hi, value * density_scale);
+                    let (x, y, z) = (o >> 6, (o >> 3) & 7, o & 7);
+                    for cx in reach[0][x].0..=reach[0][x].1 {
+                        for cy in reach[1][y].0..=reach[1][y].1 {
+                            for cz in reach[2][z].0..=reach[2][z].1 {
+                                let c = &mut local[cell_offset(
+                                    IVec3::new(cx as i32, cy as i32, cz as i32),
+                                    dims,
+                                )];
+                                *c = c.max(value);
+                            }
+                        }
+                    }
+                }
+            }
+            for (k, &value) in local.iter().enumerate() {
+                if value > 0.0 {
+                    let k = k as i32;
+                    let cell = first_cell
+                        + IVec3::new(k / (dims.y * dims.z), (k / dims.z) % dims.y, k % dims.z);
+                    builder.raise(cell, cell, value * density_scale);
                 }
             }
         }
