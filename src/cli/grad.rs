@@ -205,8 +205,9 @@ pub fn run(args: &Args) -> Result<()> {
         max_depth: options.adjoint.max_depth,
         suffix: options.adjoint.suffix.to_string(),
     };
-    // What the report needs of the gradient, then the gradient itself goes: the export's copies
-    // (brick map, the bridge's arrays, OpenVDB's tree) must not sit beside it.
+    // What the report needs of the gradient, then the gradient itself goes, and the exported grid
+    // goes as soon as its values are in the bridge's arrays: a large gradient is held twice at a
+    // time, not four times.
     let GradientRun {
         gradient, stats, ..
     } = run;
@@ -223,15 +224,13 @@ pub fn run(args: &Args) -> Result<()> {
         scene.medium.transform,
         &provenance,
     );
-    vdb::write_grids(&vdb_out, &[&grid], false, args.force)?;
     let png = vdb_out.with_extension("png");
     let scale = gradient_files::write_projection_png(&png, &grid)?;
+    let (grid_name, voxels) = (grid.name.clone(), grid.bricks.active_voxel_count());
+    vdb::write_grid_consumed(&vdb_out, grid, false, args.force)?;
     eprintln!(
-        "wrote {} (grid {}, {} voxels with gradient, ⟨g, 1⟩ = {:.6e}) and {} (sum along index z; full colour at ±{:.3e})",
+        "wrote {} (grid {grid_name}, {voxels} voxels with gradient, ⟨g, 1⟩ = {gradient_sum:.6e}) and {} (sum along index z; full colour at ±{:.3e})",
         vdb_out.display(),
-        grid.name,
-        grid.bricks.active_voxel_count(),
-        gradient_sum,
         png.display(),
         scale.unwrap_or(0.0)
     );

@@ -125,6 +125,21 @@ pub fn write_grids(path: &Path, grids: &[&Grid], save_half: bool, overwrite: boo
     ffi::write_float_grids(path_str(path)?, &data, save_half).map_err(|e| anyhow!("{}", e.what()))
 }
 
+/// As `write_grids` for one grid that the caller no longer needs: it is freed once its values are
+/// in the bridge's arrays, so that a large grid is held twice while OpenVDB builds its tree, not
+/// three times.
+pub fn write_grid_consumed(
+    path: &Path,
+    grid: Grid,
+    save_half: bool,
+    overwrite: bool,
+) -> Result<()> {
+    crate::io::output::refuse_overwrite(path, overwrite)?;
+    let data = grid.to_data();
+    drop(grid);
+    ffi::write_float_grids(path_str(path)?, &[data], save_half).map_err(|e| anyhow!("{}", e.what()))
+}
+
 impl Grid {
     pub fn from_data(d: FloatGridData) -> Result<Grid> {
         let n = d.leaf_origins.len() / 3;
