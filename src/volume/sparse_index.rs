@@ -196,8 +196,9 @@ impl SparseIndex {
         }
     }
 
-    /// The handle stored for `key` (0 when absent).
-    #[inline]
+    /// The handle stored for `key` (0 when absent). The flat layout (compact grids) is inlined
+    /// into every density lookup; the node layouts are a call away.
+    #[inline(always)]
     pub fn get(&self, key: IVec3) -> u32 {
         if let Top::Flat {
             origin,
@@ -207,6 +208,10 @@ impl SparseIndex {
         {
             return flat_index(key, *origin, *dims).map_or(0, |i| slots[i]);
         }
+        self.get_in_nodes(key)
+    }
+
+    fn get_in_nodes(&self, key: IVec3) -> u32 {
         match self.top_entry(node_of(key)) {
             NO_NODE => 0,
             e if e & UNIFORM_BIT != 0 => self.uniform[(e & !UNIFORM_BIT) as usize],
