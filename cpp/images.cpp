@@ -8,6 +8,7 @@
 
 #include <OpenImageIO/imageio.h>
 
+#include <algorithm>
 #include <cstdint>
 #include <filesystem>
 #include <string>
@@ -60,8 +61,8 @@ ImageData read_image(rust::Str path_str) {
         fail("cannot read image " + quoted(path) + ": " + oiio_error(in->geterror()));
     }
     in->close();
-    img.pixels.reserve(data.size());
-    for (float v : data) img.pixels.push_back(v);
+    resize_f32s(img.pixels, data.size());  // filled through data(): see resize_f32s
+    std::copy(data.begin(), data.end(), img.pixels.data());
     return img;
 }
 

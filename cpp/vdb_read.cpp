@@ -384,21 +384,27 @@ FloatGridData copy_grid(const GridT& grid) {
     d.background = static_cast<float>(tree.background());
     d.saved_as_half = grid.saveFloatAsHalf();
 
+    // Sized once by Rust and filled through data(): push_back would call into Rust per value.
     const size_t leaves = tree.leafCount();
-    d.leaf_origins.reserve(3 * leaves);
-    d.leaf_values.reserve(512 * leaves);
-    d.leaf_active.reserve(8 * leaves);
-    for (auto leaf = tree.cbeginLeaf(); leaf; ++leaf) {
+    resize_i32s(d.leaf_origins, 3 * leaves);
+    resize_f32s(d.leaf_values, 512 * leaves);
+    resize_u64s(d.leaf_active, 8 * leaves);
+    int32_t* origins = d.leaf_origins.data();
+    float* values = d.leaf_values.data();
+    uint64_t* active = d.leaf_active.data();
+    size_t l = 0;
+    for (auto leaf = tree.cbeginLeaf(); leaf && l < leaves; ++leaf, ++l) {
         const openvdb::Coord o = leaf->origin();
-        for (int i = 0; i < 3; ++i) d.leaf_origins.push_back(o[i]);
+        for (int i = 0; i < 3; ++i) origins[3 * l + i] = o[i];
         for (openvdb::Index i = 0; i < LeafT::SIZE; ++i) {
-            d.leaf_values.push_back(static_cast<float>(leaf->getValue(i)));
+            values[512 * l + i] = static_cast<float>(leaf->getValue(i));
         }
         const auto& mask = leaf->getValueMask();
         for (openvdb::Index w = 0; w < LeafT::NodeMaskType::WORD_COUNT; ++w) {
-            d.leaf_active.push_back(mask.template getWord<openvdb::Index64>(w));
+            active[8 * l + w] = mask.template getWord<openvdb::Index64>(w);
         }
     }
+    if (l != leaves) fail("the tree's leaf count changed while it was copied");
 
     // Active tiles only: stop the value iterator above the leaf level.
     auto it = tree.cbeginValueOn();

@@ -82,6 +82,15 @@ pub mod ffi {
         pub pixels: Vec<f32>,
     }
 
+    extern "Rust" {
+        /// Resizes a vector to `len` values (new ones 0), so that C++ fills a large array through
+        /// `data()`: `rust::Vec::push_back` costs four calls into Rust per value, most of the
+        /// time of reading a large grid.
+        fn resize_f32s(v: &mut Vec<f32>, len: usize);
+        fn resize_i32s(v: &mut Vec<i32>, len: usize);
+        fn resize_u64s(v: &mut Vec<u64>, len: usize);
+    }
+
     unsafe extern "C++" {
         include!("volgrad/cpp/bridge.h");
 
@@ -114,3 +123,15 @@ pub mod ffi {
 }
 
 pub use ffi::{FloatGridData, GridSummary, ImageData, MetaEntry};
+
+fn resize_f32s(v: &mut Vec<f32>, len: usize) {
+    v.resize(len, 0.0);
+}
+
+fn resize_i32s(v: &mut Vec<i32>, len: usize) {
+    v.resize(len, 0);
+}
+
+fn resize_u64s(v: &mut Vec<u64>, len: usize) {
+    v.resize(len, 0);
+}
