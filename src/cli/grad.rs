@@ -211,9 +211,9 @@ pub fn run(args: &Args) -> Result<()> {
     let GradientRun {
         gradient, stats, ..
     } = run;
-    let (gradient_sum, gradient_bricks, gradient_bytes) = (
+    let (gradient_sum, gradient_blocks, gradient_bytes) = (
         gradient.sum(),
-        gradient.brick_count(),
+        gradient.block_count(),
         gradient.memory_bytes(),
     );
     let bricks = gradient.to_brickmap();
@@ -259,7 +259,7 @@ pub fn run(args: &Args) -> Result<()> {
         println!("paths/s              {:.0}", stats.paths_per_second());
         println!("lookups per path     {:.2}", stats.lookups_per_path());
         println!(
-            "gradient grid        {gradient_bricks} bricks, {}",
+            "gradient grid        {gradient_blocks} blocks of 4³, {}",
             super::bytes(gradient_bytes)
         );
         println!("non-finite samples   {} (dropped)", stats.non_finite);
