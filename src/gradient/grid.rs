@@ -164,7 +164,7 @@ impl<T: Accumulator> GradientGrid<T> {
         let slot = self.slots.slot_mut(v >> BLOCK_LOG2)?;
         if *slot == 0 {
             let index = self.origins.len();
-            if index % CHUNK_BLOCKS == 0 {
+            if index.is_multiple_of(CHUNK_BLOCKS) {
                 self.chunks
                     .push(Box::new([[T::default(); BLOCK_VOXELS]; CHUNK_BLOCKS]));
             }
