@@ -3,13 +3,14 @@
 //!
 //! - time of joint, drt and naive relative to a forward render (runs interleaved, best of
 //!   VOLGRAD_BENCH_ROUNDS, so that a noisy neighbour hurts every method alike);
+//! - VOLGRAD_BENCH_SUFFIX_PATHS sets the suffix paths per camera path (`grad --suffix-paths`);
 //! - per-voxel variance over VOLGRAD_BENCH_SEEDS seeds (mean over the voxels any run reached), and
 //!   variance × time of joint relative to drt (the figure that decides which to use).
 
 use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
-use volgrad::gradient::adjoint::Estimator;
+use volgrad::gradient::adjoint::{Estimator, DEFAULT_SUFFIX_PATHS};
 use volgrad::gradient::grid::GradientGrid;
 use volgrad::gradient::loss::Loss;
 use volgrad::gradient::passes::{gradient, GradOptions};
@@ -35,11 +36,15 @@ fn main() {
     let scene = Scene::load(&path).expect("bench scene loads");
     let (w, h) = (scene.camera.width, scene.camera.height);
     let adjoint = Loss::Mean.adjoint(&RgbImage::new(w, h), None);
-    let options =
-        |estimator, seed| GradOptions::new(estimator, spp, seed, scene.settings.max_depth);
+    let suffix_paths = env("VOLGRAD_BENCH_SUFFIX_PATHS", DEFAULT_SUFFIX_PATHS as u64) as u32;
+    let options = |estimator, seed| {
+        let mut o = GradOptions::new(estimator, spp, seed, scene.settings.max_depth);
+        o.adjoint.suffix_paths = suffix_paths;
+        o
+    };
     let estimators = [Estimator::Joint, Estimator::Drt, Estimator::Naive];
     println!(
-        "scene {} at {w}×{h}, {spp} spp, {} threads, loss = mean",
+        "scene {} at {w}×{h}, {spp} spp, {suffix_paths} suffix paths per camera path, {} threads, loss = mean",
         path.display(),
         rayon::current_num_threads()
     );

@@ -459,3 +459,40 @@ fn majorant_grid_tracks_more_efficiently_than_a_global_majorant() {
         global_stats.tracking_efficiency()
     );
 }
+
+#[test]
+fn one_light_nee_has_the_mean_of_all_light_nee() {
+    // The gradient passes' probes pick one light ∝ its unoccluded contribution and divide by the
+    // probability: the mean must be the all-lights NEE's. A sun and a sky of comparable size, seen
+    // from a point inside the block, so that both are picked and both are partly shadowed.
+    use volgrad::render::path::{direct_light, direct_light_one, LightSample};
+    let scene = lumpy_block_scene(Filter::Trilinear, false, 0.9);
+    let p = scene
+        .medium
+        .transform
+        .point_to_world(Vec3::new(2.5, 1.5, 3.0));
+    let dir = Vec3::new(0.3, -0.2, 0.93).normalize();
+    let mut rng = pixel_rng(7, 3, 1);
+    let mut stats = TrackingStats::default();
+    let n = 40_000;
+    let (mut all, mut one) = ([0.0f64; 2], [0.0f64; 2]);
+    for _ in 0..n {
+        let sample = LightSample::draw(&mut rng);
+        let a = direct_light(&scene, p, dir, &sample, &mut rng, &mut stats, None).x as f64;
+        let o = direct_light_one(&scene, p, dir, &sample, &mut rng, &mut stats).x as f64;
+        all = [all[0] + a, all[1] + a * a];
+        one = [one[0] + o, one[1] + o * o];
+    }
+    let mean_se = |s: [f64; 2]| {
+        let m = s[0] / n as f64;
+        (m, ((s[1] / n as f64 - m * m) / n as f64).sqrt())
+    };
+    let ((ma, sa), (mo, so)) = (mean_se(all), mean_se(one));
+    let z = (ma - mo) / (sa * sa + so * so).sqrt();
+    assert!(
+        z.abs() < 4.0,
+        "all lights {ma} ± {sa}, one light {mo} ± {so}"
+    );
+    // Not a vacuous check: the estimate is well resolved against the sun's share alone.
+    assert!(so < 0.02 * mo, "one light {mo} ± {so}");
+}

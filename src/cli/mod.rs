@@ -18,7 +18,7 @@ mod parse_tests;
 use anyhow::{bail, Context, Result};
 use clap::{Args, ValueEnum};
 
-use volgrad::gradient::adjoint::{AdjointOptions, Estimator, Suffix};
+use volgrad::gradient::adjoint::{AdjointOptions, Estimator, Suffix, DEFAULT_SUFFIX_PATHS};
 use volgrad::gradient::fd::{self, FdOptions};
 use volgrad::gradient::loss::Loss;
 use volgrad::gradient::passes::GradOptions;
@@ -83,6 +83,10 @@ pub struct AdjointArgs {
     /// Where the indirect part of ĥ at a probe comes from.
     #[arg(long, value_enum, default_value_t = Suffix::PerPath)]
     pub suffix: Suffix,
+    /// Suffix paths per camera path with `--suffix per-path` (K ≥ 1): more lower the variance
+    /// that the suffixes carry, at a suffix's cost each.
+    #[arg(long, default_value_t = DEFAULT_SUFFIX_PATHS, value_parser = clap::value_parser!(u32).range(1..=64))]
+    pub suffix_paths: u32,
     /// Which voxels are parameters.
     #[arg(long, value_enum, default_value = "all")]
     pub domain: Domain,
@@ -96,6 +100,7 @@ impl AdjointArgs {
             adjoint: AdjointOptions {
                 estimator,
                 suffix: self.suffix,
+                suffix_paths: self.suffix_paths,
                 max_depth: s.max_depth(scene),
             },
             spp: s.spp(scene)?,

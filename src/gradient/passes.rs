@@ -10,7 +10,9 @@ use glam::{IVec3, Vec3};
 use rand::Rng;
 use rayon::prelude::*;
 
-use crate::gradient::adjoint::{AdjointOptions, Estimator, GradientSink, Replay, Scratch, Suffix};
+use crate::gradient::adjoint::{
+    AdjointOptions, Estimator, GradientSink, Replay, Scratch, Suffix, DEFAULT_SUFFIX_PATHS,
+};
 use crate::gradient::grid::GradientGrid;
 use crate::io::images::RgbImage;
 use crate::render::image::RenderStats;
@@ -37,6 +39,7 @@ impl GradOptions {
             adjoint: AdjointOptions {
                 estimator,
                 suffix: Suffix::PerPath,
+                suffix_paths: DEFAULT_SUFFIX_PATHS,
                 max_depth,
             },
             spp,
