@@ -177,7 +177,6 @@ pub fn report_non_finite(stats: &RenderStats) {
     }
 }
 
-/// A byte count as people read it.
 /// The process's peak resident memory (Linux's VmHWM), for `--stats`; `None` where /proc does not
 /// say.
 pub fn peak_memory() -> Option<usize> {
@@ -197,6 +196,7 @@ pub fn print_peak_memory() {
     }
 }
 
+/// A byte count as people read it.
 pub fn bytes(n: usize) -> String {
     if n >= 1 << 20 {
         format!("{:.2} MiB", n as f64 / (1u64 << 20) as f64)

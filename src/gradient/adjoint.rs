@@ -122,8 +122,9 @@ pub fn splat_d_sigma(medium: &Medium, p: Vec3, value: Vec3, sink: &mut impl Grad
 }
 
 /// Suffix paths per camera path (`Suffix::PerPath`): on the cloud, two instead of one cut joint's
-/// per-voxel variance by 40 % for 13 % more time (variance × time 0.7×); more gain less than they
-/// cost (`cargo bench --bench gradients` with `grad --suffix-paths`, README).
+/// per-voxel variance by about 40 % for its variance × time 0.71–0.83× (two runs); three or four
+/// gain no more than they cost (`VOLGRAD_BENCH_SUFFIX_PATHS=K cargo bench --bench gradients`,
+/// README).
 pub const DEFAULT_SUFFIX_PATHS: u32 = 2;
 
 #[derive(Debug, Clone, Copy)]

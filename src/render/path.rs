@@ -233,6 +233,12 @@ pub fn direct_light_one(
             }
         }
     }
+    if !total.is_finite() {
+        // A contribution beyond f32 (a light near 1e30 through a phase function near |g| = 1):
+        // pass it on as non-finite, so that the sample is dropped and counted as `direct_light`'s
+        // would be, not silently lost by the pick.
+        return Vec3::splat(total);
+    }
     let Some((unoccluded, wi, w)) = chosen else {
         return Vec3::ZERO;
     };

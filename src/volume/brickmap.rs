@@ -59,6 +59,18 @@ enum Brick<'a> {
     Leaf(&'a [f32; BRICK_VOXELS]),
 }
 
+impl Brick<'_> {
+    /// The value of voxel `v`, which lies in this brick.
+    #[inline(always)]
+    fn value(self, v: IVec3) -> f32 {
+        match self {
+            Brick::Empty => 0.0,
+            Brick::Constant(c) => c,
+            Brick::Leaf(values) => values[leaf_offset(v & 7)],
+        }
+    }
+}
+
 impl BrickMap {
     /// Builds the map from leaves and tiles. The slot table covers the active bounding box plus a
     /// one-voxel apron (trilinear lookups at the medium's edge read one voxel beyond the active box);
@@ -150,11 +162,7 @@ impl BrickMap {
     /// The value stored for voxel `v` (0 where there is no data).
     #[inline]
     pub fn voxel(&self, v: IVec3) -> f32 {
-        match self.brick(v >> 3) {
-            Brick::Empty => 0.0,
-            Brick::Constant(c) => c,
-            Brick::Leaf(values) => values[leaf_offset(v & 7)],
-        }
+        self.brick(v >> 3).value(v)
     }
 
     /// Whether voxel `v` is active (in a leaf's mask or inside an active tile).
@@ -203,12 +211,9 @@ impl BrickMap {
                 let v = v0 + corner(k);
                 let crossed = corner(k) & carry;
                 let which = ((crossed.x << 2) | (crossed.y << 1) | crossed.z) as usize;
-                let brick = *bricks[which].get_or_insert_with(|| self.brick(v >> 3));
-                *ck = match brick {
-                    Brick::Empty => 0.0,
-                    Brick::Constant(value) => value,
-                    Brick::Leaf(values) => values[leaf_offset(v & 7)],
-                };
+                *ck = bricks[which]
+                    .get_or_insert_with(|| self.brick(v >> 3))
+                    .value(v);
             }
         }
         // Interpolate along z, then y, then x (corner k has bits x=4, y=2, z=1).

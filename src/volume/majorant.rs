@@ -311,24 +311,35 @@ impl MajorantGrid {
         // Per leaf, the maxima over each cell's share of it are gathered in a small local table
         // first and each cell is raised once: raising the footprint of every voxel (512 per leaf)
         // made this build most of the load time of a large grid.
+        // The table covers the leaf's cells inside the medium's box (at most 12 per axis), in
+        // 64-bit arithmetic: a leaf at the edge of the i32 range must not wrap around.
+        let s64 = s as i64;
+        let (box_lo, box_hi) = (builder.c_lo.as_i64vec3(), builder.c_hi.as_i64vec3());
         let mut local = Vec::new();
         for leaf in bricks.leaves() {
-            let last = leaf.origin + (BRICK_EDGE_VOXELS - 1);
-            let (first_cell, _) = footprint(leaf.origin, leaf.origin);
-            let (_, last_cell) = footprint(last, last);
-            let dims = last_cell - first_cell + 1;
+            let origin = leaf.origin.as_i64vec3();
+            let first_cell = ((origin - 1).div_euclid(glam::I64Vec3::splat(s64))).max(box_lo);
+            let last_cell = ((origin + BRICK_EDGE_VOXELS as i64)
+                .div_euclid(glam::I64Vec3::splat(s64)))
+            .min(box_hi);
+            if first_cell.cmpgt(last_cell).any() {
+                continue;
+            }
+            let dims = (last_cell - first_cell + 1).as_ivec3();
             local.clear();
             local.resize(dims.x as usize * dims.y as usize * dims.z as usize, 0.0f32);
-            // Per axis, the local cells a voxel at leaf coordinate i reaches.
+            // Per axis, the local cells a voxel at leaf coordinate i reaches (an empty range
+            // where they all lie outside the box).
             let reach: [[(usize, usize); 8]; 3] = std::array::from_fn(|a| {
                 std::array::from_fn(|i| {
-                    let v = leaf.origin[a] as i64 + i as i64;
-                    let s = s as i64;
-                    let first = first_cell[a] as i64;
-                    (
-                        ((v - 1).div_euclid(s) - first) as usize,
-                        ((v + 1).div_euclid(s) - first) as usize,
-                    )
+                    let v = origin[a] + i as i64;
+                    let lo = ((v - 1).div_euclid(s64) - first_cell[a]).max(0);
+                    let hi = ((v + 1).div_euclid(s64) - first_cell[a]).min(dims[a] as i64 - 1);
+                    if lo > hi {
+                        (1, 0)
+                    } else {
+                        (lo as usize, hi as usize)
+                    }
                 })
             });
             for o in 0..BRICK_VOXELS {
@@ -351,7 +362,7 @@ impl MajorantGrid {
             for (k, &value) in local.iter().enumerate() {
                 if value > 0.0 {
                     let k = k as i32;
-                    let cell = first_cell
+                    let cell = first_cell.as_ivec3()
                         + IVec3::new(k / (dims.y * dims.z), (k / dims.z) % dims.y, k % dims.z);
                     builder.raise(cell, cell, value * density_scale);
                 }
@@ -499,5 +510,26 @@ mod tests {
                 sigma_max: 3.5
             }]
         );
+    }
+
+    #[test]
+    fn leaves_at_the_edge_of_the_index_range_build_small_majorants() {
+        // A voxel's apron reaches one cell below i32::MIN with 1-voxel cells: the per-leaf table
+        // must be sized in 64-bit arithmetic and clipped to the medium's box, not wrap around.
+        for v in [IVec3::splat(i32::MIN), IVec3::splat(i32::MAX)] {
+            let mut b = BrickMapBuilder::new();
+            b.set(v, 2.0, true);
+            let m = b.build();
+            let (lo, hi) = m.active_bounds().unwrap();
+            let bounds = (lo.as_vec3() - 0.5, hi.as_vec3() + 0.5);
+            for cell in [1, 4] {
+                let g = MajorantGrid::build_cells(&m, bounds, 1.0, cell, 0);
+                assert!(g.memory_bytes() < 64 * 1024, "{} bytes", g.memory_bytes());
+                assert!(g.blocks.iter().any(|b| b.floor >= 2.0
+                    || b.cells
+                        .as_ref()
+                        .is_some_and(|c| c.iter().any(|&x| x >= 2.0))));
+            }
+        }
     }
 }

@@ -27,6 +27,30 @@ pub fn upsample(
     if factor == 0 || factor > 64 {
         bail!("upsampling factor must be 1 to 64, got {factor}");
     }
+    // Counted before anything is allocated: one 4096³ tile is 2²⁷ blocks of 8³.
+    let tile_blocks = |size: u32| ((size / BRICK_EDGE as u32).max(1) as u64).pow(3);
+    let old_blocks = grid.leaves().len() as u64
+        + grid
+            .tiles()
+            .iter()
+            .map(|t| tile_blocks(t.size))
+            .sum::<u64>();
+    let fits = old_blocks
+        .checked_mul(BRICK_VOXELS as u64 * (factor as u64).pow(3))
+        .is_some_and(|v| v <= MAX_VOXELS);
+    if !fits {
+        bail!("the grid upsampled {factor}× would hold more than {MAX_VOXELS} voxels");
+    }
+    // New index coordinates are f × the old ones: they must stay i32.
+    if let Some((lo, hi)) = grid.active_bounds() {
+        let (lo, hi) = (
+            lo.as_i64vec3() * factor as i64,
+            (hi.as_i64vec3() + 1) * factor as i64,
+        );
+        if lo.min_element() < i32::MIN as i64 || hi.max_element() > i32::MAX as i64 {
+            bail!("the grid's index box upsampled {factor}× leaves the 32-bit index range");
+        }
+    }
     // Every 8³ block of old data: the leaves, and the 8³ blocks inside each tile.
     let mut blocks: Vec<IVec3> = grid.leaves().iter().map(|l| l.origin).collect();
     for tile in grid.tiles() {
@@ -40,10 +64,6 @@ pub fn upsample(
         }
     }
     let f = factor as i32;
-    let voxels = blocks.len() as u64 * BRICK_VOXELS as u64 * (factor as u64).pow(3);
-    if voxels > MAX_VOXELS {
-        bail!("the grid upsampled {factor}× would hold {voxels} voxels (at most {MAX_VOXELS})");
-    }
     let inv = 1.0 / factor as f32;
     let leaves: Vec<Leaf> = blocks
         .par_iter()
@@ -135,5 +155,31 @@ mod tests {
         assert!((world_hi - transform.point_to_world(Vec3::new(7.5, 15.5, 7.5))).length() < 1e-4);
         assert_eq!(fine.leaves().len(), 8 * 2);
         assert!(upsample(&grid, &transform, 0).is_err());
+    }
+
+    #[test]
+    fn grids_too_large_or_too_far_out_are_refused_before_any_work() {
+        let transform = IndexTransform::uniform(1.0, DVec3::ZERO);
+        // One 4096³ tile: 2³⁶ voxels even before upsampling.
+        let tile = Tile {
+            origin: IVec3::ZERO,
+            size: 4096,
+            value: 1.0,
+        };
+        let huge = BrickMap::new(Vec::new(), vec![tile]);
+        let error = upsample(&huge, &transform, 2).err().unwrap().to_string();
+        assert!(error.contains("voxels"), "{error}");
+        // One leaf near the edge of the i32 range: ×4 would wrap around.
+        let far = BrickMap::new(
+            vec![Leaf {
+                origin: IVec3::new(1 << 30, 0, 0),
+                values: [1.0; BRICK_VOXELS],
+                active: [u64::MAX; 8],
+            }],
+            Vec::new(),
+        );
+        let error = upsample(&far, &transform, 4).err().unwrap().to_string();
+        assert!(error.contains("32-bit"), "{error}");
+        assert!(upsample(&far, &transform, 1).is_ok());
     }
 }
