@@ -254,7 +254,7 @@ fn main() {
 }
 
 /// Seconds (best of two) of the three parts of loading `path` as `scene` does: the bridge's read,
-/// `Grid::from_data` (value checks and the brick map) and the majorant grid.
+/// `Grid::from_data` (value checks and the brick map) and the majorant grid (with its hot spots).
 fn load_parts(path: &Path, scene: &Scene) -> (f64, f64, f64) {
     let mut best = (f64::MAX, f64::MAX, f64::MAX);
     let path = path.to_str().expect("utf-8 temp path");
@@ -271,7 +271,8 @@ fn load_parts(path: &Path, scene: &Scene) -> (f64, f64, f64) {
             scene.medium.bounds,
             scene.medium.density_scale,
             Majorant::grid(scene.settings.majorant_cell),
-        );
+        )
+        .with_hot_spots(&grid.bricks, scene.medium.transform.voxel_diagonal());
         let built = start.elapsed().as_secs_f64();
         assert_eq!(
             majorant.memory_bytes(),

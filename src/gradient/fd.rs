@@ -200,7 +200,8 @@ pub fn directional_derivative(
         scene.medium.bounds,
         scene.medium.density_scale,
         mode,
-    );
+    )
+    .with_hot_spots(&upper, scene.medium.transform.voxel_diagonal());
     let scenes: Vec<(f64, Scene)> = stencil
         .iter()
         .map(|&(c, k)| {

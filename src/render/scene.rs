@@ -273,7 +273,8 @@ impl Scene {
     /// Rebuilds the majorant structure (e.g. for `--majorant global` from the command line).
     pub fn set_majorant(&mut self, majorant: Majorant) {
         let m = &mut self.medium;
-        m.majorant = MajorantGrid::build(&m.grid, m.bounds, m.density_scale, majorant);
+        m.majorant = MajorantGrid::build(&m.grid, m.bounds, m.density_scale, majorant)
+            .with_hot_spots(&m.grid, m.transform.voxel_diagonal());
         self.settings.majorant = majorant.mode;
         if majorant.mode == MajorantMode::Grid {
             self.settings.majorant_cell = majorant.cell_voxels;

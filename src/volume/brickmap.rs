@@ -187,14 +187,20 @@ impl BrickMap {
     #[inline(always)]
     pub fn trilinear(&self, p: Vec3) -> f32 {
         let v0 = floor_ivec3(p);
-        let f = p - v0.as_vec3();
+        interpolate(&self.cell_corners(v0), p - v0.as_vec3())
+    }
+
+    /// The values at the eight corners of the trilinear cell between voxel centres `v0` and
+    /// `v0 + 1`, corner k at `v0 + corner(k)`.
+    #[inline(always)]
+    pub fn cell_corners(&self, v0: IVec3) -> [f32; 8] {
         let mut c = [0.0f32; 8];
         let local = v0 & 7;
         if local.cmplt(IVec3::splat(7)).all() {
             // All eight corners in one brick: resolve it once.
             match self.brick(v0 >> 3) {
-                Brick::Empty => return 0.0,
-                Brick::Constant(value) => return value,
+                Brick::Empty => {}
+                Brick::Constant(value) => c = [value; 8],
                 Brick::Leaf(values) => {
                     let o = leaf_offset(local);
                     for (k, ck) in c.iter_mut().enumerate() {
@@ -216,14 +222,7 @@ impl BrickMap {
                     .value(v);
             }
         }
-        // Interpolate along z, then y, then x (corner k has bits x=4, y=2, z=1).
-        let z00 = c[0] + (c[1] - c[0]) * f.z;
-        let z01 = c[2] + (c[3] - c[2]) * f.z;
-        let z10 = c[4] + (c[5] - c[4]) * f.z;
-        let z11 = c[6] + (c[7] - c[6]) * f.z;
-        let y0 = z00 + (z01 - z00) * f.y;
-        let y1 = z10 + (z11 - z10) * f.y;
-        y0 + (y1 - y0) * f.x
+        c
     }
 
     /// A copy with `delta` added to the given voxels (finite differences). Voxels inside tiles get
@@ -316,6 +315,19 @@ pub fn floor_ivec3(p: Vec3) -> IVec3 {
 #[inline]
 pub fn corner(k: usize) -> IVec3 {
     IVec3::new((k >> 2) as i32 & 1, (k >> 1) as i32 & 1, k as i32 & 1)
+}
+
+/// The trilinear field of a cell's corner values `c` (from `cell_corners`) at fractions `f`:
+/// along z, then y, then x (corner k has bits x = 4, y = 2, z = 1).
+#[inline(always)]
+pub fn interpolate(c: &[f32; 8], f: Vec3) -> f32 {
+    let z00 = c[0] + (c[1] - c[0]) * f.z;
+    let z01 = c[2] + (c[3] - c[2]) * f.z;
+    let z10 = c[4] + (c[5] - c[4]) * f.z;
+    let z11 = c[6] + (c[7] - c[6]) * f.z;
+    let y0 = z00 + (z01 - z00) * f.y;
+    let y1 = z10 + (z11 - z10) * f.y;
+    y0 + (y1 - y0) * f.x
 }
 
 /// Leaf offsets of the eight corners of a trilinear cell, relative to its base voxel.

@@ -15,6 +15,7 @@
 use glam::{IVec3, Vec3};
 
 use crate::volume::brickmap::{BrickMap, BRICK_EDGE as BRICK_EDGE_VOXELS, BRICK_VOXELS};
+use crate::volume::hot_spots::HotSpots;
 use crate::volume::sparse_index::SparseIndex;
 
 pub use crate::volume::majorant_walk::{DdaWalk, FlatWalk, Walk};
@@ -101,6 +102,10 @@ pub struct MajorantGrid {
     /// Whether walks refine loose cells along the ray (`volume::refine`): the grid mode does; the
     /// global mode is the plain one-majorant baseline that speed comparisons measure against.
     pub refine: bool,
+    /// Cell edge in voxels (0 in the global mode).
+    pub(super) cell_voxels: i32,
+    /// Cells whose few hot voxels make their majorant loose (see `with_hot_spots`).
+    pub(super) hot_spots: HotSpots,
 }
 
 /// One stretch of a ray inside one majorant cell: `[t0, t1)` in world distance.
@@ -263,6 +268,8 @@ impl MajorantGrid {
                 index: SparseIndex::new(IVec3::ZERO, IVec3::splat(-1)),
                 blocks: Vec::new(),
                 refine: true,
+                cell_voxels: 0,
+                hot_spots: HotSpots::default(),
             },
             MajorantMode::Grid => Self::build_cells(
                 bricks,
@@ -388,6 +395,54 @@ impl MajorantGrid {
             index: builder.index,
             blocks: builder.blocks,
             refine: true,
+            cell_voxels: s,
+            hot_spots: HotSpots::default(),
+        }
+    }
+
+    /// This majorant with the hot spots of `bricks` (the grid it was built from) found, for a
+    /// medium in which no segment inside a voxel is longer than `voxel_diagonal` (world units):
+    /// walks then split a hot cell's stretch at the reach of its hot voxels
+    /// (`volume::hot_spots`).
+    pub fn with_hot_spots(mut self, bricks: &BrickMap, voxel_diagonal: f32) -> Self {
+        self.hot_spots = HotSpots::find(bricks, &self, voxel_diagonal);
+        self
+    }
+
+    /// Cells with hot spots.
+    pub fn hot_spot_count(&self) -> usize {
+        self.hot_spots.len()
+    }
+
+    /// Cell edge in voxels, or None for the global mode's single cell.
+    pub(super) fn cell_voxels(&self) -> Option<i32> {
+        (self.cell_voxels > 0).then_some(self.cell_voxels)
+    }
+
+    /// The cells of the medium's box (inclusive).
+    pub(super) fn cell_range(&self) -> (IVec3, IVec3) {
+        (self.c_lo, self.c_hi)
+    }
+
+    /// The majorant of cell `c` (0 outside the medium's box and where no data raised it).
+    pub(super) fn cell_majorant(&self, c: IVec3) -> f32 {
+        if c.cmplt(self.c_lo).any() || c.cmpgt(self.c_hi).any() {
+            return 0.0;
+        }
+        if !self.flat.is_empty() {
+            return self.flat[cell_offset(c - self.c_lo, self.c_hi - self.c_lo + 1)];
+        }
+        match self.index.get(c >> BLOCK_LOG2) {
+            0 => 0.0,
+            handle => {
+                let block = &self.blocks[handle as usize - 1];
+                match &block.cells {
+                    None => block.floor,
+                    Some(cells) => {
+                        cells[cell_offset(c & (BLOCK_EDGE - 1), IVec3::splat(BLOCK_EDGE))]
+                    }
+                }
+            }
         }
     }
 
@@ -409,6 +464,7 @@ impl MajorantGrid {
             + self.flat.len() * std::mem::size_of::<f32>()
             + self.blocks.len() * std::mem::size_of::<Block>()
             + self.index.memory_bytes()
+            + self.hot_spots.memory_bytes()
             + std::mem::size_of::<Self>()
     }
 }

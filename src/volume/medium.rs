@@ -84,7 +84,8 @@ impl Medium {
         filter: Filter,
         majorant: Majorant,
     ) -> Self {
-        let majorant = MajorantGrid::build(&grid, bounds, density_scale, majorant);
+        let majorant = MajorantGrid::build(&grid, bounds, density_scale, majorant)
+            .with_hot_spots(&grid, transform.voxel_diagonal());
         Medium {
             grid,
             transform,

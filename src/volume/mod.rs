@@ -2,6 +2,7 @@
 //! majorants and free-flight / ratio tracking. Uses nothing else in the crate.
 
 pub mod brickmap;
+pub mod hot_spots;
 pub mod majorant;
 pub mod majorant_walk;
 pub mod medium;

@@ -3,37 +3,63 @@
 //!
 //! A majorant cell is only as good as its max/min ratio: one hot voxel makes every ray that crosses
 //! its cell take about σ̄·ℓ null collisions (10⁶ per cell for a voxel 10⁶ times its neighbours). So a
-//! stretch whose majorant optical depth σ̄·Δt exceeds `SPLIT_DEPTH` is split in halves, and each
-//! half gets the bound of the voxels a lookup inside it can read (its index-space bounding box,
-//! plus the trilinear apron): near the hot voxel the bound stays high, where the ray passes beside
-//! it the bound drops to its neighbours'. Halves are split again while that keeps paying (a child
-//! at least a quarter below its parent, or while the stretch would still cost more than
-//! `KEEP_SPLITTING_DEPTH` tentative collisions), at most `STACK / 2` levels deep. The bound is a true majorant of every lookup in the stretch, so delta tracking stays
-//! exact and ratio tracking unbiased; only the random numbers' use changes.
+//! stretch whose majorant optical depth σ̄·Δt exceeds `SPLIT_DEPTH` is refined, lazily and nearest
+//! first (a walk that ends at a collision never refines what lies beyond):
 //!
-//! Dense regions (σ̄·Δt large but the medium really that dense) cost one split: their children
-//! are no tighter, so the stretch is walked as it was, and real collisions end the walk quickly.
+//! 1. a stretch longer than two lookup cells per axis is halved;
+//! 2. a stretch across two cells is cut where the ray crosses from one to the next, so that each
+//!    piece lies in one cell — the cell between voxel centres that a trilinear lookup reads, or the
+//!    voxel of a nearest one;
+//! 3. a stretch in one cell gets the exact maximum of the field over its box: for trilinear lookups
+//!    the field is multilinear in the cell, so the maximum sits at a corner of the box; and it is
+//!    halved while that tightens the bound by a quarter or the stretch would still cost more than
+//!    `KEEP_SPLITTING_DEPTH` tentative collisions.
+//!
+//! Near a hot voxel the bound stays high; where the ray passes beside it, or enters the ramp at the
+//! edge of its trilinear reach, the bound falls with the field. Every bound is a true majorant of
+//! every lookup in the stretch, so delta tracking stays exact and ratio tracking unbiased; only the
+//! random numbers' use changes. A dense region (σ̄·Δt large because the medium really is that
+//! dense) costs a few cuts: real collisions end the walk at once.
 
 use glam::{IVec3, Vec3};
 
-use crate::volume::brickmap::{corner, floor_ivec3};
+use crate::volume::brickmap::floor_ivec3;
 use crate::volume::majorant::MajorantSegment;
 use crate::volume::medium::{Filter, IndexRay, Medium};
 
 /// Majorant optical depth above which a stretch is worth refining (a walk through it takes about
 /// this many tentative collisions).
 pub const SPLIT_DEPTH: f32 = 16.0;
-/// Above this majorant optical depth a stretch is split even where the last split did not tighten
-/// its bound.
+/// Above this majorant optical depth a stretch is halved even where the last halving did not
+/// tighten its bound.
 const KEEP_SPLITTING_DEPTH: f32 = 16.0;
-/// A half is bounded only if a lookup in it reads at most this many voxels (about 1.5 voxels of
-/// ray); larger halves are split before they are bounded.
-const MAX_BOUND_VOXELS: i32 = 64;
-/// Pending halves per cell: a depth-first split of at most this many levels.
-const STACK: usize = 24;
-/// A lookup at a point that rounding moved just outside the stretch's box still reads a counted
-/// voxel.
-const PAD: f32 = 1e-3;
+/// Once refining, a stretch is refined further only while it would cost more than this many
+/// tentative collisions.
+const MIN_SPLIT_DEPTH: f32 = 2.0;
+/// Pending pieces per majorant cell: enough for the halvings of any stretch; when full, a piece is
+/// walked with the bound it has (still a majorant).
+const STACK: usize = 48;
+/// The box of a stretch is widened by this many ulps of its coordinates. `ray.at` is monotone in t
+/// (f32 rounding is), so every lookup point of a stretch already lies in the box of its ends; the
+/// pad only absorbs the different rounding of a lookup's trilinear weights. It must stay tiny:
+/// where the field jumps by 10⁶ within a voxel, every 10⁻³ voxel of pad is hundreds of
+/// tentative collisions.
+const PAD_ULPS: f32 = 4.0;
+
+/// The cells of the lookups a stretch can make: `first ..= last`, inside the box `[lo, hi]`.
+struct StretchBox {
+    lo: Vec3,
+    hi: Vec3,
+    first: IVec3,
+    last: IVec3,
+}
+
+impl StretchBox {
+    /// Cells per axis (in i64: across a huge tile the count overflows an i32).
+    fn cells(&self) -> glam::I64Vec3 {
+        self.last.as_i64vec3() - self.first.as_i64vec3() + glam::I64Vec3::ONE
+    }
+}
 
 /// The segments of `inner`, with loose ones split and tightened (in order along the ray).
 pub struct Refine<'a, I> {
@@ -43,88 +69,112 @@ pub struct Refine<'a, I> {
     /// Halves still to visit, the nearest on top.
     pending: [MajorantSegment; STACK],
     len: usize,
+    /// The corner values of the trilinear cell bounded last: halving a stretch reads its cell
+    /// again.
+    corners: Option<(IVec3, [f32; 8])>,
 }
 
 impl<'a, I> Refine<'a, I> {
     pub fn new(inner: I, medium: &'a Medium, ray: &'a IndexRay) -> Self {
+        let empty = MajorantSegment {
+            t0: 0.0,
+            t1: 0.0,
+            sigma_max: 0.0,
+        };
         Refine {
             inner,
             medium,
             ray,
-            pending: [MajorantSegment {
-                t0: 0.0,
-                t1: 0.0,
-                sigma_max: 0.0,
-            }; STACK],
+            pending: [empty; STACK],
             len: 0,
+            corners: None,
         }
     }
 
-    /// The largest σt a lookup on `[t0, t1]` can see, or None when the stretch reads too many
-    /// voxels to bound cheaply.
-    fn bound(&self, t0: f32, t1: f32) -> Option<f32> {
+    /// Cells are offset by this from integer coordinates: a trilinear lookup reads the cell
+    /// `[k, k + 1)` between voxel centres, a nearest one the voxel `[k − ½, k + ½)`.
+    fn cell_shift(&self) -> f32 {
+        match self.medium.filter {
+            Filter::Trilinear => 0.0,
+            Filter::Nearest => 0.5,
+        }
+    }
+
+    fn stretch_box(&self, t0: f32, t1: f32) -> StretchBox {
         let (a, b) = (self.ray.at(t0), self.ray.at(t1));
-        let (lo, hi) = (a.min(b) - PAD, a.max(b) + PAD);
-        let (first, last) = match self.medium.filter {
-            Filter::Trilinear => (floor_ivec3(lo), floor_ivec3(hi) + IVec3::ONE),
-            Filter::Nearest => (
-                floor_ivec3(lo + Vec3::splat(0.5)),
-                floor_ivec3(hi + Vec3::splat(0.5)),
-            ),
-        };
-        if self.medium.filter == Filter::Trilinear && first + IVec3::ONE == last {
-            return Some(self.medium.density_scale * self.trilinear_max(first, lo, hi));
+        let pad = PAD_ULPS * f32::EPSILON * (1.0 + a.abs().max(b.abs()).max_element());
+        let (lo, hi) = (a.min(b) - pad, a.max(b) + pad);
+        let shift = Vec3::splat(self.cell_shift());
+        StretchBox {
+            lo,
+            hi,
+            first: floor_ivec3(lo + shift),
+            last: floor_ivec3(hi + shift),
         }
-        // In i64: a stretch across a huge tile spans more voxels than an i32 product can count.
-        let extent = (last - first + IVec3::ONE).as_i64vec3();
-        if extent.x * extent.y * extent.z > MAX_BOUND_VOXELS as i64 {
-            return None;
-        }
-        let grid = &self.medium.grid;
+    }
+
+    /// The largest σt a lookup in the box can see; the box spans at most two cells per axis.
+    fn box_max(&mut self, bx: &StretchBox) -> f32 {
         let mut max = 0.0f32;
-        for x in first.x..=last.x {
-            for y in first.y..=last.y {
-                for z in first.z..=last.z {
-                    max = max.max(grid.voxel(IVec3::new(x, y, z)));
+        for x in bx.first.x..=bx.last.x {
+            for y in bx.first.y..=bx.last.y {
+                for z in bx.first.z..=bx.last.z {
+                    let cell = IVec3::new(x, y, z);
+                    max = max.max(match self.medium.filter {
+                        Filter::Trilinear => self.cell_max(cell, bx.lo, bx.hi),
+                        Filter::Nearest => self.medium.grid.voxel(cell),
+                    });
                 }
             }
         }
-        Some(self.medium.density_scale * max)
+        self.medium.density_scale * max
     }
 
-    /// The exact maximum of the trilinear field over the box `[lo, hi]` inside the cell between
-    /// voxel centres `base` and `base + 1`: the field is multilinear there, so its maximum over a
-    /// box sits at one of the box's corners. This is what lets the bound fall off with the
-    /// distance from a hot voxel instead of covering its whole apron.
-    fn trilinear_max(&self, base: IVec3, lo: Vec3, hi: Vec3) -> f32 {
-        let grid = &self.medium.grid;
-        let values: [f32; 8] = std::array::from_fn(|k| grid.voxel(base + corner(k)));
+    /// The exact maximum of the trilinear field over the part of `[lo, hi]` inside the cell
+    /// between voxel centres `base` and `base + 1`: the field is multilinear there, so the maximum
+    /// sits at one of that part's eight corners.
+    fn cell_max(&mut self, base: IVec3, lo: Vec3, hi: Vec3) -> f32 {
+        let c = match self.corners {
+            Some((cached, c)) if cached == base => c,
+            _ => {
+                let c = self.medium.grid.cell_corners(base);
+                self.corners = Some((base, c));
+                c
+            }
+        };
         let (f_lo, f_hi) = (
             (lo - base.as_vec3()).clamp(Vec3::ZERO, Vec3::ONE),
             (hi - base.as_vec3()).clamp(Vec3::ZERO, Vec3::ONE),
         );
+        // The field at the part's corners, interpolated separably (z, then y, then x, as a lookup
+        // does): [lo, hi] along z for each of the 4 edges, then along y, then along x.
+        let lerp = |a: f32, b: f32, f: f32| a + (b - a) * f;
+        let z: [[f32; 2]; 4] =
+            std::array::from_fn(|e| [f_lo.z, f_hi.z].map(|f| lerp(c[2 * e], c[2 * e + 1], f)));
+        let y: [[[f32; 2]; 2]; 2] = std::array::from_fn(|x| {
+            std::array::from_fn(|iz| {
+                [f_lo.y, f_hi.y].map(|f| lerp(z[2 * x][iz], z[2 * x + 1][iz], f))
+            })
+        });
         let mut max = 0.0f32;
-        for k in 0..8 {
-            let c = corner(k);
-            let f = Vec3::new(
-                if c.x == 1 { f_hi.x } else { f_lo.x },
-                if c.y == 1 { f_hi.y } else { f_lo.y },
-                if c.z == 1 { f_hi.z } else { f_lo.z },
-            );
-            let mut value = 0.0f32;
-            for (j, &v) in values.iter().enumerate() {
-                let o = corner(j).as_vec3();
-                let w = (o * f + (Vec3::ONE - o) * (Vec3::ONE - f)).element_product();
-                value += w * v;
+        for (&y0, &y1) in y[0].iter().flatten().zip(y[1].iter().flatten()) {
+            for f in [f_lo.x, f_hi.x] {
+                max = max.max(lerp(y0, y1, f));
             }
-            max = max.max(value);
         }
         max
     }
 
+    /// The largest σt a lookup on `[t0, t1]` can see, or None when the stretch spans more than two
+    /// cells on some axis (too long to bound cheaply; it is halved first).
+    fn bound(&mut self, t0: f32, t1: f32) -> Option<f32> {
+        let bx = self.stretch_box(t0, t1);
+        (bx.cells().max_element() <= 2).then(|| self.box_max(&bx))
+    }
+
     /// `seg` split in two halves with their own bounds, if that tightens either.
-    fn split(&self, seg: MajorantSegment) -> Option<[MajorantSegment; 2]> {
-        if seg.sigma_max * (seg.t1 - seg.t0) <= SPLIT_DEPTH {
+    fn split(&mut self, seg: MajorantSegment) -> Option<[MajorantSegment; 2]> {
+        if seg.sigma_max * (seg.t1 - seg.t0) <= MIN_SPLIT_DEPTH {
             return None;
         }
         let mid = 0.5 * (seg.t0 + seg.t1);
@@ -137,7 +187,9 @@ impl<'a, I> Refine<'a, I> {
         // hot voxel can sit in both halves' boxes while the ray passes beside it; the boxes shrink
         // with the halves). A really dense stretch ends the walk at its first collision, so the
         // halves beyond it are never made.
-        let pays = |b: Option<f32>| b.is_none_or(|b| b < 0.75 * seg.sigma_max);
+        // An unbounded half (too long) counts as not tightening: long stretches are only halved
+        // while costly, as a dense medium's are.
+        let pays = |b: Option<f32>| b.is_some_and(|b| b < 0.75 * seg.sigma_max);
         if !pays(near) && !pays(far) && seg.sigma_max * (seg.t1 - seg.t0) <= KEEP_SPLITTING_DEPTH {
             return None;
         }
@@ -160,7 +212,20 @@ impl<I: Iterator<Item = MajorantSegment>> Iterator for Refine<'_, I> {
                 self.len -= 1;
                 self.pending[self.len]
             } else {
-                self.inner.next()?
+                let seg = self.inner.next()?;
+                // A cell with hot voxels: cut at their reach first; beside it the rest's bound.
+                let hot = &self.medium.majorant.hot_spots;
+                match (!hot.is_empty())
+                    .then(|| hot.split(seg, self.ray, self.medium.filter))
+                    .flatten()
+                {
+                    Some([before, inside, after]) => {
+                        self.pending[..3].copy_from_slice(&[after, inside, before]);
+                        self.len = 3;
+                        continue;
+                    }
+                    None => seg,
+                }
             };
             if self.len + 2 > STACK {
                 return Some(seg);

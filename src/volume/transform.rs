@@ -91,6 +91,12 @@ impl IndexTransform {
         let m = self.index_to_world.matrix3;
         DVec3::new(m.x_axis.length(), m.y_axis.length(), m.z_axis.length())
     }
+
+    /// A bound on the world length of any segment inside one voxel (the sum of its edges, which
+    /// holds for sheared transforms too).
+    pub fn voxel_diagonal(&self) -> f32 {
+        self.voxel_size().element_sum() as f32
+    }
 }
 
 #[cfg(test)]
