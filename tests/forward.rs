@@ -479,7 +479,7 @@ fn one_light_nee_has_the_mean_of_all_light_nee() {
     for _ in 0..n {
         let sample = LightSample::draw(&mut rng);
         let a = direct_light(&scene, p, dir, &sample, &mut rng, &mut stats, None).x as f64;
-        let o = direct_light_one(&scene, p, dir, &sample, &mut rng, &mut stats).x as f64;
+        let o = direct_light_one(&scene, p, dir, &sample, &mut rng, &mut stats, None).x as f64;
         all = [all[0] + a, all[1] + a * a];
         one = [one[0] + o, one[1] + o * o];
     }

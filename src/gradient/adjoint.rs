@@ -217,9 +217,14 @@ impl<R: Rng> Replay<'_, R> {
         sink: &mut impl GradientSink,
     ) -> Vec3 {
         scratch.clear();
+        // One shadow ray per scattering event, as in the suffixes: the pass's cost is mostly
+        // shadow walks, and one light picked by its contribution costs little variance.
         let radiance = trace(
             self.scene,
-            PathState::camera(origin, dir),
+            PathState {
+                one_light_nee: true,
+                ..PathState::camera(origin, dir)
+            },
             self.options.max_depth,
             self.rng,
             self.stats,
@@ -421,7 +426,8 @@ impl<R: Rng> Replay<'_, R> {
         }
         let scene = self.scene;
         let (p, dir) = (segment.at(t), segment.dir);
-        let mut in_scattered = direct_light_one(scene, p, dir, light_sample, self.rng, self.stats);
+        let mut in_scattered =
+            direct_light_one(scene, p, dir, light_sample, self.rng, self.stats, None);
         for _ in 0..suffix.count {
             let state = PathState::scattered(scene, p, dir, segment.depth, self.rng);
             let max_depth = self.options.max_depth;
