@@ -132,6 +132,7 @@ pub struct ShadowRay {
 /// The lights as seen from a scattering point reached along `dir`: for each, its unoccluded
 /// contribution (a sun's irradiance times the phase function; one environment sample, from
 /// `sample`, MIS-weighted against phase sampling) and the direction towards it.
+#[inline(always)]
 fn light_candidates<'a>(
     scene: &'a Scene,
     dir: Vec3,

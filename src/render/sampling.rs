@@ -73,7 +73,7 @@ impl HenyeyGreenstein {
     /// a = |g| the inversion gives q = 1 − c directly, q = (1 − a)(1 − u)(s + 1 − a) / (1 − a + 2au)
     /// with s = (1 − a²) / (1 − a + 2au) — what the textbook form (1 + a² − s²)/2a loses to
     /// cancellation near a = 1 — and c is mirrored back for g < 0.
-    #[inline]
+    #[inline(always)]
     pub fn sample(&self, dir: Vec3, u: [f32; 2]) -> Vec3 {
         let a = self.g.abs();
         let q = if a < 1e-3 {

@@ -217,9 +217,16 @@ impl BrickMap {
                 let v = v0 + corner(k);
                 let crossed = corner(k) & carry;
                 let which = ((crossed.x << 2) | (crossed.y << 1) | crossed.z) as usize;
-                *ck = bricks[which]
-                    .get_or_insert_with(|| self.brick(v >> 3))
-                    .value(v);
+                // Written out: `get_or_insert_with` stayed a call in this hot loop.
+                let brick = match bricks[which] {
+                    Some(brick) => brick,
+                    None => {
+                        let brick = self.brick(v >> 3);
+                        bricks[which] = Some(brick);
+                        brick
+                    }
+                };
+                *ck = brick.value(v);
             }
         }
         c
