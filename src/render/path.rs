@@ -197,24 +197,38 @@ pub fn direct_light(
         if unoccluded.max_element() <= 0.0 {
             continue;
         }
-        let Some((tr, t_enter, t_exit)) = shadow_ray(scene, p, wi, rng, stats) else {
-            radiance += unoccluded;
-            continue;
-        };
-        radiance += unoccluded * tr;
-        if let Some((list, throughput)) = shadows.as_mut() {
-            if tr > 0.0 {
-                list.push(ShadowRay {
-                    origin: p,
-                    dir: wi,
-                    t_enter,
-                    t_exit,
-                    contribution: *throughput * unoccluded * tr,
-                });
-            }
-        }
+        radiance += through_shadow_ray(scene, p, wi, unoccluded, rng, stats, &mut shadows);
     }
     radiance
+}
+
+/// `unoccluded` arriving from direction `wi` at `p` through the medium: times one shadow ray's
+/// transmittance (1 where the ray misses the medium's box); with `shadows`, the ray and its
+/// contribution (times the throughput) are kept for the adjoint pass.
+fn through_shadow_ray(
+    scene: &Scene,
+    p: Vec3,
+    wi: Vec3,
+    unoccluded: Vec3,
+    rng: &mut impl Rng,
+    stats: &mut TrackingStats,
+    shadows: &mut Option<(&mut Vec<ShadowRay>, Vec3)>,
+) -> Vec3 {
+    let Some((tr, t_enter, t_exit)) = shadow_ray(scene, p, wi, rng, stats) else {
+        return unoccluded;
+    };
+    if let Some((list, throughput)) = shadows.as_mut() {
+        if tr > 0.0 {
+            list.push(ShadowRay {
+                origin: p,
+                dir: wi,
+                t_enter,
+                t_exit,
+                contribution: *throughput * unoccluded * tr,
+            });
+        }
+    }
+    unoccluded * tr
 }
 
 /// Next-event estimation as `direct_light`, but with one shadow ray: the light is picked with
@@ -230,7 +244,7 @@ pub fn direct_light_one(
     sample: &LightSample,
     rng: &mut impl Rng,
     stats: &mut TrackingStats,
-    shadows: Option<(&mut Vec<ShadowRay>, Vec3)>,
+    mut shadows: Option<(&mut Vec<ShadowRay>, Vec3)>,
 ) -> Vec3 {
     let mut total = 0.0f32;
     let mut chosen = None;
@@ -253,21 +267,7 @@ pub fn direct_light_one(
         return Vec3::ZERO;
     };
     let unoccluded = unoccluded * (total / w);
-    let Some((tr, t_enter, t_exit)) = shadow_ray(scene, p, wi, rng, stats) else {
-        return unoccluded;
-    };
-    if let Some((list, throughput)) = shadows {
-        if tr > 0.0 {
-            list.push(ShadowRay {
-                origin: p,
-                dir: wi,
-                t_enter,
-                t_exit,
-                contribution: throughput * unoccluded * tr,
-            });
-        }
-    }
-    unoccluded * tr
+    through_shadow_ray(scene, p, wi, unoccluded, rng, stats, &mut shadows)
 }
 
 /// Follows a path from `state` until it escapes, is absorbed by Russian roulette, or reaches

@@ -9,14 +9,13 @@
 //! than `SPLIT_DEPTH` tentative collisions), so a medium without hot spots pays a pass over its
 //! majorant cells, not over its voxels.
 
-use std::collections::HashMap;
-
 use glam::{IVec3, Vec3};
 
 use crate::volume::brickmap::{floor_ivec3, BrickMap, BRICK_EDGE};
 use crate::volume::majorant::{MajorantGrid, MajorantSegment};
 use crate::volume::medium::{Filter, IndexRay};
 use crate::volume::refine::SPLIT_DEPTH;
+use crate::volume::sparse_index::KeyMap;
 
 /// A voxel is hot when it exceeds this fraction of its cell's maximum.
 const HOT_FRACTION: f32 = 1.0 / 8.0;
@@ -44,7 +43,7 @@ pub struct HotSpot {
 /// Hot spots by majorant cell.
 #[derive(Clone, Default)]
 pub struct HotSpots {
-    spots: HashMap<IVec3, HotSpot>,
+    spots: KeyMap<HotSpot>,
     /// The majorant grid's cell geometry (index space).
     origin: Vec3,
     inv_cell_size: Vec3,
@@ -55,7 +54,7 @@ impl HotSpots {
     /// which no segment inside a voxel is longer than `voxel_diagonal` world units.
     pub fn find(grid: &BrickMap, majorant: &MajorantGrid, voxel_diagonal: f32) -> Self {
         let mut spots = HotSpots {
-            spots: HashMap::new(),
+            spots: KeyMap::default(),
             origin: majorant.origin,
             inv_cell_size: majorant.inv_cell_size,
         };
@@ -67,7 +66,7 @@ impl HotSpots {
         }
         // A crossing of a cell is at most its diagonal long.
         let diagonal = s as f32 * voxel_diagonal;
-        let mut seen = std::collections::HashSet::new();
+        let mut seen = KeyMap::<()>::default();
         let (c_lo, c_hi) = majorant.cell_range();
         for leaf in grid.leaves() {
             // In i64: a leaf at the edge of the i32 range must not wrap around.
@@ -86,7 +85,7 @@ impl HotSpots {
                     for z in first.z..=last.z {
                         let cell = IVec3::new(x, y, z);
                         let m = majorant.cell_majorant(cell);
-                        if m * diagonal <= SPLIT_DEPTH || !seen.insert(cell) {
+                        if m * diagonal <= SPLIT_DEPTH || seen.insert(cell, ()).is_some() {
                             continue;
                         }
                         if let Some(spot) = hot_spot(grid, cell, s, m) {
@@ -194,28 +193,24 @@ fn hot_spot(grid: &BrickMap, cell: IVec3, s: i32, majorant: f32) -> Option<HotSp
         return None;
     }
     let (first, last) = (first.as_ivec3(), last.as_ivec3());
-    let mut max = 0.0f32;
-    for x in first.x..=last.x {
-        for y in first.y..=last.y {
-            for z in first.z..=last.z {
-                max = max.max(grid.voxel(IVec3::new(x, y, z)));
-            }
-        }
-    }
-    let (mut hot_lo, mut hot_hi) = (IVec3::MAX, IVec3::MIN);
-    let mut rest = 0.0f32;
+    let mut apron = Vec::with_capacity(((s + 2) * (s + 2) * (s + 2)) as usize);
     for x in first.x..=last.x {
         for y in first.y..=last.y {
             for z in first.z..=last.z {
                 let v = IVec3::new(x, y, z);
-                let value = grid.voxel(v);
-                if value > HOT_FRACTION * max {
-                    hot_lo = hot_lo.min(v);
-                    hot_hi = hot_hi.max(v);
-                } else {
-                    rest = rest.max(value);
-                }
+                apron.push((v, grid.voxel(v)));
             }
+        }
+    }
+    let max = apron.iter().fold(0.0f32, |m, &(_, value)| m.max(value));
+    let (mut hot_lo, mut hot_hi) = (IVec3::MAX, IVec3::MIN);
+    let mut rest = 0.0f32;
+    for &(v, value) in &apron {
+        if value > HOT_FRACTION * max {
+            hot_lo = hot_lo.min(v);
+            hot_hi = hot_hi.max(v);
+        } else {
+            rest = rest.max(value);
         }
     }
     if rest > REST_FRACTION * max || hot_lo.cmpgt(hot_hi).any() {

@@ -6,20 +6,22 @@
 //! stretch whose majorant optical depth σ̄·Δt exceeds `SPLIT_DEPTH` is refined, lazily and nearest
 //! first (a walk that ends at a collision never refines what lies beyond):
 //!
-//! 1. a stretch longer than two lookup cells per axis is halved;
-//! 2. a stretch across two cells is cut where the ray crosses from one to the next, so that each
-//!    piece lies in one cell — the cell between voxel centres that a trilinear lookup reads, or the
-//!    voxel of a nearest one;
-//! 3. a stretch in one cell gets the exact maximum of the field over its box: for trilinear lookups
-//!    the field is multilinear in the cell, so the maximum sits at a corner of the box; and it is
-//!    halved while that tightens the bound by a quarter or the stretch would still cost more than
-//!    `KEEP_SPLITTING_DEPTH` tentative collisions.
+//! 1. in a cell with hot voxels (`volume::hot_spots`), the stretch is first cut where the ray
+//!    enters and leaves their reach; beside it the rest of the cell's bound holds;
+//! 2. a stretch is halved, and a half that spans at most two lookup cells per axis (the cells
+//!    between voxel centres that trilinear lookups read, or the voxels of nearest ones) gets the
+//!    exact maximum of the field over its box: per trilinear cell the field is multilinear, so its
+//!    maximum over the part of the box in that cell sits at one of that part's corners. Longer
+//!    halves keep their parent's bound until they are short enough;
+//! 3. halves are halved again while that tightens the bound by a quarter and the stretch would
+//!    still cost more than `MIN_SPLIT_DEPTH` tentative collisions, or while it would cost more
+//!    than `KEEP_SPLITTING_DEPTH`.
 //!
 //! Near a hot voxel the bound stays high; where the ray passes beside it, or enters the ramp at the
 //! edge of its trilinear reach, the bound falls with the field. Every bound is a true majorant of
 //! every lookup in the stretch, so delta tracking stays exact and ratio tracking unbiased; only the
 //! random numbers' use changes. A dense region (σ̄·Δt large because the medium really is that
-//! dense) costs a few cuts: real collisions end the walk at once.
+//! dense) costs a few halvings: real collisions end the walk at once.
 
 use glam::{IVec3, Vec3};
 
