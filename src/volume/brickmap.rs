@@ -187,49 +187,48 @@ impl BrickMap {
     #[inline(always)]
     pub fn trilinear(&self, p: Vec3) -> f32 {
         let v0 = floor_ivec3(p);
-        interpolate(&self.cell_corners(v0), p - v0.as_vec3())
+        let local = v0 & 7;
+        if local.cmplt(IVec3::splat(7)).all() {
+            // All eight corners in one brick: resolve it once; empty and constant bricks need
+            // no interpolation.
+            return match self.brick(v0 >> 3) {
+                Brick::Empty => 0.0,
+                Brick::Constant(value) => value,
+                Brick::Leaf(values) => interpolate(&leaf_corners(values, local), p - v0.as_vec3()),
+            };
+        }
+        interpolate(&self.straddling_corners(v0), p - v0.as_vec3())
     }
 
     /// The values at the eight corners of the trilinear cell between voxel centres `v0` and
     /// `v0 + 1`, corner k at `v0 + corner(k)`.
     #[inline(always)]
     pub fn cell_corners(&self, v0: IVec3) -> [f32; 8] {
-        let mut c = [0.0f32; 8];
         let local = v0 & 7;
         if local.cmplt(IVec3::splat(7)).all() {
-            // All eight corners in one brick: resolve it once.
-            match self.brick(v0 >> 3) {
-                Brick::Empty => {}
-                Brick::Constant(value) => c = [value; 8],
-                Brick::Leaf(values) => {
-                    let o = leaf_offset(local);
-                    for (k, ck) in c.iter_mut().enumerate() {
-                        *ck = values[o + CORNER_OFFSETS[k]];
-                    }
-                }
-            }
-        } else {
-            // The cell straddles bricks (a third of all lookups): resolve each brick it touches
-            // once, usually two or four, instead of once per corner.
-            let carry = IVec3::from(local.cmpeq(IVec3::splat(7)));
-            let mut bricks: [Option<Brick>; 8] = [None; 8];
-            for (k, ck) in c.iter_mut().enumerate() {
-                let v = v0 + corner(k);
-                let crossed = corner(k) & carry;
-                let which = ((crossed.x << 2) | (crossed.y << 1) | crossed.z) as usize;
-                // Written out: `get_or_insert_with` stayed a call in this hot loop.
-                let brick = match bricks[which] {
-                    Some(brick) => brick,
-                    None => {
-                        let brick = self.brick(v >> 3);
-                        bricks[which] = Some(brick);
-                        brick
-                    }
-                };
-                *ck = brick.value(v);
+            return match self.brick(v0 >> 3) {
+                Brick::Empty => [0.0; 8],
+                Brick::Constant(value) => [value; 8],
+                Brick::Leaf(values) => leaf_corners(values, local),
+            };
+        }
+        self.straddling_corners(v0)
+    }
+
+    /// `cell_corners` of a cell that straddles bricks (a third of all lookups): the bricks it
+    /// touches (two, four or eight: one per subset of the axes it crosses) are resolved once each
+    /// instead of once per corner.
+    #[inline(always)]
+    fn straddling_corners(&self, v0: IVec3) -> [f32; 8] {
+        let carry = IVec3::from((v0 & 7).cmpeq(IVec3::splat(7)));
+        let crossed = ((carry.x << 2) | (carry.y << 1) | carry.z) as usize;
+        let mut bricks = [Brick::Empty; 8];
+        for (which, brick) in bricks.iter_mut().enumerate() {
+            if which & !crossed == 0 {
+                *brick = self.brick((v0 >> 3) + corner(which));
             }
         }
-        c
+        std::array::from_fn(|k| bricks[k & crossed].value(v0 + corner(k)))
     }
 
     /// A copy with `delta` added to the given voxels (finite differences). Voxels inside tiles get
@@ -335,6 +334,13 @@ pub fn interpolate(c: &[f32; 8], f: Vec3) -> f32 {
     let y0 = z00 + (z01 - z00) * f.y;
     let y1 = z10 + (z11 - z10) * f.y;
     y0 + (y1 - y0) * f.x
+}
+
+/// The eight corner values of the trilinear cell at leaf coordinate `local` (all inside the leaf).
+#[inline(always)]
+fn leaf_corners(values: &[f32; BRICK_VOXELS], local: IVec3) -> [f32; 8] {
+    let o = leaf_offset(local);
+    std::array::from_fn(|k| values[o + CORNER_OFFSETS[k]])
 }
 
 /// Leaf offsets of the eight corners of a trilinear cell, relative to its base voxel.
