@@ -10,9 +10,11 @@
 //! case (a compact grid) costs two array reads per lookup and a grid whose bounding box spans 10⁶
 //! voxels still costs memory only for its nodes. A node whose 512 keys all hold the same handle (an
 //! active tile covering it) is stored as that handle alone, without a table. Above the hash map, a
-//! box of at least `REGION_NODES` whole nodes filled with one handle is one region (OpenVDB's
-//! root-level tiles: a 4096³-voxel tile is 64³ nodes of bricks), so that such a tile costs O(1)
-//! memory; nodes given their own entry later (a leaf or a cell inside it) override the region.
+//! fill covering whole super-nodes (16³ nodes) stores one uniform entry per super-node in a second
+//! map (OpenVDB's root-level tiles: a 4096³-voxel tile is 64³ nodes of bricks, 4³ super-nodes), so
+//! that such a tile costs O(1) memory and a lookup that misses the node map costs one more hash
+//! read, whatever the number of tiles; nodes given their own entry later (a leaf or a cell inside
+//! the tile) override it.
 //!
 //! Handle 0 means "absent".
 
@@ -31,8 +33,9 @@ const DENSE_TOP_MIN: u64 = 1 << 12;
 const UNIFORM_BIT: u32 = 1 << 31;
 /// Top entry of a node with no data.
 const NO_NODE: u32 = 0;
-/// A hashed top stores a fill covering at least this many whole nodes as one region.
-const REGION_NODES: u64 = 512;
+/// Nodes per super-node edge (log2): a hashed top stores a fill's whole super-nodes as one entry
+/// each.
+const SUPER_LOG2: i32 = 4;
 
 /// A multiply-rotate hash for integer keys: the keys are not adversarial, and the standard SipHash
 /// would cost more than the lookup it serves.
@@ -91,18 +94,21 @@ pub struct SparseIndex {
     /// Node tables; top entry `i + 1` names `nodes[i]`.
     nodes: Vec<[u32; NODE_ENTRIES]>,
     uniform: Vec<u32>,
-    /// Hashed top only: inclusive boxes of nodes and the uniform top entry they all have, for
-    /// nodes without an entry of their own (disjoint boxes).
-    regions: Vec<(IVec3, IVec3, u32)>,
+    /// Hashed top only: super-node → the uniform top entry of its nodes that have no entry of
+    /// their own.
+    supers: KeyMap<u32>,
 }
 
-/// The top entry the regions give `node` (NO_NODE outside them).
+/// The top entry the super-nodes give `node` (NO_NODE outside them).
 #[inline]
-fn region_entry(regions: &[(IVec3, IVec3, u32)], node: IVec3) -> u32 {
-    regions
-        .iter()
-        .find(|(lo, hi, _)| node.cmpge(*lo).all() && node.cmple(*hi).all())
-        .map_or(NO_NODE, |r| r.2)
+fn super_entry(supers: &KeyMap<u32>, node: IVec3) -> u32 {
+    if supers.is_empty() {
+        return NO_NODE;
+    }
+    supers
+        .get(&(node >> SUPER_LOG2))
+        .copied()
+        .unwrap_or(NO_NODE)
 }
 
 /// Keys in the inclusive box, in 64-bit checked arithmetic: a box spanning the whole i32 range
@@ -165,7 +171,7 @@ impl SparseIndex {
             top,
             nodes: Vec::new(),
             uniform: Vec::new(),
-            regions: Vec::new(),
+            supers: KeyMap::default(),
         }
     }
 
@@ -185,14 +191,14 @@ impl SparseIndex {
             } => flat_index(node, *origin, *dims).map_or(NO_NODE, |i| entries[i]),
             Top::Hashed(map) => match map.get(&node) {
                 Some(&entry) => entry,
-                None => region_entry(&self.regions, node),
+                None => super_entry(&self.supers, node),
             },
         }
     }
 
     /// The top entry of `node`, created empty; `None` for a flat index or a node outside the box.
     fn top_entry_mut(&mut self, node: IVec3) -> Option<&mut u32> {
-        let regions = &self.regions;
+        let supers = &self.supers;
         match &mut self.top {
             Top::Flat { .. } => None,
             Top::Dense {
@@ -200,10 +206,7 @@ impl SparseIndex {
                 dims,
                 entries,
             } => flat_index(node, *origin, *dims).map(|i| &mut entries[i]),
-            Top::Hashed(map) => Some(
-                map.entry(node)
-                    .or_insert_with(|| region_entry(regions, node)),
-            ),
+            Top::Hashed(map) => Some(map.entry(node).or_insert_with(|| super_entry(supers, node))),
         }
     }
 
@@ -288,18 +291,18 @@ impl SparseIndex {
             return;
         }
         let (n_lo, n_hi) = (node_of(lo), node_of(hi));
-        let region = self.add_region(lo, hi, handle);
+        let covered_by = self.add_supers(lo, hi, handle);
         for nx in n_lo.x..=n_hi.x {
             for ny in n_lo.y..=n_hi.y {
                 for nz in n_lo.z..=n_hi.z {
                     let node = IVec3::new(nx, ny, nz);
-                    if let Some((r_lo, r_hi)) = region {
-                        // Covered by the new region: only nodes with entries of their own (which
-                        // override it) need the handle key by key.
-                        let inside = node.cmpge(r_lo).all() && node.cmple(r_hi).all();
-                        if inside && !self.has_own_entry(node) {
-                            continue;
-                        }
+                    // In a super-node this fill just stored: only nodes with entries of their own
+                    // (which override it) need the handle key by key.
+                    if covered_by.is_some_and(|entry| {
+                        self.supers.get(&(node >> SUPER_LOG2)) == Some(&entry)
+                            && !self.has_own_entry(node)
+                    }) {
+                        continue;
                     }
                     let first = node << NODE_LOG2;
                     let last = first + NODE_MASK;
@@ -332,28 +335,31 @@ impl SparseIndex {
         }
     }
 
-    /// With a hashed top, the whole nodes of the key box `[lo, hi]` as one region holding
-    /// `handle`, if they are many and meet no earlier region; returns the region's node box.
-    fn add_region(&mut self, lo: IVec3, hi: IVec3, handle: u32) -> Option<(IVec3, IVec3)> {
+    /// With a hashed top, one uniform entry holding `handle` for every super-node whose keys all
+    /// lie in `[lo, hi]` and that has none yet (one held by an earlier fill is merged key by key
+    /// instead); returns that entry, or None when the fill covers no super-node.
+    fn add_supers(&mut self, lo: IVec3, hi: IVec3, handle: u32) -> Option<u32> {
         if !matches!(self.top, Top::Hashed(_)) {
             return None;
         }
-        // Nodes whose keys all lie in the box (in i64: the box may end at the i32 range's edge).
-        let node = glam::I64Vec3::splat(1 << NODE_LOG2);
-        let r_lo = (lo.as_i64vec3() + node - 1).div_euclid(node).as_ivec3();
-        let r_hi = ((hi.as_i64vec3() + 1).div_euclid(node) - 1).as_ivec3();
-        if box_volume(r_lo, r_hi).is_none_or(|n| n < REGION_NODES) {
+        // Super-nodes whose keys all lie in the box (in i64: the box may end at the i32 range's
+        // edge).
+        let edge = glam::I64Vec3::splat(1 << (NODE_LOG2 + SUPER_LOG2));
+        let s_lo = (lo.as_i64vec3() + edge - 1).div_euclid(edge).as_ivec3();
+        let s_hi = ((hi.as_i64vec3() + 1).div_euclid(edge) - 1).as_ivec3();
+        if s_lo.cmpgt(s_hi).any() {
             return None;
         }
-        let overlaps =
-            |(a, b, _): &(IVec3, IVec3, u32)| r_lo.cmple(*b).all() && a.cmple(r_hi).all();
-        if self.regions.iter().any(overlaps) {
-            return None;
-        }
-        let u = self.uniform.len() as u32;
+        let entry = UNIFORM_BIT | self.uniform.len() as u32;
         self.uniform.push(handle);
-        self.regions.push((r_lo, r_hi, UNIFORM_BIT | u));
-        Some((r_lo, r_hi))
+        for x in s_lo.x..=s_hi.x {
+            for y in s_lo.y..=s_hi.y {
+                for z in s_lo.z..=s_hi.z {
+                    self.supers.entry(IVec3::new(x, y, z)).or_insert(entry);
+                }
+            }
+        }
+        Some(entry)
     }
 
     /// Whether `node` has an entry of its own in a hashed top.
@@ -390,7 +396,7 @@ impl SparseIndex {
             top,
             nodes: Vec::new(),
             uniform: Vec::new(),
-            regions: Vec::new(),
+            supers: KeyMap::default(),
         }
     }
 
@@ -409,7 +415,7 @@ impl SparseIndex {
         };
         self.nodes.len() * std::mem::size_of::<[u32; NODE_ENTRIES]>()
             + self.uniform.len() * std::mem::size_of::<u32>()
-            + self.regions.len() * std::mem::size_of::<(IVec3, IVec3, u32)>()
+            + self.supers.capacity() * (std::mem::size_of::<(IVec3, u32)>() + 1)
             + top
     }
 }
@@ -450,16 +456,18 @@ mod tests {
         }
     }
 
-    /// A fill of many whole nodes in a hashed top is one region: O(1) memory, every key inside
-    /// holds the handle, keys set later override it, and a later fill over it merges key by key.
+    /// A fill of whole super-nodes in a hashed top is one entry per super-node: O(1) memory, every
+    /// key inside holds the handle, keys set later override it, and a later fill over it merges
+    /// key by key.
     #[test]
-    fn a_huge_fill_is_one_region() {
+    fn a_huge_fill_is_a_few_super_nodes() {
         let mut index = SparseIndex::new(IVec3::splat(-4), IVec3::new(1 << 30, 600, 600));
         assert!(matches!(index.top, Top::Hashed(_)));
         *index.slot_mut(IVec3::new(100, 100, 100)).unwrap() = 3;
-        // Node-aligned, as OpenVDB's tiles are (a box that is not costs node tables on its faces).
+        // Aligned to super-nodes (128 keys), as OpenVDB's root tiles are (a box that is not
+        // costs node tables on its faces).
         index.fill(IVec3::ZERO, IVec3::splat(511), 9, |s| *s += 10);
-        assert_eq!(index.regions.len(), 1);
+        assert_eq!(index.supers.len(), 64); // 512 keys = 64 nodes = 4 super-nodes per axis
         assert!(index.memory_bytes() < 16 * 1024, "{}", index.memory_bytes());
         assert_eq!(index.get(IVec3::splat(-1)), 0);
         for key in [IVec3::splat(0), IVec3::splat(511), IVec3::new(7, 300, 9)] {
@@ -471,11 +479,11 @@ mod tests {
         // The node that held a key before the fill kept it, merged.
         assert_eq!(index.get(IVec3::new(100, 100, 100)), 13);
         assert_eq!(index.get(IVec3::new(100, 100, 101)), 9);
-        // A key set inside the region splits only its node.
+        // A key set inside the fill splits only its node.
         *index.slot_mut(IVec3::new(200, 8, 8)).unwrap() = 5;
         assert_eq!(index.get(IVec3::new(200, 8, 8)), 5);
         assert_eq!(index.get(IVec3::new(200, 8, 9)), 9);
-        // A second fill overlapping the region merges into it.
+        // A second fill overlapping it merges into it.
         index.fill(
             IVec3::new(500, 500, 500),
             IVec3::new(520, 505, 505),
