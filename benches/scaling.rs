@@ -16,7 +16,9 @@
 //! - peak resident memory of `volgrad render` and `volgrad grad` on the same scene, each run as a
 //!   child process that reports its own high-water mark (`--stats`).
 //!
-//! VOLGRAD_BENCH_SPP (default 4) and VOLGRAD_BENCH_FACTORS (default "1,2,4") adjust it.
+//! VOLGRAD_BENCH_SPP (default 4) and VOLGRAD_BENCH_FACTORS (default "1,2,4") adjust it;
+//! VOLGRAD_BENCH_GRIDS=DIR writes the grids and scenes into DIR and keeps them (a grid already
+//! there is reused), e.g. to time `volgrad render DIR/scene2.toml --stats` on its own.
 
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
@@ -111,7 +113,12 @@ fn main() {
     let source = root.join("scenes/assets/wdas_cloud_sixteenth.vdb");
     let cloud =
         vdb::read_density(&source, &GridSelector::Default, LevelSet::Refuse).expect("cloud reads");
-    let dir = tempfile::tempdir().expect("temporary folder");
+    let temporary = tempfile::tempdir().expect("temporary folder");
+    let kept = std::env::var_os("VOLGRAD_BENCH_GRIDS").map(PathBuf::from);
+    if let Some(kept) = &kept {
+        std::fs::create_dir_all(kept).expect("VOLGRAD_BENCH_GRIDS can be created");
+    }
+    let dir = kept.as_deref().unwrap_or(temporary.path());
 
     // The grids: the cloud upsampled, and the cloud with a far speck.
     let mut cases: Vec<(String, PathBuf)> = Vec::new();
@@ -120,11 +127,15 @@ fn main() {
             cases.push(("cloud (1/16 resolution)".into(), source.clone()));
             continue;
         }
+        let path = dir.join(format!("cloud-x{f}.vdb"));
+        if path.exists() {
+            cases.push((format!("cloud ×{f} per axis"), path));
+            continue;
+        }
         let start = Instant::now();
         let (bricks, transform) =
             upsample(&cloud.bricks, &cloud.transform, f).expect("upsampling fits");
         let grid = like(&cloud, bricks, transform);
-        let path = dir.path().join(format!("cloud-x{f}.vdb"));
         vdb::write_grids(&path, &[&grid], false, true).expect("grid written");
         eprintln!(
             "cloud ×{f}: {} leaves, written in {:.1} s",
@@ -149,7 +160,7 @@ fn main() {
             BrickMap::new(leaves, cloud.bricks.tiles().to_vec()),
             cloud.transform,
         );
-        let path = dir.path().join("cloud-speck.vdb");
+        let path = dir.join("cloud-speck.vdb");
         vdb::write_grids(&path, &[&grid], false, true).expect("grid written");
         cases.push(("cloud + speck 20,000 voxels away".into(), path));
     }
@@ -165,7 +176,7 @@ fn main() {
     let mut base_pps = None;
     let mut parts = Vec::new();
     for (i, (name, vdb_path)) in cases.iter().enumerate() {
-        let scene_path = scene_for(dir.path(), &format!("scene{i}"), vdb_path, &template);
+        let scene_path = scene_for(dir, &format!("scene{i}"), vdb_path, &template);
         let mut load = f64::MAX;
         let mut scene = None;
         for _ in 0..2 {
@@ -195,7 +206,7 @@ fn main() {
         );
         let spp_arg = spp.to_string();
         let scene_arg = scene_path.to_str().expect("utf-8 temp path");
-        let exr = dir.path().join(format!("render{i}.exr"));
+        let exr = dir.join(format!("render{i}.exr"));
         let peak_render = child_peak_mib(&[
             "render",
             scene_arg,
@@ -205,7 +216,7 @@ fn main() {
             exr.to_str().unwrap(),
             "--force",
         ]);
-        let out = dir.path().join(format!("grad{i}.vdb"));
+        let out = dir.join(format!("grad{i}.vdb"));
         let peak_grad = child_peak_mib(&[
             "grad",
             scene_arg,
@@ -260,7 +271,8 @@ fn load_parts(path: &Path, scene: &Scene) -> (f64, f64, f64) {
     let path = path.to_str().expect("utf-8 temp path");
     for _ in 0..2 {
         let start = Instant::now();
-        let data = ffi::read_float_grid(path, "density", -1, false).expect("grid reads");
+        let threads = rayon::current_num_threads() as u32;
+        let data = ffi::read_float_grid(path, "density", -1, false, threads).expect("grid reads");
         let bridge = start.elapsed().as_secs_f64();
         let start = Instant::now();
         let grid = vdb::Grid::from_data(data).expect("valid grid");

@@ -22,7 +22,7 @@ struct ImageData;
 rust::Vec<GridSummary> list_grids(rust::Str path);
 
 FloatGridData read_float_grid(rust::Str path, rust::Str name, std::int32_t index,
-                              bool level_set_to_fog);
+                              bool level_set_to_fog, std::uint32_t threads);
 
 void write_float_grids(rust::Str path, rust::Slice<const FloatGridData> grids, bool save_half);
 

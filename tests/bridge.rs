@@ -122,7 +122,7 @@ fn half(v: f32) -> f32 {
 }
 
 fn read_cloud() -> FloatGridData {
-    ffi::read_float_grid(&asset("wdas_cloud_sixteenth.vdb"), "density", -1, false).unwrap()
+    ffi::read_float_grid(&asset("wdas_cloud_sixteenth.vdb"), "density", -1, false, 2).unwrap()
 }
 
 // ------------------------------------------------------------------------------------------------
@@ -288,6 +288,23 @@ fn list_points_reports_non_float_grid() {
 // read_float_grid
 
 #[test]
+fn the_parallel_leaf_copy_is_the_same_at_any_thread_count() {
+    let path = asset("wdas_cloud_sixteenth.vdb");
+    let one = ffi::read_float_grid(&path, "density", -1, false, 1).unwrap();
+    let two = read_cloud();
+    let zero = ffi::read_float_grid(&path, "density", -1, false, 0).unwrap();
+    for g in [&two, &zero] {
+        assert_eq!(g.leaf_origins, one.leaf_origins);
+        assert_eq!(g.leaf_active, one.leaf_active);
+        assert!(g
+            .leaf_values
+            .iter()
+            .zip(&one.leaf_values)
+            .all(|(a, b)| a.to_bits() == b.to_bits()));
+    }
+}
+
+#[test]
 fn read_cloud_copies_leaves_and_tiles() {
     let g = read_cloud();
     assert_eq!(g.name, "density");
@@ -327,20 +344,20 @@ fn read_cloud_copies_leaves_and_tiles() {
 fn read_by_index_selects_among_repeated_names() {
     let path = asset("grids.vdb");
     let grids: Vec<FloatGridData> = (0..3)
-        .map(|i| ffi::read_float_grid(&path, "", i, false).unwrap())
+        .map(|i| ffi::read_float_grid(&path, "", i, false, 2).unwrap())
         .collect();
     let counts: Vec<u64> = grids.iter().map(active_voxels).collect();
     assert_eq!(counts, [491, 2222, 803]);
     assert!(grids.iter().all(|g| g.name == "density"));
     assert_ne!(leaves(&grids[0]), leaves(&grids[2]));
     // By name: the first grid with that name.
-    let by_name = ffi::read_float_grid(&path, "density", -1, false).unwrap();
+    let by_name = ffi::read_float_grid(&path, "density", -1, false, 2).unwrap();
     assert_eq!(leaves(&by_name), leaves(&grids[0]));
 }
 
 #[test]
 fn read_half_grid() {
-    let g = ffi::read_float_grid(&asset("smoke.vdb"), "density", -1, false).unwrap();
+    let g = ffi::read_float_grid(&asset("smoke.vdb"), "density", -1, false, 2).unwrap();
     assert!(g.saved_as_half);
     assert_eq!(active_voxels(&g), 1_049_275);
     // Stored as half: every value is exactly representable in f16.
@@ -363,7 +380,7 @@ fn round_trip_cloud() {
         .collect();
     assert_eq!(names, ["cloud.vdb"], "no temporary file is left behind");
 
-    let back = ffi::read_float_grid(path_str(&out), "density", -1, false).unwrap();
+    let back = ffi::read_float_grid(path_str(&out), "density", -1, false, 2).unwrap();
     assert_eq!(back.name, src.name);
     assert_eq!(back.grid_class, src.grid_class);
     assert_eq!(back.index_to_world, src.index_to_world);
@@ -394,7 +411,7 @@ fn round_trip_cloud_as_half() {
     ffi::write_float_grids(path_str(&full), std::slice::from_ref(&src), false).unwrap();
     ffi::write_float_grids(path_str(&halved), std::slice::from_ref(&src), true).unwrap();
 
-    let back = ffi::read_float_grid(path_str(&halved), "", 0, false).unwrap();
+    let back = ffi::read_float_grid(path_str(&halved), "", 0, false, 2).unwrap();
     assert!(back.saved_as_half);
     assert!(ffi::list_grids(path_str(&halved)).unwrap()[0].saved_as_half);
     assert_eq!(back.leaf_origins, src.leaf_origins);
@@ -496,7 +513,7 @@ fn round_trip_hand_built_grid() {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("hand.vdb");
     ffi::write_float_grids(path_str(&out), std::slice::from_ref(&src), false).unwrap();
-    let back = ffi::read_float_grid(path_str(&out), "hand", -1, false).unwrap();
+    let back = ffi::read_float_grid(path_str(&out), "hand", -1, false, 2).unwrap();
 
     assert_eq!(back.name, "hand");
     assert_eq!(back.grid_class, "fog volume");
@@ -558,8 +575,11 @@ fn written_grids_keep_their_order_and_repeated_names() {
         .map(|g| g.name)
         .collect();
     assert_eq!(names, ["zeta", "alpha", "zeta"]);
-    let tile_value =
-        |i: i32, name: &str| ffi::read_float_grid(p, name, i, false).unwrap().tile_values[0];
+    let tile_value = |i: i32, name: &str| {
+        ffi::read_float_grid(p, name, i, false, 2)
+            .unwrap()
+            .tile_values[0]
+    };
     assert_eq!(tile_value(0, ""), 0.75);
     assert_eq!(tile_value(1, ""), 0.25);
     assert_eq!(tile_value(2, ""), 2.0);
@@ -603,7 +623,7 @@ fn vdb_print_reads_written_file() {
 fn error_missing_file() {
     let e = err_text(ffi::list_grids("/no/such/dir/missing.vdb"));
     assert_eq!(e, "cannot open '/no/such/dir/missing.vdb': no such file");
-    let e = err_text(ffi::read_float_grid("missing.vdb", "density", -1, false));
+    let e = err_text(ffi::read_float_grid("missing.vdb", "density", -1, false, 2));
     assert!(
         e.contains("'missing.vdb'") && e.contains("no such file"),
         "{e}"
@@ -625,10 +645,10 @@ fn error_truncated_and_garbage_files() {
             )),
             "cut at {len}: {e}"
         );
-        assert!(ffi::read_float_grid(ps, "density", -1, false).is_err());
+        assert!(ffi::read_float_grid(ps, "density", -1, false, 2).is_err());
     }
     std::fs::write(&p, &bytes[..bytes.len() / 2]).unwrap();
-    let e = err_text(ffi::read_float_grid(ps, "density", -1, false));
+    let e = err_text(ffi::read_float_grid(ps, "density", -1, false, 2));
     assert!(e.contains("ends at byte"), "{e}");
 
     let mut state = 0x9e37_79b9_7f4a_7c15u64;
@@ -647,14 +667,14 @@ fn error_truncated_and_garbage_files() {
     let mut fake = bytes[..8].to_vec();
     fake.extend_from_slice(&garbage);
     std::fs::write(&p, &fake).unwrap();
-    let e = err_text(ffi::read_float_grid(ps, "density", -1, false));
+    let e = err_text(ffi::read_float_grid(ps, "density", -1, false, 2));
     assert!(e.contains("is not a valid VDB file"), "{e}");
 }
 
 #[test]
 fn error_unknown_grid_name_lists_names() {
     let p = asset("grids.vdb");
-    let e = err_text(ffi::read_float_grid(&p, "temperature", -1, false));
+    let e = err_text(ffi::read_float_grid(&p, "temperature", -1, false, 2));
     assert_eq!(
         e,
         format!("no grid named 'temperature' in '{p}' (grids: density, density, density)")
@@ -664,15 +684,15 @@ fn error_unknown_grid_name_lists_names() {
 #[test]
 fn error_index_out_of_range() {
     let p = asset("grids.vdb");
-    let e = err_text(ffi::read_float_grid(&p, "density", 5, false));
+    let e = err_text(ffi::read_float_grid(&p, "density", 5, false, 2));
     assert_eq!(e, format!("grid index 5 out of range: '{p}' has 3 grids"));
-    assert!(ffi::read_float_grid(&p, "density", 2, false).is_ok());
+    assert!(ffi::read_float_grid(&p, "density", 2, false, 2).is_ok());
 }
 
 #[test]
 fn error_points_grid_is_not_float() {
     let p = asset("points.vdb");
-    let e = err_text(ffi::read_float_grid(&p, "points", -1, false));
+    let e = err_text(ffi::read_float_grid(&p, "points", -1, false, 2));
     assert_eq!(
         e,
         format!("grid 'points' in '{p}' has value type ptdataidx32, not float")

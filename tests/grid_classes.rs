@@ -120,7 +120,7 @@ fn level_sets_round_trip_and_convert_with_sdf_to_fog_volume() {
     assert_eq!(summary.grid_class, "level set");
 
     // As stored: distances, the background the band's half-width.
-    let raw = ffi::read_float_grid(ps, "ls_ball", -1, false).unwrap();
+    let raw = ffi::read_float_grid(ps, "ls_ball", -1, false, 2).unwrap();
     assert_eq!(raw.grid_class, "level set");
     assert_eq!(raw.background, 1.5);
     assert_eq!(value_at(&raw, [5, 0, 0]), 0.0);
@@ -132,7 +132,7 @@ fn level_sets_round_trip_and_convert_with_sdf_to_fog_volume() {
 
     // Converted: 0 outside, a ramp over the interior half-band (1.5 world units = 3 voxels), 1
     // inside; background 0, class fog volume.
-    let fog = ffi::read_float_grid(ps, "ls_ball", -1, true).unwrap();
+    let fog = ffi::read_float_grid(ps, "ls_ball", -1, true, 2).unwrap();
     assert_eq!(fog.grid_class, "fog volume");
     assert_eq!(fog.background, 0.0);
     assert_eq!(value_at(&fog, [0, 0, 0]), 1.0);
@@ -141,10 +141,10 @@ fn level_sets_round_trip_and_convert_with_sdf_to_fog_volume() {
     assert!(fog.leaf_values.iter().all(|v| (0.0..=1.0).contains(v)));
     // Fog volumes are unaffected by the flag.
     let cloud = asset("wdas_cloud_sixteenth.vdb");
-    let a = ffi::read_float_grid(&cloud, "density", -1, true).unwrap();
+    let a = ffi::read_float_grid(&cloud, "density", -1, true, 2).unwrap();
     assert_eq!(
         a.leaf_values,
-        ffi::read_float_grid(&cloud, "density", -1, false)
+        ffi::read_float_grid(&cloud, "density", -1, false, 2)
             .unwrap()
             .leaf_values
     );
@@ -187,7 +187,7 @@ fn inactive_tiles_off_the_background_are_counted() {
     d.leaf_values.extend([0.7f32; 512]);
     d.leaf_active.extend([0u64; 8]);
     ffi::write_float_grids(path_str(&p), std::slice::from_ref(&d), false).unwrap();
-    let back = ffi::read_float_grid(path_str(&p), "hand", -1, false).unwrap();
+    let back = ffi::read_float_grid(path_str(&p), "hand", -1, false, 2).unwrap();
     assert_eq!(back.inactive_tiles_off_background, 1);
     assert_eq!(
         back.leaf_origins.len(),
@@ -203,7 +203,7 @@ fn backgrounds_round_trip() {
     let mut d = fog("hand");
     d.background = 0.25;
     ffi::write_float_grids(path_str(&p), std::slice::from_ref(&d), false).unwrap();
-    let back = ffi::read_float_grid(path_str(&p), "hand", -1, false).unwrap();
+    let back = ffi::read_float_grid(path_str(&p), "hand", -1, false, 2).unwrap();
     assert_eq!(back.background, 0.25);
 }
 
@@ -216,7 +216,7 @@ fn error_a_file_without_grids() {
     let holds_none = format!("'{}' holds no grids", path_str(&p));
     for (name, index) in [("density", -1), ("", 0)] {
         assert_eq!(
-            err_text(ffi::read_float_grid(path_str(&p), name, index, false)),
+            err_text(ffi::read_float_grid(path_str(&p), name, index, false, 2)),
             holds_none
         );
     }

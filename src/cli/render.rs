@@ -73,7 +73,9 @@ pub fn run(args: &Args) -> Result<()> {
     let png = exr.with_extension("png");
     refuse_overwrite(&exr, args.force)?;
     refuse_overwrite(&png, args.force)?;
+    let loading = std::time::Instant::now();
     let scene = load_scene(&args.scene, args.majorant, args.majorant_cell)?;
+    let load_seconds = loading.elapsed().as_secs_f64();
     let options = RenderOptions {
         spp: sampling.spp(&scene)?,
         seed: sampling.seed(&scene),
@@ -86,18 +88,24 @@ pub fn run(args: &Args) -> Result<()> {
     images::write_png(&png, &image, scene.settings.exposure)?;
     eprintln!("wrote {} and {}", exr.display(), png.display());
     if args.stats {
-        print_stats(&scene, &stats);
+        print_stats(&scene, &stats, load_seconds);
     }
     Ok(())
 }
 
-fn print_stats(scene: &Scene, stats: &RenderStats) {
+/// `load_seconds`: reading the scene and its grid and building the medium (brick map, majorant).
+fn print_stats(scene: &Scene, stats: &RenderStats, load_seconds: f64) {
     let m = &scene.medium;
     let t = &stats.tracking;
     let majorant = match scene.settings.majorant {
         MajorantMode::Global => "global".to_string(),
         MajorantMode::Grid => format!("grid, {}³-voxel cells", scene.settings.majorant_cell),
     };
+    let leaf_bytes = m.grid.leaves().len() * BRICK_VOXELS * 4;
+    println!(
+        "load                 {load_seconds:.3} s ({:.2} s per GiB of leaf values)",
+        load_seconds / (leaf_bytes.max(1) as f64 / (1u64 << 30) as f64)
+    );
     println!("wall time            {:.3} s", stats.wall.as_secs_f64());
     println!("paths                {}", stats.paths);
     println!("paths/s              {:.0}", stats.paths_per_second());
@@ -116,7 +124,6 @@ fn print_stats(scene: &Scene, stats: &RenderStats) {
         stats.tracking_efficiency()
     );
     println!("non-finite samples   {} (dropped)", stats.non_finite);
-    let leaf_bytes = m.grid.leaves().len() * BRICK_VOXELS * 4;
     println!(
         "memory               brick map {} = {:.3} × leaf values ({} leaves, {} tiles); majorant {}",
         bytes(m.grid.memory_bytes()),

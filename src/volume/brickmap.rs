@@ -9,6 +9,7 @@
 use std::collections::HashMap;
 
 use glam::{IVec3, Vec3};
+use rayon::prelude::*;
 
 use crate::volume::sparse_index::SparseIndex;
 
@@ -49,6 +50,8 @@ pub struct BrickMap {
     slots: SparseIndex,
     /// Inclusive bounding box of the active voxels; `None` for an empty grid.
     active_bounds: Option<(IVec3, IVec3)>,
+    /// The smallest and largest stored value, each with 0 (an empty grid's range is (0, 0)).
+    value_range: (f32, f32),
 }
 
 /// What a brick slot holds, resolved once so that neighbouring lookups can reuse it.
@@ -91,6 +94,7 @@ impl BrickMap {
             tiles,
             slots: SparseIndex::with_flat_budget(lo, hi, flat_budget),
             active_bounds,
+            value_range: (0.0, 0.0),
         };
         for (j, tile) in map.tiles.iter().enumerate() {
             let b0: IVec3 = tile.origin >> 3;
@@ -112,6 +116,7 @@ impl BrickMap {
             }
             None => false,
         });
+        map.value_range = value_range(&leaves, &map.tiles);
         map.leaves = leaves;
         map
     }
@@ -265,22 +270,12 @@ impl BrickMap {
 
     /// Largest stored value (0 for an empty grid).
     pub fn max_value(&self) -> f32 {
-        let leaf_max = self
-            .leaves
-            .iter()
-            .flat_map(|l| l.values.iter())
-            .fold(0.0f32, |m, &v| m.max(v));
-        self.tiles.iter().fold(leaf_max, |m, t| m.max(t.value))
+        self.value_range.1
     }
 
     /// Smallest stored value (0 for an empty grid).
     pub fn min_value(&self) -> f32 {
-        let leaf_min = self
-            .leaves
-            .iter()
-            .flat_map(|l| l.values.iter())
-            .fold(0.0f32, |m, &v| m.min(v));
-        self.tiles.iter().fold(leaf_min, |m, t| m.min(t.value))
+        self.value_range.0
     }
 
     pub fn active_voxel_count(&self) -> u64 {
@@ -345,6 +340,31 @@ fn leaf_corners(values: &[f32; BRICK_VOXELS], local: IVec3) -> [f32; 8] {
 
 /// Leaf offsets of the eight corners of a trilinear cell, relative to its base voxel.
 pub const CORNER_OFFSETS: [usize; 8] = [0, 1, 8, 9, 64, 65, 72, 73];
+
+/// The smallest and largest of the values and 0. Once, at construction: a load checks both, and
+/// a fold over every value is a chain of dependent min/max (≈ 25 ms per 100 MiB), so the leaves
+/// are scanned in parallel, each in eight independent lanes.
+fn value_range(leaves: &[Leaf], tiles: &[Tile]) -> (f32, f32) {
+    let widen = |a: (f32, f32), b: (f32, f32)| (a.0.min(b.0), a.1.max(b.1));
+    let in_leaves = leaves
+        .par_iter()
+        .map(|leaf| {
+            let (mut lo, mut hi) = ([0.0f32; 8], [0.0f32; 8]);
+            for lane in leaf.values.chunks_exact(8) {
+                for ((l, h), &v) in lo.iter_mut().zip(&mut hi).zip(lane) {
+                    *l = l.min(v);
+                    *h = h.max(v);
+                }
+            }
+            lo.iter()
+                .zip(&hi)
+                .fold((0.0, 0.0), |r, (&l, &h)| widen(r, (l, h)))
+        })
+        .reduce(|| (0.0, 0.0), widen);
+    tiles
+        .iter()
+        .fold(in_leaves, |r, t| widen(r, (t.value, t.value)))
+}
 
 fn active_bounds(leaves: &[Leaf], tiles: &[Tile]) -> Option<(IVec3, IVec3)> {
     let mut lo = IVec3::splat(i32::MAX);
@@ -439,6 +459,30 @@ mod tests {
         let m = ramp();
         assert_eq!(m.nearest(Vec3::new(2.49, 3.51, -0.49)), (2 + 40) as f32);
         assert_eq!(m.nearest(Vec3::new(7.6, 0.0, 0.0)), 8.0);
+    }
+
+    #[test]
+    fn the_value_range_spans_leaves_tiles_and_zero() {
+        // The ramp x + 10 y + 100 z over -4..16 in each axis.
+        let m = ramp();
+        assert_eq!((m.min_value(), m.max_value()), (-444.0, 1665.0));
+        let mut leaf = m.leaves()[0].clone();
+        leaf.values = [0.5; BRICK_VOXELS];
+        leaf.values[77] = 3.0;
+        let tile = Tile {
+            origin: IVec3::new(64, 0, 0),
+            size: 16,
+            value: 2.0,
+        };
+        let m = BrickMap::new(vec![leaf.clone()], vec![tile]);
+        assert_eq!((m.min_value(), m.max_value()), (0.0, 3.0));
+        let tile = Tile {
+            value: -7.0,
+            ..tile
+        };
+        let m = BrickMap::new(vec![leaf], vec![tile]);
+        assert_eq!((m.min_value(), m.max_value()), (-7.0, 3.0));
+        assert_eq!(BrickMap::new(Vec::new(), Vec::new()).max_value(), 0.0);
     }
 
     #[test]

@@ -13,8 +13,9 @@
 //! of the others.
 
 use glam::{IVec3, Vec3};
+use rayon::prelude::*;
 
-use crate::volume::brickmap::{BrickMap, BRICK_EDGE as BRICK_EDGE_VOXELS, BRICK_VOXELS};
+use crate::volume::brickmap::{BrickMap, Leaf, BRICK_EDGE as BRICK_EDGE_VOXELS};
 use crate::volume::hot_spots::HotSpots;
 use crate::volume::sparse_index::SparseIndex;
 
@@ -317,59 +318,19 @@ impl MajorantGrid {
         };
         // Per leaf, the maxima over each cell's share of it are gathered in a small local table
         // first and each cell is raised once: raising the footprint of every voxel (512 per leaf)
-        // made this build most of the load time of a large grid.
-        // The table covers the leaf's cells inside the medium's box (at most 12 per axis), in
-        // 64-bit arithmetic: a leaf at the edge of the i32 range must not wrap around.
-        let s64 = s as i64;
+        // made this build most of the load time of a large grid. The tables are independent, so
+        // they are gathered in parallel; raising stays in leaf order.
         let (box_lo, box_hi) = (builder.c_lo.as_i64vec3(), builder.c_hi.as_i64vec3());
-        let mut local = Vec::new();
-        for leaf in bricks.leaves() {
-            let origin = leaf.origin.as_i64vec3();
-            let first_cell = ((origin - 1).div_euclid(glam::I64Vec3::splat(s64))).max(box_lo);
-            let last_cell = ((origin + BRICK_EDGE_VOXELS as i64)
-                .div_euclid(glam::I64Vec3::splat(s64)))
-            .min(box_hi);
-            if first_cell.cmpgt(last_cell).any() {
-                continue;
-            }
-            let dims = (last_cell - first_cell + 1).as_ivec3();
-            local.clear();
-            local.resize(dims.x as usize * dims.y as usize * dims.z as usize, 0.0f32);
-            // Per axis, the local cells a voxel at leaf coordinate i reaches (an empty range
-            // where they all lie outside the box).
-            let reach: [[(usize, usize); 8]; 3] = std::array::from_fn(|a| {
-                std::array::from_fn(|i| {
-                    let v = origin[a] + i as i64;
-                    let lo = ((v - 1).div_euclid(s64) - first_cell[a]).max(0);
-                    let hi = ((v + 1).div_euclid(s64) - first_cell[a]).min(dims[a] as i64 - 1);
-                    if lo > hi {
-                        (1, 0)
-                    } else {
-                        (lo as usize, hi as usize)
-                    }
-                })
-            });
-            for o in 0..BRICK_VOXELS {
-                let value = leaf.values[o];
-                if value > 0.0 {
-                    let (x, y, z) = (o >> 6, (o >> 3) & 7, o & 7);
-                    for cx in reach[0][x].0..=reach[0][x].1 {
-                        for cy in reach[1][y].0..=reach[1][y].1 {
-                            for cz in reach[2][z].0..=reach[2][z].1 {
-                                let c = &mut local[cell_offset(
-                                    IVec3::new(cx as i32, cy as i32, cz as i32),
-                                    dims,
-                                )];
-                                *c = c.max(value);
-                            }
-                        }
-                    }
-                }
-            }
+        let tables: Vec<_> = bricks
+            .leaves()
+            .par_iter()
+            .filter_map(|leaf| leaf_cell_maxima(leaf, s, box_lo, box_hi))
+            .collect();
+        for (first_cell, dims, local) in tables {
             for (k, &value) in local.iter().enumerate() {
                 if value > 0.0 {
                     let k = k as i32;
-                    let cell = first_cell.as_ivec3()
+                    let cell = first_cell
                         + IVec3::new(k / (dims.y * dims.z), (k / dims.z) % dims.y, k % dims.z);
                     builder.raise(cell, cell, value * density_scale);
                 }
@@ -469,10 +430,79 @@ impl MajorantGrid {
     }
 }
 
+/// The most cells a leaf's apron-grown footprint spans per axis ((8 + 2) voxels, one cell each).
+const MAX_LEAF_CELLS: usize = 12;
+
+/// The maxima of `leaf`'s values over each majorant cell's apron-grown share of it (cells of `s`³
+/// voxels inside the box `box_lo..=box_hi`, at most 12 per axis): the first cell, the table's
+/// dimensions and the table, x-major. `None` when the leaf reaches no cell of the box.
+/// 64-bit arithmetic: a leaf at the edge of the i32 range must not wrap around.
+fn leaf_cell_maxima(
+    leaf: &Leaf,
+    s: i32,
+    box_lo: glam::I64Vec3,
+    box_hi: glam::I64Vec3,
+) -> Option<(IVec3, IVec3, Vec<f32>)> {
+    let s64 = s as i64;
+    let origin = leaf.origin.as_i64vec3();
+    let first_cell = ((origin - 1).div_euclid(glam::I64Vec3::splat(s64))).max(box_lo);
+    let last_cell =
+        ((origin + BRICK_EDGE_VOXELS as i64).div_euclid(glam::I64Vec3::splat(s64))).min(box_hi);
+    if first_cell.cmpgt(last_cell).any() {
+        return None;
+    }
+    let dims = (last_cell - first_cell + 1).as_ivec3();
+    let (dx, dy, dz) = (dims.x as usize, dims.y as usize, dims.z as usize);
+    // Per axis, the local cells a voxel at leaf coordinate i reaches (an empty range where they
+    // all lie outside the box).
+    let reach: [[std::ops::Range<usize>; 8]; 3] = std::array::from_fn(|a| {
+        std::array::from_fn(|i| {
+            let v = origin[a] + i as i64;
+            let lo = ((v - 1).div_euclid(s64) - first_cell[a]).max(0);
+            let end = ((v + 1).div_euclid(s64) - first_cell[a] + 1).min(dims[a] as i64);
+            lo as usize..end.max(lo) as usize
+        })
+    });
+    // A cell's maximum is separable: reduce z into cells, then y, then x (each voxel is read
+    // once; raising every cell a voxel reaches cost three times as much).
+    let mut along_z = [0.0f32; 8 * 8 * MAX_LEAF_CELLS];
+    for (row, values) in leaf.values.chunks_exact(8).enumerate() {
+        let out = &mut along_z[row * dz..(row + 1) * dz];
+        for (z, &value) in values.iter().enumerate() {
+            for c in reach[2][z].clone() {
+                out[c] = out[c].max(value);
+            }
+        }
+    }
+    let mut along_yz = [0.0f32; 8 * MAX_LEAF_CELLS * MAX_LEAF_CELLS];
+    for x in 0..8 {
+        for y in 0..8 {
+            let from = &along_z[(x * 8 + y) * dz..(x * 8 + y + 1) * dz];
+            for cy in reach[1][y].clone() {
+                let out = &mut along_yz[(x * dy + cy) * dz..(x * dy + cy + 1) * dz];
+                for (o, &m) in out.iter_mut().zip(from) {
+                    *o = o.max(m);
+                }
+            }
+        }
+    }
+    let mut local = vec![0.0f32; dx * dy * dz];
+    for (x, cells) in reach[0].iter().enumerate() {
+        let from = &along_yz[x * dy * dz..(x + 1) * dy * dz];
+        for cx in cells.clone() {
+            let out = &mut local[cx * dy * dz..(cx + 1) * dy * dz];
+            for (o, &m) in out.iter_mut().zip(from) {
+                *o = o.max(m);
+            }
+        }
+    }
+    Some((first_cell.as_ivec3(), dims, local))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::volume::brickmap::BrickMapBuilder;
+    use crate::volume::brickmap::{BrickMapBuilder, BRICK_VOXELS};
 
     #[test]
     fn majorant_bounds_every_trilinear_lookup() {
@@ -585,6 +615,54 @@ mod tests {
                     || b.cells
                         .as_ref()
                         .is_some_and(|c| c.iter().any(|&x| x >= 2.0))));
+            }
+        }
+    }
+
+    #[test]
+    fn a_leaf_cell_maximum_is_the_max_over_the_cells_apron() {
+        // The separable reduction against the definition: cell c (edge s) takes the largest value
+        // of the leaf's voxels v with c·s − 1 ≤ v ≤ c·s + s per axis, and 0 when none is > 0.
+        let mut state = 99u64;
+        let mut r = || {
+            state = state
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            (state >> 40) as f32 / (1u64 << 24) as f32
+        };
+        for s in [1, 2, 3, 4, 8] {
+            for origin in [IVec3::ZERO, IVec3::new(-8, 16, 40), IVec3::new(8, -24, 0)] {
+                let mut leaf = Leaf {
+                    origin,
+                    values: [0.0; BRICK_VOXELS],
+                    active: [u64::MAX; 8],
+                };
+                for v in leaf.values.iter_mut() {
+                    let x = r();
+                    *v = if x < 0.3 { 0.0 } else { 4.0 * x - 1.5 };
+                }
+                // A box that cuts the leaf's cells on some sides.
+                let box_lo = (origin.as_i64vec3() / s as i64) - glam::I64Vec3::new(1, 0, 1);
+                let box_hi = (origin.as_i64vec3() / s as i64) + glam::I64Vec3::new(9, 1, 9);
+                let (first, dims, table) = leaf_cell_maxima(&leaf, s, box_lo, box_hi).unwrap();
+                for (k, &got) in table.iter().enumerate() {
+                    let k = k as i32;
+                    let cell = first
+                        + IVec3::new(k / (dims.y * dims.z), (k / dims.z) % dims.y, k % dims.z);
+                    let (lo, hi) = (cell * s - 1, cell * s + s);
+                    let mut expected = 0.0f32;
+                    for (i, &v) in leaf.values.iter().enumerate() {
+                        let voxel = origin
+                            + IVec3::new((i >> 6) as i32, ((i >> 3) & 7) as i32, (i & 7) as i32);
+                        if voxel.cmpge(lo).all() && voxel.cmple(hi).all() {
+                            expected = expected.max(v);
+                        }
+                    }
+                    assert_eq!(got, expected, "cell {cell} (edge {s}, leaf at {origin})");
+                }
+                // The table covers exactly the cells the leaf reaches inside the box.
+                let reach_lo = (origin.as_i64vec3() - 1).div_euclid(glam::I64Vec3::splat(s as i64));
+                assert_eq!(first.as_i64vec3(), reach_lo.max(box_lo));
             }
         }
     }
