@@ -12,5 +12,6 @@ pub mod problem;
 pub mod reconstruct;
 pub mod resample;
 pub mod run_file;
+pub mod smoothing;
 pub mod study;
 pub mod views;

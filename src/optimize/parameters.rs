@@ -4,12 +4,11 @@
 //! memory of the unknown follows the volume's extent, not its bounding box (DESIGN.md, "Inverse
 //! rendering").
 
-use std::collections::HashMap;
-
 use anyhow::{bail, Result};
 use glam::IVec3;
 
 use crate::volume::brickmap::{leaf_offset, BrickMap, Leaf, BRICK_VOXELS};
+use crate::volume::sparse_index::KeyMap;
 
 /// The most voxels `from_grid` voxelises from tiles (2^28: 3 GiB of θ and moments).
 pub const MAX_VOXELS: u64 = 1 << 28;
@@ -69,7 +68,7 @@ pub(crate) fn local_of(i: usize) -> IVec3 {
 /// The grid's values θ and Adam's state, sparse by brick (keyed by brick coordinate, voxel >> 3).
 #[derive(Clone, Default)]
 pub struct Parameters {
-    bricks: HashMap<IVec3, Box<ParameterBrick>>,
+    bricks: KeyMap<Box<ParameterBrick>>,
     /// Adam steps taken (t in the bias corrections).
     steps: u32,
 }
@@ -173,15 +172,30 @@ impl Parameters {
     /// θ ← max(0, θ − lr · (m / (1 − β1ᵗ)) / (√(v / (1 − β2ᵗ)) + ε)).
     pub fn adam_step(&mut self, adam: &Adam, gradient: impl IntoIterator<Item = (IVec3, f64)>) {
         self.steps += 1;
-        let mut touched: HashMap<IVec3, Box<[f32; BRICK_VOXELS]>> = HashMap::new();
+        // Gradients arrive brick by brick (the gradient grid's and the prior's order), so the
+        // brick of the previous voxel is remembered instead of hashing every voxel's key.
+        let mut touched: KeyMap<Box<[f32; BRICK_VOXELS]>> = KeyMap::default();
+        let mut current: Option<(IVec3, Box<[f32; BRICK_VOXELS]>)> = None;
         for (voxel, g) in gradient {
             let g = g as f32;
             if g != 0.0 && g.is_finite() {
-                let brick = touched
-                    .entry(voxel >> 3)
-                    .or_insert_with(|| Box::new([0.0; BRICK_VOXELS]));
-                brick[leaf_offset(voxel & 7)] += g;
+                let key = voxel >> 3;
+                if current.as_ref().is_none_or(|(k, _)| *k != key) {
+                    if let Some((k, brick)) = current.take() {
+                        touched.insert(k, brick);
+                    }
+                    let brick = touched
+                        .remove(&key)
+                        .unwrap_or_else(|| Box::new([0.0; BRICK_VOXELS]));
+                    current = Some((key, brick));
+                }
+                if let Some((_, brick)) = &mut current {
+                    brick[leaf_offset(voxel & 7)] += g;
+                }
             }
+        }
+        if let Some((k, brick)) = current {
+            touched.insert(k, brick);
         }
         for &key in touched.keys() {
             self.brick(key);
@@ -205,7 +219,7 @@ impl Parameters {
     }
 
     /// Drops the bricks whose θ is all 0 and which are not in `keep`.
-    fn drop_empty<T>(&mut self, keep: &HashMap<IVec3, T>) {
+    fn drop_empty<T>(&mut self, keep: &KeyMap<T>) {
         self.bricks
             .retain(|key, b| keep.contains_key(key) || b.theta.iter().any(|&x| x > 0.0));
     }
@@ -233,7 +247,7 @@ impl Parameters {
 
     /// Drops the bricks that hold only zeros (after building a grid voxel by voxel).
     pub fn prune(&mut self) {
-        self.drop_empty(&HashMap::<IVec3, ()>::new());
+        self.drop_empty(&KeyMap::<()>::default());
     }
 
     /// The brick keys in (x, y, z) order, which does not depend on the hash map's.

@@ -113,6 +113,8 @@ pub struct Settings {
     pub spp: u32,
     pub max_depth: u32,
     pub prior: Option<Prior>,
+    /// Gradient smoothing at the finer levels (`smoothing::smooth`).
+    pub smooth_gradient: bool,
     pub moments: Moments,
     /// Fractions of the budget at which level k + 1 begins.
     pub level_starts: Vec<f32>,
@@ -272,6 +274,7 @@ impl Problem {
             spp: o.spp,
             max_depth: scene.settings.max_depth,
             prior: o.prior(),
+            smooth_gradient: o.smooth_gradient,
             moments: file.unknown.moments,
             level_starts: file.unknown.levels.clone(),
             iterations: o.iterations,

@@ -5,6 +5,7 @@
 //! 3. for each view of a batch (reshuffled each epoch): a primal render and the adjoint image
 //!    δ = ∂loss/∂pixel, then the estimator's gradient pass (independent random streams), averaged
 //!    over the batch; plus the prior's gradient;
+//!    at the finer levels the gradient is smoothed (`smoothing`: a preconditioner);
 //! 4. one Adam step with θ ≥ 0 kept by projection; bricks that stay at 0 are dropped.
 //!
 //! Every random number is a function of (seed, iteration, view slot, pixel, sample) and every
@@ -33,6 +34,7 @@ use crate::optimize::log::LogRow;
 use crate::optimize::parameters::{Adam, Parameters};
 use crate::optimize::problem::Problem;
 use crate::optimize::resample::upsample;
+use crate::optimize::smoothing::smooth;
 use crate::render::sampling::pixel_rng;
 use crate::render::scene::Scene;
 
@@ -140,6 +142,7 @@ pub fn reconstruct(problem: &Problem, options: &RunOptions) -> Result<Outcome> {
             &mut parameters,
             options.estimator,
             position.iteration,
+            level,
             &adam,
         )?;
         position.iteration += 1;
@@ -225,6 +228,7 @@ fn step(
     parameters: &mut Parameters,
     estimator: Estimator,
     iteration: u64,
+    level: usize,
     adam: &Adam,
 ) -> Result<f64> {
     let s = &problem.settings;
@@ -245,7 +249,10 @@ fn step(
     let (prior_value, prior_gradient) = s
         .prior
         .map_or((0.0, Vec::new()), |p| p.evaluate(parameters));
-    parameters.adam_step(adam, total.voxels().chain(prior_gradient));
+    let passes = if s.smooth_gradient { level as u32 } else { 0 };
+    let (lo, hi) = problem.domain.voxel_box(level);
+    let data_gradient = smooth(total.voxels(), passes, lo, hi);
+    parameters.adam_step(adam, data_gradient.into_iter().chain(prior_gradient));
     Ok(loss + prior_value)
 }
 

@@ -191,6 +191,9 @@ pub struct OptimizerFile {
     #[serde(default = "default_iterations")]
     pub iterations: u32,
     pub prior: Option<PriorFile>,
+    /// Filter the gradient with [1 2 1]/4 per axis, once per upsampling done (`smoothing`).
+    #[serde(default = "default_smooth_gradient")]
+    pub smooth_gradient: bool,
 }
 
 impl Default for OptimizerFile {
@@ -216,6 +219,9 @@ fn default_lr_decay() -> f32 {
 }
 fn default_level_lr() -> f32 {
     0.5
+}
+fn default_smooth_gradient() -> bool {
+    true
 }
 fn default_loss() -> Loss {
     Loss::L2
