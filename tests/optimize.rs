@@ -454,6 +454,10 @@ fn bad_run_files_name_the_key() {
         (good.replace("lr = 0.1", "lr = 0"), vec!["optimizer.lr"]),
         (good.replace("lr = 0.1", "lr = -2"), vec!["optimizer.lr"]),
         (
+            good.replace("batch = 3", "batch = 3\nsmooth_gradient = 2"),
+            vec!["smooth_gradient"],
+        ),
+        (
             good.replace(
                 "start = 0.1",
                 "start = 0.1\nlevels = [0.5]\nstart_voxel_size = 3.0",
