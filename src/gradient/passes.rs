@@ -156,10 +156,23 @@ struct Worker {
     non_finite: u64,
 }
 
-/// Paths per unit of work in a pass: a unit is a run of whole pixels in row-major order, about
-/// 2¹⁴ paths, so that its recorded samples stay near 25 MB at any spp and a 256² image at 4 spp
-/// still makes 16 units to share among the threads.
+/// Paths per unit of work in a pass at most: a unit is a run of whole pixels in row-major order,
+/// and its recorded samples stay near 25 MB at any spp.
 const PATHS_PER_UNIT: u64 = 1 << 14;
+
+/// Units a pass is cut into at least (while a unit keeps a pixel): the passes of an optimisation
+/// are small (a 32² view at 8 spp is half of `PATHS_PER_UNIT`), and a pass of one or two units
+/// runs on one thread, or waits for the slower half of the image.
+const MIN_UNITS: u64 = 64;
+
+/// Pixels per unit of a pass over `pixels` pixels at `spp`: at most `PATHS_PER_UNIT` paths and
+/// at least `MIN_UNITS` units, while a unit keeps a whole pixel. A function of the image and spp
+/// only, never of the thread count.
+fn unit_pixels(pixels: u64, spp: u32) -> u64 {
+    (PATHS_PER_UNIT / spp.max(1) as u64)
+        .min(pixels.div_ceil(MIN_UNITS))
+        .max(1)
+}
 
 /// The units finished so far and the next one `consume` is waiting for.
 struct InOrder<T, C> {
@@ -189,7 +202,7 @@ fn over_pixels<T: Send>(
     let start = Instant::now();
     let (w, h) = (scene.camera.width, scene.camera.height);
     let pixels = w as u64 * h as u64;
-    let unit_pixels = (PATHS_PER_UNIT / spp.max(1) as u64).max(1);
+    let unit_pixels = unit_pixels(pixels, spp);
     let units = pixels.div_ceil(unit_pixels);
     let bar = crate::io::progress::bar(progress, pixels, what);
     let next_unit = AtomicU64::new(0);
@@ -363,4 +376,36 @@ pub fn derivative_image(
         },
     );
     (image, stats)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_pass_is_cut_into_enough_units_of_bounded_size() {
+        // (width × height, spp): an optimisation's small views, the cloud's render, a 1-pixel
+        // image, a huge spp.
+        for (pixels, spp) in [
+            (32 * 32, 8),
+            (64 * 64, 8),
+            (256 * 256, 4),
+            (1, 1),
+            (50, 1 << 20),
+        ] {
+            let unit = unit_pixels(pixels, spp);
+            let units = pixels.div_ceil(unit);
+            assert!(unit >= 1);
+            assert!(
+                units >= MIN_UNITS.min(pixels),
+                "{pixels} px at {spp} spp: {units} units"
+            );
+            assert!(
+                unit == 1 || unit * spp as u64 <= PATHS_PER_UNIT,
+                "{pixels} px: {unit}"
+            );
+        }
+        // A 32² view at 8 spp, 8192 paths, was one unit: one thread did the whole pass.
+        assert_eq!(unit_pixels(32 * 32, 8), 16);
+    }
 }
