@@ -205,7 +205,8 @@ fn a_run_started_at_the_truth_stays_near_it() {
 /// writes read back through OpenVDB with their metadata.
 #[test]
 fn a_resumed_run_equals_the_uninterrupted_one_bit_for_bit() {
-    let run = run_file("0.2", "spp = 2\niterations = 12")
+    // The global scale on, so that its moments cross the checkpoint and the upsampling too.
+    let run = run_file("0.2", "spp = 2\niterations = 12\nfit_scale = true")
         .replace("checkpoint_every = 50", "checkpoint_every = 4")
         .replace("start = 0.2", "start = 0.2\nlevels = [0.5]");
     let dir = fixture(&run);
@@ -456,6 +457,10 @@ fn bad_run_files_name_the_key() {
         (
             good.replace("batch = 3", "batch = 3\nsmooth_gradient = 2"),
             vec!["smooth_gradient"],
+        ),
+        (
+            good.replace("batch = 3", "batch = 3\nfit_scale = \"yes\""),
+            vec!["fit_scale"],
         ),
         (
             good.replace(

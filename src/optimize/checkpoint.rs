@@ -1,10 +1,11 @@
 //! Checkpoints: θ as a VDB anyone can open (`checkpoint-NNNN.vdb`, `final.vdb`), and beside it the
 //! optimiser's whole state (`checkpoint-NNNN.state`): θ and Adam's moments bit for bit, the step
-//! count, the iteration, level and clocks, and the log so far, so that `--resume` continues
-//! exactly where the run stopped.
+//! count and the global scale's moments, the iteration, level and clocks, and the log so far, so
+//! that `--resume` continues exactly where the run stopped.
 //!
-//! The state file is little-endian binary: the magic line, the run's fingerprint, the counters,
-//! the log text, then the bricks in key order (origin as 3 × i32, then θ, m, v as 512 × f32 each).
+//! The state file is little-endian binary: the magic line, the run's fingerprint, the counters and
+//! the global scale's (m, v), the log text, then the bricks in key order (origin as 3 × i32, then
+//! θ, m, v as 512 × f32 each).
 
 use std::io::{BufReader, BufWriter, Read, Write};
 use std::path::{Path, PathBuf};
@@ -14,11 +15,11 @@ use glam::IVec3;
 
 use crate::io::bridge::MetaEntry;
 use crate::io::vdb::{self, Grid};
-use crate::optimize::parameters::Parameters;
+use crate::optimize::parameters::{Parameters, ScalarMoments};
 use crate::volume::brickmap::BRICK_VOXELS;
 use crate::volume::transform::IndexTransform;
 
-const MAGIC: &[u8] = b"volgrad optimizer state 1\n";
+const MAGIC: &[u8] = b"volgrad optimizer state 2\n";
 
 /// Where a run is, apart from θ and Adam's moments.
 #[derive(Debug, Clone, Default, PartialEq)]
@@ -84,6 +85,9 @@ pub fn write_state(
         w.write_all(&position.iteration.to_le_bytes())?;
         w.write_all(&position.level.to_le_bytes())?;
         w.write_all(&parameters.steps().to_le_bytes())?;
+        let scale = parameters.scale_moments();
+        w.write_all(&scale.m.to_le_bytes())?;
+        w.write_all(&scale.v.to_le_bytes())?;
         w.write_all(&position.optimisation_seconds.to_le_bytes())?;
         w.write_all(&position.evaluation_seconds.to_le_bytes())?;
         write_text(&mut w, &position.log)?;
@@ -138,6 +142,13 @@ pub fn read_state(path: &Path, fingerprint: &str) -> Result<(Position, Parameter
         let iteration = u64::from_le_bytes(read_array(&mut r)?);
         let level = u32::from_le_bytes(read_array(&mut r)?);
         let steps = u32::from_le_bytes(read_array(&mut r)?);
+        let scale = ScalarMoments {
+            m: f32::from_le_bytes(read_array(&mut r)?),
+            v: f32::from_le_bytes(read_array(&mut r)?),
+        };
+        if !(scale.m.is_finite() && scale.v.is_finite()) {
+            bail!("non-finite moments of the global scale");
+        }
         let optimisation_seconds = f64::from_le_bytes(read_array(&mut r)?);
         let evaluation_seconds = f64::from_le_bytes(read_array(&mut r)?);
         let log = read_text(&mut r, size)?;
@@ -164,7 +175,7 @@ pub fn read_state(path: &Path, fingerprint: &str) -> Result<(Position, Parameter
             let [theta, m, v] = arrays;
             p.insert_brick(IVec3::from_array(key), theta, m, v);
         }
-        p.set_steps(steps);
+        p.set_steps(steps, scale);
         let position = Position {
             iteration,
             level,
@@ -217,13 +228,20 @@ pub fn write_grid(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::optimize::parameters::Adam;
 
     #[test]
     fn state_round_trips_bit_for_bit_and_refuses_other_runs() {
         let dir = tempfile::tempdir().unwrap();
         let mut p = Parameters::default();
         p.set(IVec3::new(-9, 3, 100), 0.25);
-        p.adam_step(&Default::default(), [(IVec3::new(1, 2, 3), -0.5)]);
+        // With the global scale, so that its moments are not 0 (θ·g = 0.25 · 0.5 at the first voxel).
+        let adam = Adam {
+            fit_scale: true,
+            ..Default::default()
+        };
+        let gradient = [(IVec3::new(-9, 3, 100), 0.5), (IVec3::new(1, 2, 3), -0.5)];
+        p.adam_step(&adam, gradient);
         let position = Position {
             iteration: 42,
             level: 1,
@@ -236,6 +254,8 @@ mod tests {
         let (back, q) = read_state(&path, "abc").unwrap();
         assert_eq!(back, position);
         assert_eq!(q.steps(), p.steps());
+        assert_ne!(p.scale_moments(), ScalarMoments::default());
+        assert_eq!(q.scale_moments(), p.scale_moments());
         let bits = |p: &Parameters| -> Vec<u32> {
             p.sorted_bricks()
                 .into_iter()

@@ -20,6 +20,11 @@ pub struct Adam {
     pub beta1: f32,
     pub beta2: f32,
     pub epsilon: f32,
+    /// Also fit one global log-scale u of θ (θ ← θ·e^Δu with its own Adam moments) in every step.
+    /// Its gradient ∂loss/∂u = Σ θ·g sums every voxel's, so it is nearly noise-free where each
+    /// voxel's is mostly noise: the overall density of an optically thick medium, which per-voxel
+    /// steps find slowly (each voxel's share of that signal is below its noise), comes at once.
+    pub fit_scale: bool,
 }
 
 impl Default for Adam {
@@ -29,8 +34,46 @@ impl Default for Adam {
             beta1: 0.9,
             beta2: 0.999,
             epsilon: 1e-8,
+            fit_scale: false,
         }
     }
+}
+
+/// Adam at step t, with the bias corrections 1 − β1ᵗ and 1 − β2ᵗ computed once for all voxels.
+struct AdamStep {
+    adam: Adam,
+    correct1: f32,
+    correct2: f32,
+}
+
+impl AdamStep {
+    fn new(adam: &Adam, t: u32) -> Self {
+        AdamStep {
+            adam: *adam,
+            correct1: 1.0 - adam.beta1.powi(t as i32),
+            correct2: 1.0 - adam.beta2.powi(t as i32),
+        }
+    }
+
+    /// One update of a parameter's moments (m, v) by the gradient g; returns the new moments and
+    /// the step to subtract: lr · (m / (1 − β1ᵗ)) / (√(v / (1 − β2ᵗ)) + ε).
+    fn update(&self, m: f32, v: f32, g: f32) -> (f32, f32, f32) {
+        let a = &self.adam;
+        let m = a.beta1 * m + (1.0 - a.beta1) * g;
+        let v = a.beta2 * v + (1.0 - a.beta2) * g * g;
+        (
+            m,
+            v,
+            a.lr * (m / self.correct1) / ((v / self.correct2).sqrt() + a.epsilon),
+        )
+    }
+}
+
+/// Adam's moments of one scalar parameter.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct ScalarMoments {
+    pub m: f32,
+    pub v: f32,
 }
 
 /// One brick of the unknown: values and Adam's first and second moments, voxel order as OpenVDB's
@@ -71,6 +114,8 @@ pub struct Parameters {
     bricks: KeyMap<Box<ParameterBrick>>,
     /// Adam steps taken (t in the bias corrections).
     steps: u32,
+    /// The moments of the global log-scale (`Adam::fit_scale`).
+    scale: ScalarMoments,
 }
 
 impl Parameters {
@@ -169,7 +214,9 @@ impl Parameters {
     /// gradient are dropped with their moments.
     ///
     /// m ← β1·m + (1 − β1)·g,  v ← β2·v + (1 − β2)·g²,
-    /// θ ← max(0, θ − lr · (m / (1 − β1ᵗ)) / (√(v / (1 − β2ᵗ)) + ε)).
+    /// θ ← max(0, θ·e^Δu − lr · (m / (1 − β1ᵗ)) / (√(v / (1 − β2ᵗ)) + ε)),
+    /// where Δu is the same Adam step of the global log-scale u, whose gradient is Σ θ·g, when
+    /// `adam.fit_scale` (else Δu = 0).
     pub fn adam_step(&mut self, adam: &Adam, gradient: impl IntoIterator<Item = (IVec3, f64)>) {
         self.steps += 1;
         // Gradients arrive brick by brick (the gradient grid's and the prior's order), so the
@@ -200,22 +247,43 @@ impl Parameters {
         for &key in touched.keys() {
             self.brick(key);
         }
-        let t = self.steps as i32;
-        let correct1 = 1.0 - adam.beta1.powi(t);
-        let correct2 = 1.0 - adam.beta2.powi(t);
+        let at = AdamStep::new(adam, self.steps);
+        let scale = if adam.fit_scale {
+            let (m, v, step) = at.update(self.scale.m, self.scale.v, self.scale_gradient(&touched));
+            self.scale = ScalarMoments { m, v };
+            (-step).exp()
+        } else {
+            1.0
+        };
         let zero = [0.0f32; BRICK_VOXELS];
         for (key, brick) in self.bricks.iter_mut() {
             let grads = touched.get(key).map_or(&zero, |g| &**g);
             for (i, &g) in grads.iter().enumerate() {
-                let m = adam.beta1 * brick.m[i] + (1.0 - adam.beta1) * g;
-                let v = adam.beta2 * brick.v[i] + (1.0 - adam.beta2) * g * g;
+                let (m, v, step) = at.update(brick.m[i], brick.v[i], g);
                 brick.m[i] = m;
                 brick.v[i] = v;
-                let step = adam.lr * (m / correct1) / ((v / correct2).sqrt() + adam.epsilon);
-                brick.theta[i] = (brick.theta[i] - step).max(0.0);
+                brick.theta[i] = (brick.theta[i] * scale - step).max(0.0);
             }
         }
         self.drop_empty(&touched);
+    }
+
+    /// ∂loss/∂u of θ·e^u at u = 0: Σ θ·g over the voxels that got gradient (summed in f64, in
+    /// key order, so that it does not depend on the hash map's order).
+    fn scale_gradient(&self, gradient: &KeyMap<Box<[f32; BRICK_VOXELS]>>) -> f32 {
+        let mut keys: Vec<&IVec3> = gradient.keys().collect();
+        keys.sort_by_key(|k| k.to_array());
+        let sum: f64 = keys
+            .into_iter()
+            .filter_map(|key| Some((self.bricks.get(key)?, &gradient[key])))
+            .map(|(brick, g)| {
+                let terms = brick.theta.iter().zip(g.iter());
+                terms
+                    .map(|(&t, &g)| f64::from(t) * f64::from(g))
+                    .sum::<f64>()
+            })
+            .sum();
+        sum as f32
     }
 
     /// Drops the bricks whose θ is all 0 and which are not in `keep`.
@@ -240,9 +308,11 @@ impl Parameters {
         brick.v[i] = v.max(0.0);
     }
 
-    /// Continues the step count of `other` (Adam's bias corrections), e.g. after resampling.
+    /// Continues the step count of `other` (Adam's bias corrections) and the global scale's
+    /// moments, e.g. after resampling: u is the same parameter at any resolution.
     pub fn continue_steps_of(&mut self, other: &Parameters) {
         self.steps = other.steps;
+        self.scale = other.scale;
     }
 
     /// Drops the bricks that hold only zeros (after building a grid voxel by voxel).
@@ -301,9 +371,15 @@ impl Parameters {
         );
     }
 
-    /// Restores Adam's step count (a checkpoint's).
-    pub fn set_steps(&mut self, steps: u32) {
+    /// The global scale's moments (what a checkpoint stores).
+    pub fn scale_moments(&self) -> ScalarMoments {
+        self.scale
+    }
+
+    /// Restores Adam's step count and the global scale's moments (a checkpoint's).
+    pub fn set_steps(&mut self, steps: u32, scale: ScalarMoments) {
         self.steps = steps;
+        self.scale = scale;
     }
 }
 
@@ -319,6 +395,7 @@ mod tests {
             beta1: 0.9,
             beta2: 0.99,
             epsilon: 1e-8,
+            fit_scale: false,
         };
         let v = IVec3::new(3, -2, 9);
         let mut p = Parameters::default();
@@ -336,6 +413,70 @@ mod tests {
             p.get(v)
         );
         assert_eq!(p.steps(), 2);
+    }
+
+    /// The global scale's step by hand: one voxel θ = 2 with gradient 0.5, so ∂loss/∂u = θ·g = 1.
+    #[test]
+    fn the_global_scale_matches_a_hand_computed_step() {
+        let adam = Adam {
+            lr: 0.1,
+            beta1: 0.9,
+            beta2: 0.99,
+            epsilon: 1e-8,
+            fit_scale: true,
+        };
+        let v = IVec3::new(0, 5, 1);
+        let mut p = Parameters::default();
+        p.set(v, 2.0);
+        p.adam_step(&adam, [(v, 0.5)]);
+        // t = 1: the scale's m̂ = 1, v̂ = 1, Δu = −0.1; the voxel's m̂ = 0.5, v̂ = 0.25, step 0.1.
+        let expected = 2.0 * (-0.1f64).exp() - 0.1;
+        assert!((p.get(v) as f64 - expected).abs() < 1e-6, "{}", p.get(v));
+        let ScalarMoments { m, v } = p.scale_moments();
+        assert!((m - 0.1).abs() < 1e-6 && (v - 0.01).abs() < 1e-6, "{m} {v}");
+    }
+
+    /// What the global scale is for: a medium whose every voxel is 2.5× too thin, each voxel's
+    /// gradient 10× noisier than its signal. Per-voxel steps alone barely move the mean; with the
+    /// scale (whose gradient sums the signal of all voxels) it reaches the truth's.
+    #[test]
+    fn the_global_scale_finds_the_overall_density_under_per_voxel_noise() {
+        use rand::{Rng, SeedableRng};
+        let truth = |i: i32| 0.5 + 0.25 * (i as f32 * 0.37).sin();
+        let voxels: Vec<IVec3> = (0..4096)
+            .map(|i| IVec3::new(i & 15, (i >> 4) & 15, i >> 8))
+            .collect();
+        let mean_error = |fit_scale: bool| {
+            let adam = Adam {
+                lr: 0.01,
+                fit_scale,
+                ..Adam::default()
+            };
+            let mut p = Parameters::default();
+            for (i, &v) in voxels.iter().enumerate() {
+                p.set(v, truth(i as i32) / 2.5);
+            }
+            let mut rng = rand::rngs::SmallRng::seed_from_u64(7);
+            for _ in 0..300 {
+                let gradient: Vec<(IVec3, f64)> = voxels
+                    .iter()
+                    .enumerate()
+                    .map(|(i, &v)| {
+                        let signal = 0.01 * (p.get(v) - truth(i as i32));
+                        let noise = 0.1 * (rng.gen::<f32>() - 0.5) * 3.46; // unit variance × 0.1
+                        (v, f64::from(signal + noise))
+                    })
+                    .collect();
+                p.adam_step(&adam, gradient);
+            }
+            let n = voxels.len() as f32;
+            let mean: f32 = voxels.iter().map(|&v| p.get(v)).sum::<f32>() / n;
+            let truth_mean: f32 = (0..voxels.len() as i32).map(truth).sum::<f32>() / n;
+            (mean - truth_mean).abs() / truth_mean
+        };
+        let (with, without) = (mean_error(true), mean_error(false));
+        assert!(with < 0.1, "with the scale: the mean is off by {with}");
+        assert!(without > 0.3, "without: the mean is off by {without}");
     }
 
     #[test]

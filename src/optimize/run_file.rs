@@ -194,6 +194,9 @@ pub struct OptimizerFile {
     /// Filter the gradient with [1 2 1]/4 per axis, once per upsampling done (`smoothing`).
     #[serde(default = "default_smooth_gradient")]
     pub smooth_gradient: bool,
+    /// Fit a global log-scale of θ beside the voxels (`Adam::fit_scale`).
+    #[serde(default = "default_fit_scale")]
+    pub fit_scale: bool,
 }
 
 impl Default for OptimizerFile {
@@ -222,6 +225,9 @@ fn default_level_lr() -> f32 {
 }
 fn default_smooth_gradient() -> bool {
     true
+}
+fn default_fit_scale() -> bool {
+    false
 }
 fn default_loss() -> Loss {
     Loss::L2
@@ -422,6 +428,7 @@ impl OptimizerFile {
             beta1: self.beta1,
             beta2: self.beta2,
             epsilon: self.epsilon,
+            fit_scale: self.fit_scale,
         }
     }
 
