@@ -17,8 +17,18 @@ use glam::IVec3;
 use volgrad::io::vdb::{read_grid, GridSelector};
 
 const BANDS: u8 = 8;
+/// The profile walks the truth's active box densely (two bytes and a flag per voxel): a wide
+/// sparse truth is refused rather than sized by its box.
+const MAX_BOX_VOXELS: f64 = (1u64 << 28) as f64;
 
-fn main() -> Result<()> {
+fn main() {
+    if let Err(e) = run() {
+        eprintln!("error: {e:#}");
+        std::process::exit(1);
+    }
+}
+
+fn run() -> Result<()> {
     let args: Vec<String> = std::env::args().skip(1).collect();
     let [truth_path, reco_path] = args.as_slice() else {
         bail!("usage: haze_profile TRUTH.vdb RECONSTRUCTION.vdb");
@@ -29,6 +39,11 @@ fn main() -> Result<()> {
         bail!("the two grids have different transforms: compare a run's final.vdb with its truth");
     }
     let (lo, hi) = truth.bricks.active_bounds().context("the truth is empty")?;
+    // In f64: the box of a wide sparse grid overflows i32 per axis and i64 in its product.
+    let extent = (hi.as_dvec3() - lo.as_dvec3() + 1.0).element_product();
+    if extent > MAX_BOX_VOXELS {
+        bail!("the truth's active box holds {extent:.3e} voxels; the profile walks at most {MAX_BOX_VOXELS:.0}");
+    }
     let cells = DenseBox {
         lo,
         size: hi - lo + IVec3::ONE,
@@ -63,14 +78,17 @@ fn main() -> Result<()> {
     };
     let (n_occupied, reco_occupied, truth_occupied) = total(&inside);
     let (n_empty, reco_empty, _) = total(&outside);
-    let occupied_mean = reco_occupied / n_occupied as f64;
+    // As `volgrad optimize` measures it: counts and the occupied mean kept off 0 (no NaN for a
+    // truth without positive values or without empty voxels, or an empty reconstruction).
+    let mean = |sum: f64, n: u64| sum / n.max(1) as f64;
+    let occupied_mean = mean(reco_occupied, n_occupied).max(1e-30);
     println!(
         "occupied voxels {n_occupied}: truth mean {:.4}, reconstruction mean {occupied_mean:.4}",
-        truth_occupied / n_occupied as f64
+        mean(truth_occupied, n_occupied)
     );
     println!(
         "empty voxels {n_empty}: haze (mean empty / mean occupied) {:.4}",
-        reco_empty / n_empty as f64 / occupied_mean
+        mean(reco_empty, n_empty) / occupied_mean
     );
     let label = |d: usize| match d as u8 {
         d if d > BANDS => format!(">{BANDS}"),
@@ -80,11 +98,11 @@ fn main() -> Result<()> {
     println!("distance   voxels   mean   / occupied mean   share of the haze");
     for (d, &(n, reco_sum, _)) in outside.iter().enumerate().skip(1) {
         if n > 0 {
-            let mean = reco_sum / n as f64;
+            let band_mean = reco_sum / n as f64;
             println!(
-                "{:>8} {n:>8} {mean:>7.4} {:>17.3} {:>19.3}",
+                "{:>8} {n:>8} {band_mean:>7.4} {:>17.3} {:>19.3}",
                 label(d),
-                mean / occupied_mean,
+                band_mean / occupied_mean,
                 reco_sum / reco_empty.max(f64::MIN_POSITIVE)
             );
         }

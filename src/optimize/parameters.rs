@@ -250,8 +250,14 @@ impl Parameters {
         let at = AdamStep::new(adam, self.steps);
         let scale = if adam.fit_scale {
             let (m, v, step) = at.update(self.scale.m, self.scale.v, self.scale_gradient(&touched));
-            self.scale = ScalarMoments { m, v };
-            (-step).exp()
+            // A sum beyond f32 (huge densities times huge gradients) makes the step inf/inf; it
+            // is skipped like a non-finite voxel gradient above, since max(NaN, 0) would zero θ.
+            if step.is_finite() {
+                self.scale = ScalarMoments { m, v };
+                (-step).exp()
+            } else {
+                1.0
+            }
         } else {
             1.0
         };
@@ -434,6 +440,22 @@ mod tests {
         assert!((p.get(v) as f64 - expected).abs() < 1e-6, "{}", p.get(v));
         let ScalarMoments { m, v } = p.scale_moments();
         assert!((m - 0.1).abs() < 1e-6 && (v - 0.01).abs() < 1e-6, "{m} {v}");
+    }
+
+    /// Huge values and gradients whose Σ θ·g overflows f32: the scale's step is skipped, θ stays.
+    #[test]
+    fn the_global_scale_skips_a_sum_beyond_f32() {
+        let adam = Adam {
+            fit_scale: true,
+            ..Adam::default()
+        };
+        let v = IVec3::new(2, 2, 2);
+        let mut p = Parameters::default();
+        p.set(v, 1e30);
+        p.adam_step(&adam, [(v, 1e30)]);
+        // The voxel's own step is lr · m̂ / √v̂ with v̂ = inf in f32: 0.
+        assert_eq!(p.get(v), 1e30);
+        assert_eq!(p.scale_moments(), ScalarMoments::default());
     }
 
     /// What the global scale is for: a medium whose every voxel is 2.5× too thin, each voxel's
