@@ -182,12 +182,16 @@ fn a_tiny_reconstruction_converges_and_naive_cannot_grow_from_empty() {
 
 /// The known failure of noisy per-voxel gradients: started at the truth, an optimiser that moves
 /// every voxel by about the learning rate drifts away. Over 20 iterations at the final level's
-/// settings the held-out PSNR stays within 3 dB of the truth's.
+/// settings the held-out PSNR stays within 3 dB of the truth's. The global and brick scales are
+/// on, as in the cloud's run: their steps must not carry it away either.
 #[test]
 fn a_run_started_at_the_truth_stays_near_it() {
     let dir = fixture(
-        &run_file("\"ball.vdb\"", "spp = 8\niterations = 20")
-            .replace("eval_every = 10", "eval_every = 5"),
+        &run_file(
+            "\"ball.vdb\"",
+            "spp = 8\niterations = 20\nfit_scale = true\nfit_brick_scales = true",
+        )
+        .replace("eval_every = 10", "eval_every = 5"),
     );
     ok(volgrad_in(
         dir.path(),
@@ -205,10 +209,14 @@ fn a_run_started_at_the_truth_stays_near_it() {
 /// writes read back through OpenVDB with their metadata.
 #[test]
 fn a_resumed_run_equals_the_uninterrupted_one_bit_for_bit() {
-    // The global scale on, so that its moments cross the checkpoint and the upsampling too.
-    let run = run_file("0.2", "spp = 2\niterations = 12\nfit_scale = true")
-        .replace("checkpoint_every = 50", "checkpoint_every = 4")
-        .replace("start = 0.2", "start = 0.2\nlevels = [0.5]");
+    // The global and brick scales on, so that their moments cross the checkpoint and the
+    // upsampling too.
+    let run = run_file(
+        "0.2",
+        "spp = 2\niterations = 12\nfit_scale = true\nfit_brick_scales = true",
+    )
+    .replace("checkpoint_every = 50", "checkpoint_every = 4")
+    .replace("start = 0.2", "start = 0.2\nlevels = [0.5]");
     let dir = fixture(&run);
     let d = dir.path();
     ok(volgrad_in(
@@ -461,6 +469,10 @@ fn bad_run_files_name_the_key() {
         (
             good.replace("batch = 3", "batch = 3\nfit_scale = \"yes\""),
             vec!["fit_scale"],
+        ),
+        (
+            good.replace("batch = 3", "batch = 3\nfit_brick_scales = 1"),
+            vec!["fit_brick_scales"],
         ),
         (
             good.replace(

@@ -5,7 +5,7 @@
 //!
 //! The state file is little-endian binary: the magic line, the run's fingerprint, the counters and
 //! the global scale's (m, v), the log text, then the bricks in key order (origin as 3 × i32, then
-//! θ, m, v as 512 × f32 each).
+//! θ, m, v as 512 × f32 each, then the brick's log-scale (m, v) as 2 × f32).
 
 use std::io::{BufReader, BufWriter, Read, Write};
 use std::path::{Path, PathBuf};
@@ -19,7 +19,7 @@ use crate::optimize::parameters::{Parameters, ScalarMoments};
 use crate::volume::brickmap::BRICK_VOXELS;
 use crate::volume::transform::IndexTransform;
 
-const MAGIC: &[u8] = b"volgrad optimizer state 2\n";
+const MAGIC: &[u8] = b"volgrad optimizer state 3\n";
 
 /// Where a run is, apart from θ and Adam's moments.
 #[derive(Debug, Clone, Default, PartialEq)]
@@ -85,15 +85,13 @@ pub fn write_state(
         w.write_all(&position.iteration.to_le_bytes())?;
         w.write_all(&position.level.to_le_bytes())?;
         w.write_all(&parameters.steps().to_le_bytes())?;
-        let scale = parameters.scale_moments();
-        w.write_all(&scale.m.to_le_bytes())?;
-        w.write_all(&scale.v.to_le_bytes())?;
+        write_moments(&mut w, parameters.scale_moments())?;
         w.write_all(&position.optimisation_seconds.to_le_bytes())?;
         w.write_all(&position.evaluation_seconds.to_le_bytes())?;
         write_text(&mut w, &position.log)?;
         let bricks = parameters.sorted_bricks();
         w.write_all(&(bricks.len() as u64).to_le_bytes())?;
-        for (key, theta, m, v) in bricks {
+        for (key, theta, m, v, scale) in bricks {
             for c in key.to_array() {
                 w.write_all(&c.to_le_bytes())?;
             }
@@ -102,10 +100,28 @@ pub fn write_state(
                     w.write_all(&x.to_le_bytes())?;
                 }
             }
+            write_moments(&mut w, scale)?;
         }
         w.flush()
     };
     write().with_context(|| format!("writing '{}'", path.display()))
+}
+
+fn write_moments(w: &mut impl Write, moments: ScalarMoments) -> std::io::Result<()> {
+    w.write_all(&moments.m.to_le_bytes())?;
+    w.write_all(&moments.v.to_le_bytes())
+}
+
+/// A log-scale's moments (a non-finite one is an error: a state is written only from finite ones).
+fn read_moments(r: &mut impl Read, what: &str) -> Result<ScalarMoments> {
+    let moments = ScalarMoments {
+        m: f32::from_le_bytes(read_array(r)?),
+        v: f32::from_le_bytes(read_array(r)?),
+    };
+    if !(moments.m.is_finite() && moments.v.is_finite()) {
+        bail!("non-finite moments of {what}");
+    }
+    Ok(moments)
 }
 
 fn write_text(w: &mut impl Write, text: &str) -> std::io::Result<()> {
@@ -142,18 +158,12 @@ pub fn read_state(path: &Path, fingerprint: &str) -> Result<(Position, Parameter
         let iteration = u64::from_le_bytes(read_array(&mut r)?);
         let level = u32::from_le_bytes(read_array(&mut r)?);
         let steps = u32::from_le_bytes(read_array(&mut r)?);
-        let scale = ScalarMoments {
-            m: f32::from_le_bytes(read_array(&mut r)?),
-            v: f32::from_le_bytes(read_array(&mut r)?),
-        };
-        if !(scale.m.is_finite() && scale.v.is_finite()) {
-            bail!("non-finite moments of the global scale");
-        }
+        let scale = read_moments(&mut r, "the global scale")?;
         let optimisation_seconds = f64::from_le_bytes(read_array(&mut r)?);
         let evaluation_seconds = f64::from_le_bytes(read_array(&mut r)?);
         let log = read_text(&mut r, size)?;
         let count = u64::from_le_bytes(read_array(&mut r)?);
-        let brick_bytes = (12 + 3 * 4 * BRICK_VOXELS) as u64;
+        let brick_bytes = (12 + 3 * 4 * BRICK_VOXELS + 8) as u64;
         if count.saturating_mul(brick_bytes) > size {
             bail!("{count} bricks do not fit in {size} bytes");
         }
@@ -173,7 +183,8 @@ pub fn read_state(path: &Path, fingerprint: &str) -> Result<(Position, Parameter
                 }
             }
             let [theta, m, v] = arrays;
-            p.insert_brick(IVec3::from_array(key), theta, m, v);
+            let scale = read_moments(&mut r, "a brick's scale")?;
+            p.insert_brick(IVec3::from_array(key), theta, m, v, scale);
         }
         p.set_steps(steps, scale);
         let position = Position {
@@ -235,9 +246,11 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         let mut p = Parameters::default();
         p.set(IVec3::new(-9, 3, 100), 0.25);
-        // With the global scale, so that its moments are not 0 (θ·g = 0.25 · 0.5 at the first voxel).
+        // With the global and brick scales, so that their moments are not 0 (θ·g = 0.25 · 0.5 at
+        // the first voxel).
         let adam = Adam {
             fit_scale: true,
+            fit_brick_scales: true,
             ..Default::default()
         };
         let gradient = [(IVec3::new(-9, 3, 100), 0.5), (IVec3::new(1, 2, 3), -0.5)];
@@ -256,14 +269,26 @@ mod tests {
         assert_eq!(q.steps(), p.steps());
         assert_ne!(p.scale_moments(), ScalarMoments::default());
         assert_eq!(q.scale_moments(), p.scale_moments());
+        let brick_scale =
+            |p: &Parameters| p.sorted_bricks().iter().map(|b| b.4).collect::<Vec<_>>();
+        assert!(brick_scale(&p)
+            .iter()
+            .any(|&s| s != ScalarMoments::default()));
         let bits = |p: &Parameters| -> Vec<u32> {
             p.sorted_bricks()
                 .into_iter()
-                .flat_map(|(k, t, m, v)| {
+                .flat_map(|(k, t, m, v, scale)| {
+                    let scale = [scale.m, scale.v];
                     k.to_array()
                         .map(|c| c as u32)
                         .into_iter()
-                        .chain(t.iter().chain(m).chain(v).map(|x| x.to_bits()))
+                        .chain(
+                            t.iter()
+                                .chain(m)
+                                .chain(v)
+                                .chain(&scale)
+                                .map(|x| x.to_bits()),
+                        )
                         .collect::<Vec<_>>()
                 })
                 .collect()

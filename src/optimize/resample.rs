@@ -102,6 +102,7 @@ pub fn upsample(
     fine.prune();
     if moments == Moments::Resample {
         fine.continue_steps_of(p);
+        fine.inherit_brick_scales(p, FINE_GRADIENT_SCALE);
     }
     let refine = DAffine3::from_scale_rotation_translation(
         DVec3::splat(0.5),
@@ -167,7 +168,11 @@ mod tests {
         let v = IVec3::new(4, 4, 4);
         let mut p = Parameters::default();
         p.set(v, 1.0);
-        p.adam_step(&Default::default(), [(v, 1.0)]);
+        let adam = crate::optimize::parameters::Adam {
+            fit_brick_scales: true,
+            ..Default::default()
+        };
+        p.adam_step(&adam, [(v, 1.0)]);
         let (kept, _) = upsample(
             &p,
             &IndexTransform::uniform(1.0, DVec3::ZERO),
@@ -188,5 +193,15 @@ mod tests {
         let expected = 0.75f32.powi(3) * 0.1 * FINE_GRADIENT_SCALE;
         assert!((m_at(&kept, v * 2).unwrap() - expected).abs() < 1e-6);
         assert_eq!(m_at(&reset, v * 2), Some(0.0));
+        // Every new brick (keys 0 and 1 per axis) lies in old brick 0 and takes its log-scale's
+        // moments, scaled like a voxel's; reset, they start at 0.
+        let parent = p.sorted_bricks()[0].4;
+        assert_ne!(parent, Default::default());
+        let scales = |q: &Parameters| q.sorted_bricks().iter().map(|b| b.4).collect::<Vec<_>>();
+        assert_eq!(scales(&kept).len(), 8);
+        assert!(scales(&kept)
+            .iter()
+            .all(|&s| s == parent.scaled(FINE_GRADIENT_SCALE)));
+        assert!(scales(&reset).iter().all(|&s| s == Default::default()));
     }
 }

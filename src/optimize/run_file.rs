@@ -197,6 +197,9 @@ pub struct OptimizerFile {
     /// Fit a global log-scale of θ beside the voxels (`Adam::fit_scale`).
     #[serde(default = "default_fit_scale")]
     pub fit_scale: bool,
+    /// Fit a log-scale of θ per brick beside the voxels (`Adam::fit_brick_scales`).
+    #[serde(default = "default_fit_scale")]
+    pub fit_brick_scales: bool,
 }
 
 impl Default for OptimizerFile {
@@ -429,6 +432,7 @@ impl OptimizerFile {
             beta2: self.beta2,
             epsilon: self.epsilon,
             fit_scale: self.fit_scale,
+            fit_brick_scales: self.fit_brick_scales,
         }
     }
 
