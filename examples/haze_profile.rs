@@ -86,9 +86,11 @@ fn run() -> Result<()> {
         "occupied voxels {n_occupied}: truth mean {:.4}, reconstruction mean {occupied_mean:.4}",
         mean(truth_occupied, n_occupied)
     );
+    let empty_mean = mean(reco_empty, n_empty);
     println!(
-        "empty voxels {n_empty}: haze (mean empty / mean occupied) {:.4}",
-        mean(reco_empty, n_empty) / occupied_mean
+        "empty voxels {n_empty}: haze (mean empty / mean occupied) {:.4}, against the truth's occupied mean {:.4}",
+        empty_mean / occupied_mean,
+        empty_mean / mean(truth_occupied, n_occupied).max(1e-30)
     );
     let label = |d: usize| match d as u8 {
         d if d > BANDS => format!(">{BANDS}"),
@@ -107,6 +109,16 @@ fn run() -> Result<()> {
             );
         }
     }
+    // Within a pixel of the cloud's 64² views (about 3 final voxels) against beyond it.
+    const NEAR: usize = 3;
+    let (_, reco_near, _) = total(&outside[1..=NEAR]);
+    let (n_far, reco_far, _) = total(&outside[NEAR + 1..]);
+    println!(
+        "within {NEAR} voxels: {:.3} of the haze; {} or more voxels out: mean / occupied mean {:.3}",
+        reco_near / reco_empty.max(f64::MIN_POSITIVE),
+        NEAR + 1,
+        mean(reco_far, n_far) / occupied_mean
+    );
     println!("\noccupied voxels by depth below the truth's surface");
     println!("   depth   voxels  truth  reconstruction");
     for (d, &(n, reco_sum, truth_sum)) in inside.iter().enumerate().skip(1) {

@@ -509,43 +509,71 @@ mod tests {
         assert_eq!(p.sorted_bricks()[0].4, ScalarMoments::default());
     }
 
+    /// The 16³ voxels (8 bricks) of the noisy-optimisation tests below, and their true values.
+    fn noisy_voxels() -> Vec<(IVec3, f32)> {
+        (0..4096)
+            .map(|i| {
+                let v = IVec3::new(i & 15, (i >> 4) & 15, i >> 8);
+                (v, 0.5 + 0.25 * (i as f32 * 0.37).sin())
+            })
+            .collect()
+    }
+
+    /// 300 Adam steps from θ = truth × `start(voxel)` on the gradient of ½·0.01·(θ − truth)²
+    /// per voxel plus noise of standard deviation 0.1, 10× the signal's size (fixed seed).
+    fn optimise_under_noise(
+        voxels: &[(IVec3, f32)],
+        adam: Adam,
+        start: impl Fn(IVec3) -> f32,
+        seed: u64,
+    ) -> Parameters {
+        use rand::{Rng, SeedableRng};
+        let mut p = Parameters::default();
+        for &(v, truth) in voxels {
+            p.set(v, truth * start(v));
+        }
+        let mut rng = rand::rngs::SmallRng::seed_from_u64(seed);
+        for _ in 0..300 {
+            let gradient: Vec<(IVec3, f64)> = voxels
+                .iter()
+                .map(|&(v, truth)| {
+                    let signal = 0.01 * (p.get(v) - truth);
+                    let noise = 0.1 * (rng.gen::<f32>() - 0.5) * 3.46; // unit variance × 0.1
+                    (v, f64::from(signal + noise))
+                })
+                .collect();
+            p.adam_step(&adam, gradient);
+        }
+        p
+    }
+
+    /// |Σ θ − Σ truth| / Σ truth over the voxels `select` picks.
+    fn relative_mass_error(
+        p: &Parameters,
+        voxels: &[(IVec3, f32)],
+        select: impl Fn(IVec3) -> bool,
+    ) -> f32 {
+        let (sum, truth_sum) = voxels
+            .iter()
+            .filter(|(v, _)| select(*v))
+            .fold((0.0, 0.0), |(s, t), &(v, truth)| (s + p.get(v), t + truth));
+        ((sum - truth_sum) / truth_sum).abs()
+    }
+
     /// What the global scale is for: a medium whose every voxel is 2.5× too thin, each voxel's
     /// gradient 10× noisier than its signal. Per-voxel steps alone barely move the mean; with the
     /// scale (whose gradient sums the signal of all voxels) it reaches the truth's.
     #[test]
     fn the_global_scale_finds_the_overall_density_under_per_voxel_noise() {
-        use rand::{Rng, SeedableRng};
-        let truth = |i: i32| 0.5 + 0.25 * (i as f32 * 0.37).sin();
-        let voxels: Vec<IVec3> = (0..4096)
-            .map(|i| IVec3::new(i & 15, (i >> 4) & 15, i >> 8))
-            .collect();
+        let voxels = noisy_voxels();
         let mean_error = |fit_scale: bool| {
             let adam = Adam {
                 lr: 0.01,
                 fit_scale,
                 ..Adam::default()
             };
-            let mut p = Parameters::default();
-            for (i, &v) in voxels.iter().enumerate() {
-                p.set(v, truth(i as i32) / 2.5);
-            }
-            let mut rng = rand::rngs::SmallRng::seed_from_u64(7);
-            for _ in 0..300 {
-                let gradient: Vec<(IVec3, f64)> = voxels
-                    .iter()
-                    .enumerate()
-                    .map(|(i, &v)| {
-                        let signal = 0.01 * (p.get(v) - truth(i as i32));
-                        let noise = 0.1 * (rng.gen::<f32>() - 0.5) * 3.46; // unit variance × 0.1
-                        (v, f64::from(signal + noise))
-                    })
-                    .collect();
-                p.adam_step(&adam, gradient);
-            }
-            let n = voxels.len() as f32;
-            let mean: f32 = voxels.iter().map(|&v| p.get(v)).sum::<f32>() / n;
-            let truth_mean: f32 = (0..voxels.len() as i32).map(truth).sum::<f32>() / n;
-            (mean - truth_mean).abs() / truth_mean
+            let p = optimise_under_noise(&voxels, adam, |_| 1.0 / 2.5, 7);
+            relative_mass_error(&p, &voxels, |_| true)
         };
         let (with, without) = (mean_error(true), mean_error(false));
         assert!(with < 0.1, "with the scale: the mean is off by {with}");
@@ -585,42 +613,13 @@ mod tests {
     /// (11 % and 4 %: at a constant lr the brick scales' own noise is what is left).
     #[test]
     fn brick_scales_find_densities_that_differ_across_the_volume() {
-        use rand::{Rng, SeedableRng};
-        let truth = |i: i32| 0.5 + 0.25 * (i as f32 * 0.37).sin();
-        // 16³ voxels: two bricks across x, so x < 8 and x ≥ 8 are four bricks each.
-        let voxels: Vec<IVec3> = (0..4096)
-            .map(|i| IVec3::new(i & 15, (i >> 4) & 15, i >> 8))
-            .collect();
+        // Two bricks across x, so x < 8 and x ≥ 8 are four bricks each.
+        let voxels = noisy_voxels();
         let start = |v: IVec3| if v.x < 8 { 1.0 / 2.5 } else { 1.5 };
         let worst_half = |adam: Adam| {
-            let mut p = Parameters::default();
-            for (i, &v) in voxels.iter().enumerate() {
-                p.set(v, truth(i as i32) * start(v));
-            }
-            let mut rng = rand::rngs::SmallRng::seed_from_u64(11);
-            for _ in 0..300 {
-                let gradient: Vec<(IVec3, f64)> = voxels
-                    .iter()
-                    .enumerate()
-                    .map(|(i, &v)| {
-                        let signal = 0.01 * (p.get(v) - truth(i as i32));
-                        let noise = 0.1 * (rng.gen::<f32>() - 0.5) * 3.46; // unit variance × 0.1
-                        (v, f64::from(signal + noise))
-                    })
-                    .collect();
-                p.adam_step(&adam, gradient);
-            }
-            let half_error = |left: bool| {
-                let (mut sum, mut truth_sum) = (0.0, 0.0);
-                for (i, &v) in voxels.iter().enumerate() {
-                    if (v.x < 8) == left {
-                        sum += p.get(v);
-                        truth_sum += truth(i as i32);
-                    }
-                }
-                ((sum - truth_sum) / truth_sum).abs()
-            };
-            half_error(true).max(half_error(false))
+            let p = optimise_under_noise(&voxels, adam, start, 11);
+            let left = relative_mass_error(&p, &voxels, |v| v.x < 8);
+            left.max(relative_mass_error(&p, &voxels, |v| v.x >= 8))
         };
         let adam = Adam {
             lr: 0.01,
