@@ -4,7 +4,7 @@
 // OpenImageIO header: the shared structs are only forward-declared here (cxx defines them in the
 // generated "volgrad/src/io/bridge.rs.h", which the .cpp files that use them include).
 //
-// Defined in cpp/vdb_read.cpp (list_grids, read_float_grid), cpp/vdb_write.cpp (write_float_grids)
+// Defined in cpp/vdb_read.cpp (list_grids, list_grid_names, read_float_grid[_through_openvdb]), cpp/vdb_write.cpp (write_float_grids)
 // and cpp/images.cpp (read_image, write_image).
 #pragma once
 
@@ -21,8 +21,13 @@ struct ImageData;
 
 rust::Vec<GridSummary> list_grids(rust::Str path);
 
+rust::Vec<rust::String> list_grid_names(rust::Str path);
+
 FloatGridData read_float_grid(rust::Str path, rust::Str name, std::int32_t index,
                               bool level_set_to_fog, std::uint32_t threads);
+
+FloatGridData read_float_grid_through_openvdb(rust::Str path, rust::Str name, std::int32_t index,
+                                              bool level_set_to_fog, std::uint32_t threads);
 
 void write_float_grids(rust::Str path, rust::Slice<const FloatGridData> grids, bool save_half);
 

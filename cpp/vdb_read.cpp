@@ -19,6 +19,10 @@
 //    uninitialised lengths (OpenVDB does not check its istream after every read). The length
 //    fields of the file and grid metadata and of the descriptors are checked before OpenVDB
 //    allocates strings of those sizes (garbage lengths otherwise cost multi-GB allocations).
+//  * It reads a float or double grid's metadata, transform and topology the way Archive::readGrid
+//    does, but decodes the voxel buffers itself, with OpenVDB's decoder on several threads, from
+//    the file mapped into memory (OpenVDB's reader decodes one leaf after another: most of a large
+//    grid's load). Other grids, and level sets to be converted to fog, go through readGrid.
 //    Known limit: a file whose compressed voxel payload is corrupted in place (not truncated) can
 //    still crash inside OpenVDB 10 (io::bloscFromStream reads an uncompressed chunk into its buffer
 //    before checking the chunk's length); nothing outside OpenVDB can check that cheaply.
@@ -30,6 +34,7 @@
 #include <openvdb/Grid.h>
 #include <openvdb/Metadata.h>
 #include <openvdb/io/Archive.h>
+#include <openvdb/io/Compression.h>
 #include <openvdb/io/GridDescriptor.h>
 #include <openvdb/io/io.h>
 #include <openvdb/math/Maps.h>
@@ -53,6 +58,10 @@
 #include <stdexcept>
 #include <string>
 #include <vector>
+
+#include <fcntl.h>
+#include <sys/mman.h>
+#include <unistd.h>
 
 namespace fs = std::filesystem;
 
@@ -148,6 +157,68 @@ bool is_axis_aligned(const std::array<double, 16>& c, bool linear) {
 // ------------------------------------------------------------------------------------------------
 // Reading VDB files
 
+/// A whole file mapped read-only into memory, so that several threads can read it at once without
+/// a system call per seek.
+class MappedFile {
+public:
+    explicit MappedFile(const std::string& path) {
+        const int fd = ::open(path.c_str(), O_RDONLY | O_CLOEXEC);
+        if (fd < 0) fail("cannot open " + quoted(path) + ": " + errno_text(errno));
+        size_ = size_t(fs::file_size(path));
+        void* p = ::mmap(nullptr, size_, PROT_READ, MAP_PRIVATE, fd, 0);
+        const int err = errno;
+        ::close(fd);
+        if (p == MAP_FAILED) fail("cannot map " + quoted(path) + ": " + errno_text(err));
+        data_ = static_cast<const char*>(p);
+    }
+    MappedFile(const MappedFile&) = delete;
+    MappedFile& operator=(const MappedFile&) = delete;
+    ~MappedFile() { ::munmap(const_cast<char*>(data_), size_); }
+    const char* data() const { return data_; }
+    size_t size() const { return size_; }
+
+private:
+    const char* data_ = nullptr;
+    size_t size_ = 0;
+};
+
+/// A seekable stream buffer over bytes in memory: OpenVDB's decoders read std::istreams, and each
+/// thread that decodes leaves needs a stream of its own over the same mapped file.
+class MemoryBuffer : public std::streambuf {
+public:
+    explicit MemoryBuffer(const MappedFile& file) {
+        char* begin = const_cast<char*>(file.data());  // only ever read: the get area
+        setg(begin, begin, begin + file.size());
+    }
+
+protected:
+    pos_type seekoff(off_type off, std::ios_base::seekdir dir, std::ios_base::openmode) override {
+        const char* base = dir == std::ios_base::beg   ? eback()
+                           : dir == std::ios_base::cur ? gptr()
+                                                       : egptr();
+        if (off < eback() - base || off > egptr() - base) return pos_type(off_type(-1));
+        setg(eback(), const_cast<char*>(base) + off, egptr());
+        return pos_type(gptr() - eback());
+    }
+    pos_type seekpos(pos_type pos, std::ios_base::openmode mode) override {
+        return seekoff(off_type(pos), std::ios_base::beg, mode);
+    }
+};
+
+/// What decoding a grid's voxel buffers needs after `VdbArchive::read_topology`: the mapped file,
+/// a stream whose OpenVDB state (format version, compression, half floats, background) is the
+/// grid's, and where each leaf's buffer starts, in leaf-iteration order (the order they are
+/// stored in).
+struct DeferredBuffers {
+    std::unique_ptr<MappedFile> file;
+    std::unique_ptr<MemoryBuffer> buffer;
+    std::unique_ptr<std::istream> state;
+    openvdb::io::StreamMetadata::Ptr meta;  // the grid's stream metadata, which `state` points to
+    std::vector<std::streamoff> offsets;
+    bool from_half = false;
+    std::mutex copying_state;  // the decoding threads copy `state` one at a time
+};
+
 /// Minimal io::Archive client: header, descriptors in file order, one grid at a time.
 class VdbArchive : public openvdb::io::Archive {
 public:
@@ -236,10 +307,7 @@ public:
         openvdb::GridBase::Ptr grid = openvdb::GridBase::createGrid(gd.gridType());
         if (!grid) corrupt("cannot create a grid of type " + gd.gridType());
         grid->setSaveFloatAsHalf(gd.saveFloatAsHalf());
-        gd.seekToGrid(is_);
-        if (fileVersion() >= openvdb::OPENVDB_FILE_VERSION_NODE_MASK_COMPRESSION) pod<uint32_t>();
-        check_meta_map(gd.getEndPos(), "the metadata of grid '" + gd.gridName() + "'");
-        gd.seekToGrid(is_);
+        check_grid_metadata(gd);
         Archive::readGrid(grid, gd, is_);
         if (gd.isInstance()) {
             // The tree is stored once, with the instance parent.
@@ -255,8 +323,71 @@ public:
         return grid;
     }
 
+    /// Whether grid `i` can be read by `read_topology` and its buffers decoded in parallel: a
+    /// float or double grid with a tree of its own, in a file of the current layout (per-grid
+    /// compression, format 222 and later). Anything else goes through OpenVDB's reader.
+    bool can_defer_buffers(size_t i) const {
+        const openvdb::io::GridDescriptor& gd = descriptors_[i];
+        return streamed_.empty() && !gd.isInstance() &&
+               fileVersion() >= openvdb::OPENVDB_FILE_VERSION_NODE_MASK_COMPRESSION &&
+               (gd.gridType() == openvdb::FloatGrid::gridType() ||
+                gd.gridType() == openvdb::DoubleGrid::gridType());
+    }
+
+    /// Grid `i` read as Archive::readGrid reads it (compression, metadata, transform, topology),
+    /// but from the mapped file and without its voxel buffers: the leaves are created with their
+    /// masks and no values. `deferred` receives the stream state to decode the buffers with,
+    /// which `find_leaf_buffers` then locates. Only for grids that `can_defer_buffers`.
+    openvdb::GridBase::Ptr read_topology(size_t i, DeferredBuffers& deferred) {
+        const openvdb::io::GridDescriptor& gd = descriptors_[i];
+        check_grid_metadata(gd);
+        deferred.file = std::make_unique<MappedFile>(path_);
+        deferred.buffer = std::make_unique<MemoryBuffer>(*deferred.file);
+        deferred.state = std::make_unique<std::istream>(deferred.buffer.get());
+        std::istream& is = *deferred.state;
+        is.copyfmt(is_);  // the file's format version and compression, and short reads throw
+        gd.seekToGrid(is);
+        readGridCompression(is);
+
+        openvdb::GridBase::Ptr grid = openvdb::GridBase::createGrid(gd.gridType());
+        if (!grid) corrupt("cannot create a grid of type " + gd.gridType());
+        grid->setSaveFloatAsHalf(gd.saveFloatAsHalf());
+        deferred.from_half = gd.saveFloatAsHalf();
+        deferred.meta = std::make_shared<openvdb::io::StreamMetadata>(*stream_meta_);
+        deferred.meta->setHalfFloat(gd.saveFloatAsHalf());
+        openvdb::io::setStreamMetadataPtr(is, deferred.meta, /*transfer=*/false);
+        openvdb::io::setGridClass(is, openvdb::GRID_UNKNOWN);
+        openvdb::io::setGridBackgroundValuePtr(is, nullptr);
+        grid->readMeta(is);
+        // Delayed-load metadata would make the decoders take each buffer's layout from it rather
+        // than from the buffer itself; Archive::readGrid drops it from the grid too.
+        if ((*grid)[openvdb::GridBase::META_FILE_DELAYED_LOAD]) {
+            grid->removeMeta(openvdb::GridBase::META_FILE_DELAYED_LOAD);
+        }
+        deferred.meta->gridMetadata() = static_cast<openvdb::MetaMap&>(*grid);
+        openvdb::io::setGridClass(is, grid->getGridClass());
+        grid->readTransform(is);
+        grid->readTopology(is);  // also points the stream's background at the tree's
+        if (int64_t(is.tellg()) != gd.getBlockPos()) {
+            corrupt("the topology of grid '" + gd.gridName() + "' does not end where its "
+                    "voxel data begins");
+        }
+        return grid;
+    }
+
+    /// Where grid `i`'s stored data ends (to check the located buffers against).
+    int64_t grid_end(size_t i) const { return descriptors_[i].getEndPos(); }
+
 private:
     [[noreturn]] void corrupt(const std::string& why) const { throw std::runtime_error(why); }
+
+    /// Checks the length fields of grid `gd`'s metadata before OpenVDB reads it.
+    void check_grid_metadata(const openvdb::io::GridDescriptor& gd) {
+        gd.seekToGrid(is_);
+        if (fileVersion() >= openvdb::OPENVDB_FILE_VERSION_NODE_MASK_COMPRESSION) pod<uint32_t>();
+        check_meta_map(gd.getEndPos(), "the metadata of grid '" + gd.gridName() + "'");
+        gd.seekToGrid(is_);
+    }
 
     template <typename T>
     T pod() {
@@ -370,9 +501,11 @@ GridSummary summarize(const openvdb::GridBase& grid) {
     return s;
 }
 
-/// Copies a float (or double, converted) grid into FloatGridData.
-template <typename GridT>
-FloatGridData copy_grid(const GridT& grid, uint32_t threads) {
+/// Copies a float (or double, converted) grid into FloatGridData. The leaves' values come from
+/// `fill_values(nodes, begin, end, out)`, which writes the values of leaf l to out[l].values for
+/// the leaves [begin, end) of `nodes` (leaf-iteration order); it runs on `threads` threads.
+template <typename GridT, typename FillValues>
+FloatGridData copy_grid(const GridT& grid, uint32_t threads, FillValues&& fill_values) {
     using TreeT = typename GridT::TreeType;
     using LeafT = typename TreeT::LeafNodeType;
     static_assert(LeafT::SIZE == 512, "volgrad expects 8^3 leaves");
@@ -387,14 +520,10 @@ FloatGridData copy_grid(const GridT& grid, uint32_t threads) {
     d.background = static_cast<float>(tree.background());
     d.saved_as_half = grid.saveFloatAsHalf();
 
-    // Sized once by Rust and filled through data(): push_back would call into Rust per value.
+    // Sized once by Rust and filled through data(): push_back would call into Rust per leaf.
     const size_t leaves = tree.leafCount();
-    resize_i32s(d.leaf_origins, 3 * leaves);
-    resize_f32s(d.leaf_values, 512 * leaves);
-    resize_u64s(d.leaf_active, 8 * leaves);
-    int32_t* origins = d.leaf_origins.data();
-    float* values = d.leaf_values.data();
-    uint64_t* active = d.leaf_active.data();
+    resize_leaves(d.leaves, leaves);
+    LeafData* out = d.leaves.data();
     std::vector<const LeafT*> nodes;
     nodes.reserve(leaves);
     for (auto leaf = tree.cbeginLeaf(); leaf; ++leaf) nodes.push_back(leaf.getLeaf());
@@ -407,15 +536,13 @@ FloatGridData copy_grid(const GridT& grid, uint32_t threads) {
             for (size_t l = range.begin(); l != range.end(); ++l) {
                 const LeafT& leaf = *nodes[l];
                 const openvdb::Coord o = leaf.origin();
-                for (int i = 0; i < 3; ++i) origins[3 * l + i] = o[i];
-                const auto* buffer = leaf.buffer().data();
-                std::transform(buffer, buffer + LeafT::SIZE, values + 512 * l,
-                               [](auto v) { return static_cast<float>(v); });
+                for (int i = 0; i < 3; ++i) out[l].origin[i] = o[i];
                 const auto& mask = leaf.getValueMask();
                 for (openvdb::Index w = 0; w < LeafT::NodeMaskType::WORD_COUNT; ++w) {
-                    active[8 * l + w] = mask.template getWord<openvdb::Index64>(w);
+                    out[l].active[w] = mask.template getWord<openvdb::Index64>(w);
                 }
             }
+            fill_values(nodes.data(), range.begin(), range.end(), out);
         });
     });
 
@@ -439,6 +566,88 @@ FloatGridData copy_grid(const GridT& grid, uint32_t threads) {
     }
     d.metadata = meta_entries(grid);
     return d;
+}
+
+/// Values from the leaves' own buffers: a grid OpenVDB read completely.
+template <typename LeafT>
+void copy_leaf_values(const LeafT* const* nodes, size_t begin, size_t end, LeafData* out) {
+    for (size_t l = begin; l != end; ++l) {
+        const auto* buffer = nodes[l]->buffer().data();
+        std::transform(buffer, buffer + LeafT::SIZE, out[l].values.begin(),
+                       [](auto v) { return static_cast<float>(v); });
+    }
+}
+
+/// Finds where each leaf's stored buffer starts by walking the buffers in storage order (which is
+/// leaf-iteration order) through OpenVDB's own decoder in its seek mode (no destination: it reads
+/// each buffer's header and skips its payload), and checks that they end where the grid does.
+template <typename GridT>
+void find_leaf_buffers(const GridT& grid, int64_t grid_end, DeferredBuffers& deferred) {
+    using TreeT = typename GridT::TreeType;
+    using LeafT = typename TreeT::LeafNodeType;
+    const TreeT& tree = grid.tree();
+    std::istream& is = *deferred.state;
+    deferred.offsets.reserve(tree.leafCount());
+    for (auto leaf = tree.cbeginLeaf(); leaf; ++leaf) {
+        deferred.offsets.push_back(is.tellg());
+        const auto& mask = leaf->getValueMask();
+        mask.seek(is);  // stored again before each buffer; the topology already holds it
+        openvdb::io::readCompressedValues<typename TreeT::ValueType, typename LeafT::NodeMaskType>(
+            is, nullptr, LeafT::SIZE, mask, deferred.from_half);
+    }
+    if (int64_t(is.tellg()) != grid_end) {
+        throw std::runtime_error("the voxel data of grid '" + grid.getName() +
+                                 "' does not end where the file says");
+    }
+}
+
+/// Decodes the stored buffers of leaves [begin, end) into out[l].values, through a stream of its
+/// own over the mapped file (so that threads decode at once) with the grid's stream state.
+template <typename LeafT>
+void decode_leaf_values(DeferredBuffers& deferred, const LeafT* const* nodes, size_t begin,
+                        size_t end, LeafData* out) {
+    using ValueT = typename LeafT::ValueType;
+    MemoryBuffer buffer(*deferred.file);
+    std::istream is(&buffer);
+    {
+        const std::lock_guard<std::mutex> lock(deferred.copying_state);
+        is.copyfmt(*deferred.state);
+    }
+    [[maybe_unused]] std::array<ValueT, LeafT::SIZE> decoded;
+    for (size_t l = begin; l != end; ++l) {
+        is.seekg(deferred.offsets[l]);
+        const auto& mask = nodes[l]->getValueMask();
+        mask.seek(is);
+        float* dest = out[l].values.data();
+        if constexpr (std::is_same_v<ValueT, float>) {
+            openvdb::io::readCompressedValues(is, dest, LeafT::SIZE, mask, deferred.from_half);
+        } else {
+            openvdb::io::readCompressedValues(is, decoded.data(), LeafT::SIZE, mask,
+                                              deferred.from_half);
+            std::transform(decoded.begin(), decoded.end(), dest,
+                           [](ValueT v) { return static_cast<float>(v); });
+        }
+    }
+}
+
+/// A grid read by `VdbArchive::read_topology`, its buffers decoded on `threads` threads straight
+/// into the bridge's arrays: OpenVDB's reader decodes them one after another, which was most of a
+/// large grid's load, and then they were copied once more.
+template <typename GridT>
+FloatGridData copy_deferred(const GridT& grid, int64_t grid_end, DeferredBuffers& deferred,
+                            uint32_t threads) {
+    using LeafT = typename GridT::TreeType::LeafNodeType;
+    find_leaf_buffers(grid, grid_end, deferred);
+    return copy_grid(grid, threads, [&](const LeafT* const* nodes, size_t begin, size_t end,
+                                        LeafData* out) {
+        decode_leaf_values(deferred, nodes, begin, end, out);
+    });
+}
+
+/// OpenVDB's own copy of the grid, values from its leaves' buffers.
+template <typename GridT>
+FloatGridData copy_read_grid(const GridT& grid, uint32_t threads) {
+    return copy_grid(grid, threads, copy_leaf_values<typename GridT::TreeType::LeafNodeType>);
 }
 
 /// Index of the grid selected by `index` (>= 0) or else by `name`.
@@ -483,18 +692,50 @@ rust::Vec<GridSummary> list_grids(rust::Str path_str) {
     return out;
 }
 
-FloatGridData read_float_grid(rust::Str path_str, rust::Str name_str, int32_t index,
-                              bool level_set_to_fog_volume, uint32_t threads) {
+rust::Vec<rust::String> list_grid_names(rust::Str path_str) {
+    auto vdb = open_vdb(to_std(path_str));
+    rust::Vec<rust::String> out;
+    for (size_t i = 0; i < vdb->size(); ++i) out.push_back(rust::String(vdb->name(i)));
+    return out;
+}
+
+namespace {
+
+/// Fails unless `grid` has a linear transform (the only kind volgrad renders).
+void check_linear(const openvdb::GridBase& grid, const std::string& what) {
+    if (!grid.constTransform().baseMap()->isLinear()) {
+        fail(what + " has a non-linear (" + grid.constTransform().mapType() +
+             ") transform, which volgrad cannot render");
+    }
+}
+
+FloatGridData read_float_grid_with(rust::Str path_str, rust::Str name_str, int32_t index,
+                                   bool level_set_to_fog_volume, uint32_t threads,
+                                   bool decode_in_parallel) {
     const std::string path = to_std(path_str);
     const std::string name = to_std(name_str);
     auto vdb = open_vdb(path);
     const size_t i = select_grid(*vdb, path, name, index);
+    if (decode_in_parallel && vdb->can_defer_buffers(i)) {
+        DeferredBuffers deferred;
+        const openvdb::GridBase::Ptr base = with_context(
+            corrupt_context(path), [&] { return vdb->read_topology(i, deferred); });
+        // sdfToFogVolume needs the values in the tree: such a grid is read the usual way below.
+        if (!(level_set_to_fog_volume && base->getGridClass() == openvdb::GRID_LEVEL_SET)) {
+            check_linear(*base, "grid '" + base->getName() + "' in " + quoted(path));
+            return with_context(corrupt_context(path), [&] {
+                const int64_t end = vdb->grid_end(i);
+                if (auto g = openvdb::gridConstPtrCast<openvdb::FloatGrid>(base)) {
+                    return copy_deferred(*g, end, deferred, threads);
+                }
+                return copy_deferred(*openvdb::gridConstPtrCast<openvdb::DoubleGrid>(base), end,
+                                     deferred, threads);
+            });
+        }
+    }
     const openvdb::GridBase::Ptr base = read_grid_checked(*vdb, i);
     const std::string what = "grid '" + base->getName() + "' in " + quoted(path);
-    if (!base->constTransform().baseMap()->isLinear()) {
-        fail(what + " has a non-linear (" + base->constTransform().mapType() +
-             ") transform, which volgrad cannot render");
-    }
+    check_linear(*base, what);
     // sdfToFogVolume: the interior half of the narrow band becomes a 0 -> 1 ramp (0 at the
     // surface, 1 at the band's inner edge), the inside 1, the outside 0; background 0, class fog.
     if (level_set_to_fog_volume && base->getGridClass() == openvdb::GRID_LEVEL_SET) {
@@ -507,10 +748,26 @@ FloatGridData read_float_grid(rust::Str path_str, rust::Str name_str, int32_t in
         });
     }
     return with_context("cannot copy " + what, [&] {
-        if (auto g = openvdb::gridConstPtrCast<openvdb::FloatGrid>(base)) return copy_grid(*g, threads);
-        if (auto g = openvdb::gridConstPtrCast<openvdb::DoubleGrid>(base)) return copy_grid(*g, threads);
+        if (auto g = openvdb::gridConstPtrCast<openvdb::FloatGrid>(base)) {
+            return copy_read_grid(*g, threads);
+        }
+        if (auto g = openvdb::gridConstPtrCast<openvdb::DoubleGrid>(base)) {
+            return copy_read_grid(*g, threads);
+        }
         fail(what + " has value type " + base->valueType() + ", not float");
     });
+}
+
+}  // namespace
+
+FloatGridData read_float_grid(rust::Str path, rust::Str name, int32_t index,
+                              bool level_set_to_fog_volume, uint32_t threads) {
+    return read_float_grid_with(path, name, index, level_set_to_fog_volume, threads, true);
+}
+
+FloatGridData read_float_grid_through_openvdb(rust::Str path, rust::Str name, int32_t index,
+                                              bool level_set_to_fog_volume, uint32_t threads) {
+    return read_float_grid_with(path, name, index, level_set_to_fog_volume, threads, false);
 }
 
 }  // namespace volgrad

@@ -201,16 +201,7 @@ openvdb::FloatGrid::Ptr build_grid(const FloatGridData& d) {
     }
 
     // Shapes.
-    const size_t nleaf = d.leaf_origins.size() / 3;
-    if (d.leaf_origins.size() % 3 != 0) fail("leaf_origins length is not a multiple of 3");
-    if (d.leaf_values.size() != 512 * nleaf) {
-        fail("leaf_values has " + std::to_string(d.leaf_values.size()) + " values, expected 512 x " +
-             std::to_string(nleaf) + " leaves");
-    }
-    if (d.leaf_active.size() != 8 * nleaf) {
-        fail("leaf_active has " + std::to_string(d.leaf_active.size()) + " words, expected 8 x " +
-             std::to_string(nleaf) + " leaves");
-    }
+    const size_t nleaf = d.leaves.size();
     const size_t ntile = d.tile_values.size();
     if (d.tile_origins.size() != 3 * ntile || d.tile_sizes.size() != ntile) {
         fail("tile_origins / tile_sizes / tile_values lengths disagree (" +
@@ -247,7 +238,7 @@ openvdb::FloatGrid::Ptr build_grid(const FloatGridData& d) {
         add_region(&d.tile_origins[3 * t], s, "tile");
     }
     for (size_t l = 0; l < nleaf; ++l) {
-        const int32_t* o = &d.leaf_origins[3 * l];
+        const int32_t* o = d.leaves[l].origin.data();
         if (regions.count({8, o[0], o[1], o[2]})) {
             fail("leaf at " + coord_text(o) + " coincides with an 8-voxel tile");
         }
@@ -280,12 +271,12 @@ openvdb::FloatGrid::Ptr build_grid(const FloatGridData& d) {
         tree.addTile(level, Coord(o[0], o[1], o[2]), d.tile_values[t], /*active=*/true);
     }
     for (size_t l = 0; l < nleaf; ++l) {
-        const int32_t* o = &d.leaf_origins[3 * l];
+        const LeafData& data = d.leaves[l];
+        const int32_t* o = data.origin.data();
         FloatTree::LeafNodeType* leaf = tree.touchLeaf(Coord(o[0], o[1], o[2]));
-        const float* values = &d.leaf_values[512 * l];
-        for (Index i = 0; i < 512; ++i) leaf->setValueOnly(i, values[i]);
+        for (Index i = 0; i < 512; ++i) leaf->setValueOnly(i, data.values[i]);
         auto& mask = leaf->getValueMask();
-        for (Index w = 0; w < 8; ++w) mask.getWord<Index64>(w) = d.leaf_active[8 * l + w];
+        for (Index w = 0; w < 8; ++w) mask.getWord<Index64>(w) = data.active[w];
     }
 
     for (const MetaEntry& e : d.metadata) {

@@ -6,7 +6,7 @@ use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
 use exr::prelude::f16;
-use volgrad::io::bridge::ffi::{self, FloatGridData, GridSummary, ImageData, MetaEntry};
+use volgrad::io::bridge::ffi::{self, FloatGridData, GridSummary, ImageData, LeafData, MetaEntry};
 
 fn asset(name: &str) -> String {
     format!("{}/scenes/assets/{}", env!("CARGO_MANIFEST_DIR"), name)
@@ -39,9 +39,7 @@ fn err_text<T>(r: Result<T, cxx::Exception>) -> String {
 
 /// Active voxels of a grid copy: set mask bits plus the voxels of every active tile.
 fn active_voxels(g: &FloatGridData) -> u64 {
-    let in_leaves: u64 = g
-        .leaf_active
-        .iter()
+    let in_leaves: u64 = (g.leaves.iter().flat_map(|leaf| leaf.active))
         .map(|w| u64::from(w.count_ones()))
         .sum();
     let in_tiles: u64 = g.tile_sizes.iter().map(|&s| u64::from(s).pow(3)).sum();
@@ -65,25 +63,27 @@ fn apply(m: &[f64; 16], p: [f64; 3]) -> [f64; 3] {
 type LeafMap = BTreeMap<[i32; 3], (Vec<f32>, Vec<u64>)>;
 
 fn leaves(g: &FloatGridData) -> LeafMap {
-    let n = g.leaf_origins.len() / 3;
-    assert_eq!(g.leaf_values.len(), 512 * n);
-    assert_eq!(g.leaf_active.len(), 8 * n);
-    (0..n)
-        .map(|i| {
-            let o = [
-                g.leaf_origins[3 * i],
-                g.leaf_origins[3 * i + 1],
-                g.leaf_origins[3 * i + 2],
-            ];
+    (g.leaves.iter())
+        .map(|leaf| (leaf.origin, (leaf.values.to_vec(), leaf.active.to_vec())))
+        .collect()
+}
+
+/// Every leaf as (origin, mask, value bits): equal exactly when the leaves are bit for bit.
+fn leaf_bits(g: &FloatGridData) -> Vec<([i32; 3], [u64; 8], Vec<u32>)> {
+    (g.leaves.iter())
+        .map(|leaf| {
             (
-                o,
-                (
-                    g.leaf_values[512 * i..512 * (i + 1)].to_vec(),
-                    g.leaf_active[8 * i..8 * (i + 1)].to_vec(),
-                ),
+                leaf.origin,
+                leaf.active,
+                leaf.values.map(f32::to_bits).to_vec(),
             )
         })
         .collect()
+}
+
+/// Every leaf value, leaf after leaf.
+fn values(g: &FloatGridData) -> impl Iterator<Item = f32> + '_ {
+    g.leaves.iter().flat_map(|leaf| leaf.values)
 }
 
 /// Active tiles keyed by origin: (edge, value bits).
@@ -294,13 +294,113 @@ fn the_parallel_leaf_copy_is_the_same_at_any_thread_count() {
     let two = read_cloud();
     let zero = ffi::read_float_grid(&path, "density", -1, false, 0).unwrap();
     for g in [&two, &zero] {
-        assert_eq!(g.leaf_origins, one.leaf_origins);
-        assert_eq!(g.leaf_active, one.leaf_active);
-        assert!(g
-            .leaf_values
-            .iter()
-            .zip(&one.leaf_values)
-            .all(|(a, b)| a.to_bits() == b.to_bits()));
+        assert_eq!(leaf_bits(g), leaf_bits(&one));
+    }
+}
+
+/// Both readers' copies of grid `index` of `path`, which must agree field for field (leaves bit
+/// for bit), or both fail with the same message.
+fn assert_readers_agree(path: &str, index: i32) {
+    let what = format!("grid {index} of {path}");
+    let parallel = ffi::read_float_grid(path, "", index, false, 2);
+    let reference = ffi::read_float_grid_through_openvdb(path, "", index, false, 2);
+    let (parallel, reference) = match (parallel, reference) {
+        (Ok(p), Ok(r)) => (p, r),
+        (Err(p), Err(r)) => return assert_eq!(p.what(), r.what(), "{what}"),
+        (p, r) => panic!("{what}: one reader failed: {:?} / {:?}", p.err(), r.err()),
+    };
+    assert_eq!(leaf_bits(&parallel), leaf_bits(&reference), "{what}");
+    assert_eq!(tiles(&parallel), tiles(&reference), "{what}");
+    assert_eq!(
+        (&parallel.name, &parallel.grid_class, parallel.saved_as_half),
+        (
+            &reference.name,
+            &reference.grid_class,
+            reference.saved_as_half
+        ),
+        "{what}"
+    );
+    assert_eq!(parallel.index_to_world, reference.index_to_world, "{what}");
+    assert_eq!(
+        parallel.background.to_bits(),
+        reference.background.to_bits(),
+        "{what}"
+    );
+    assert_eq!(
+        parallel.inactive_tiles_off_background, reference.inactive_tiles_off_background,
+        "{what}"
+    );
+    assert_eq!(parallel.metadata, reference.metadata, "{what}");
+}
+
+#[test]
+fn the_parallel_decoder_reads_every_asset_as_openvdb_does() {
+    // Stored raw (the cloud), zip-compressed as half floats in format 222 (the smoke), with
+    // blosc and active-value compression, several grids in one file, and a point grid (refused
+    // alike by both).
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/assets");
+    let mut files = 0;
+    for entry in std::fs::read_dir(&dir).unwrap() {
+        let path = entry.unwrap().path();
+        if path.extension().is_some_and(|e| e == "vdb") {
+            let p = path.to_str().unwrap();
+            for index in 0..ffi::list_grid_names(p).unwrap().len() {
+                assert_readers_agree(p, index as i32);
+            }
+            files += 1;
+        }
+    }
+    assert!(files >= 7, "{files} assets");
+}
+
+#[test]
+fn the_parallel_decoder_restores_every_kind_of_inactive_values() {
+    // OpenVDB stores a leaf's active values only, with one flag saying how its inactive ones
+    // come back: all the background, all minus it, all one other value, a mask choosing between
+    // two of those, or every value stored. One leaf per kind, written in full and as half.
+    let b = 0.5f32;
+    let inactive: [&dyn Fn(usize) -> f32; 8] = [
+        &|_| b,                                     // every voxel active (below)
+        &|_| b,                                     // all the background
+        &|_| -b,                                    // all minus the background
+        &|i| if i % 2 == 0 { b } else { -b },       // a mask between ± the background
+        &|_| 0.25,                                  // one other value
+        &|i| if i % 2 == 0 { b } else { 0.25 },     // a mask between it and the background
+        &|i| if i % 2 == 0 { 0.125 } else { 0.25 }, // a mask between two other values
+        &|i| [0.125, 0.25, 0.375][i % 3],           // all values stored
+    ];
+    let mut grid = hand_built();
+    (grid.tile_origins, grid.tile_sizes, grid.tile_values) = (vec![], vec![], vec![]);
+    grid.background = b;
+    grid.leaves = (inactive.iter().enumerate())
+        .map(|(k, value)| {
+            let active = |i: usize| k == 0 || i.is_multiple_of(5);
+            LeafData {
+                origin: [8 * k as i32, 0, 0],
+                values: std::array::from_fn(|i| {
+                    if active(i) {
+                        1.0 + (k * 512 + i) as f32 / 4096.0
+                    } else {
+                        value(i)
+                    }
+                }),
+                active: std::array::from_fn(|w| {
+                    (0..64)
+                        .filter(|&j| active(64 * w + j))
+                        .fold(0, |m, j| m | 1 << j)
+                }),
+            }
+        })
+        .collect();
+    let dir = tempfile::tempdir().unwrap();
+    for save_half in [false, true] {
+        let out = dir.path().join(format!("kinds-{save_half}.vdb"));
+        ffi::write_float_grids(path_str(&out), std::slice::from_ref(&grid), save_half).unwrap();
+        assert_readers_agree(path_str(&out), 0);
+        if !save_half {
+            let back = ffi::read_float_grid(path_str(&out), "", 0, false, 2).unwrap();
+            assert_eq!(leaf_bits(&back), leaf_bits(&grid));
+        }
     }
 }
 
@@ -311,16 +411,19 @@ fn read_cloud_copies_leaves_and_tiles() {
     assert_eq!(g.grid_class, "fog volume");
     assert_eq!(g.background, 0.0);
     assert!(!g.saved_as_half);
-    assert_eq!(g.leaf_origins.len(), 3 * 1241);
+    assert_eq!(g.leaves.len(), 1241);
     assert_eq!(g.tile_values.len(), 130);
     assert_eq!(active_voxels(&g), 415_642);
-    assert!(g.leaf_origins.iter().all(|o| o % 8 == 0));
+    assert!(g
+        .leaves
+        .iter()
+        .all(|leaf| leaf.origin.iter().all(|o| o % 8 == 0)));
     for (o, (size, _)) in tiles(&g) {
         assert!([8, 128, 4096].contains(&size), "tile edge {size}");
         assert!(o.iter().all(|c| c % size as i32 == 0), "tile origin {o:?}");
     }
     // Values are densities in [0, 1]; every active voxel lies in the listed index box.
-    assert!(g.leaf_values.iter().all(|v| (0.0..=1.0).contains(v)));
+    assert!(values(&g).all(|v| (0.0..=1.0).contains(&v)));
     for (o, (_, mask)) in leaves(&g) {
         for off in 0..512 {
             if mask[off / 64] >> (off % 64) & 1 == 1 {
@@ -361,8 +464,8 @@ fn read_half_grid() {
     assert!(g.saved_as_half);
     assert_eq!(active_voxels(&g), 1_049_275);
     // Stored as half: every value is exactly representable in f16.
-    assert!(g.leaf_values.iter().all(|&v| half(v) == v));
-    assert!(g.leaf_values.iter().any(|&v| v > 1.0));
+    assert!(values(&g).all(|v| half(v) == v));
+    assert!(values(&g).any(|v| v > 1.0));
 }
 
 // ------------------------------------------------------------------------------------------------
@@ -386,9 +489,7 @@ fn round_trip_cloud() {
     assert_eq!(back.index_to_world, src.index_to_world);
     assert_eq!(back.background, src.background);
     assert!(!back.saved_as_half);
-    assert_eq!(back.leaf_origins, src.leaf_origins);
-    assert_eq!(back.leaf_values, src.leaf_values);
-    assert_eq!(back.leaf_active, src.leaf_active);
+    assert_eq!(leaf_bits(&back), leaf_bits(&src));
     assert_eq!(tiles(&back), tiles(&src));
     assert_eq!(user_meta(&back.metadata), user_meta(&src.metadata));
     // OpenVDB regenerates its own statistics.
@@ -414,10 +515,11 @@ fn round_trip_cloud_as_half() {
     let back = ffi::read_float_grid(path_str(&halved), "", 0, false, 2).unwrap();
     assert!(back.saved_as_half);
     assert!(ffi::list_grids(path_str(&halved)).unwrap()[0].saved_as_half);
-    assert_eq!(back.leaf_origins, src.leaf_origins);
-    assert_eq!(back.leaf_active, src.leaf_active);
+    let shape =
+        |g: &FloatGridData| -> Vec<_> { g.leaves.iter().map(|l| (l.origin, l.active)).collect() };
+    assert_eq!(shape(&back), shape(&src));
     let mut changed = 0;
-    for (&b, &s) in back.leaf_values.iter().zip(&src.leaf_values) {
+    for (b, s) in values(&back).zip(values(&src)) {
         let expect = half(s);
         assert!(
             (b - expect).abs() <= 1e-3 * expect.abs(),
@@ -452,27 +554,27 @@ fn hand_built() -> FloatGridData {
         0.0,
         1.0,
     ];
-    let mut leaf_values = Vec::new();
-    for l in 0..2 {
-        leaf_values.extend((0..512).map(|i| l as f32 + i as f32 / 512.0));
-    }
-    let leaf_active = vec![
-        u64::MAX,
-        0x0123_4567_89ab_cdef,
-        0,
-        1,
-        1 << 63,
-        0xffff_0000_ffff_0000,
-        42,
-        u64::MAX - 1,
-        0xdead_beef,
-        0,
-        0,
-        0,
-        0,
-        0,
-        0,
-        u64::MAX,
+    let leaf = |l: usize, origin: [i32; 3], active: [u64; 8]| LeafData {
+        origin,
+        values: std::array::from_fn(|i| l as f32 + i as f32 / 512.0),
+        active,
+    };
+    let leaves = vec![
+        leaf(
+            0,
+            [0, 0, 0],
+            [
+                u64::MAX,
+                0x0123_4567_89ab_cdef,
+                0,
+                1,
+                1 << 63,
+                0xffff_0000_ffff_0000,
+                42,
+                u64::MAX - 1,
+            ],
+        ),
+        leaf(1, [-8, 16, 24], [0xdead_beef, 0, 0, 0, 0, 0, 0, u64::MAX]),
     ];
     let entry = |name: &str, type_name: &str, value: &str| MetaEntry {
         name: name.into(),
@@ -485,9 +587,7 @@ fn hand_built() -> FloatGridData {
         index_to_world,
         background: 0.0,
         saved_as_half: false,
-        leaf_origins: vec![0, 0, 0, -8, 16, 24],
-        leaf_values,
-        leaf_active,
+        leaves,
         tile_origins: vec![128, -128, 256],
         tile_sizes: vec![128],
         tile_values: vec![0.75],
@@ -527,7 +627,9 @@ fn round_trip_hand_built_grid() {
     }
     assert_eq!(leaves(&back), leaves(&src));
     assert_eq!(tiles(&back), tiles(&src));
-    let mask_bits: u64 = src.leaf_active.iter().map(|w| w.count_ones() as u64).sum();
+    let mask_bits: u64 = (src.leaves.iter().flat_map(|leaf| leaf.active))
+        .map(|w| w.count_ones() as u64)
+        .sum();
     assert_eq!(mask_bits, 284);
 
     let m = |name: &str| {
@@ -628,6 +730,42 @@ fn error_missing_file() {
         e.contains("'missing.vdb'") && e.contains("no such file"),
         "{e}"
     );
+}
+
+#[test]
+fn error_a_corrupt_buffer_length_is_refused_by_both_readers() {
+    // A one-leaf grid, blosc-compressed: its file ends with the leaf's compressed values, led by
+    // their length. A length past the end of the file (or negative, as OpenVDB marks uncompressed
+    // chunks, and past the start) is an error naming the file, from either reader.
+    let mut grid = hand_built();
+    grid.leaves.truncate(1);
+    (grid.tile_origins, grid.tile_sizes, grid.tile_values) = (vec![], vec![], vec![]);
+    let dir = tempfile::tempdir().unwrap();
+    let p = dir.path().join("one.vdb");
+    let ps = path_str(&p);
+    ffi::write_float_grids(ps, std::slice::from_ref(&grid), false).unwrap();
+    let bytes = std::fs::read(&p).unwrap();
+    let n = bytes.len();
+    let at = (9..n.min(4096))
+        .map(|len| n - len - 8)
+        .find(|&at| {
+            i64::from_le_bytes(bytes[at..at + 8].try_into().unwrap()) == (n - at - 8) as i64
+        })
+        .expect("the last chunk's length field");
+    for length in [1i64 << 40, n as i64, -(1i64 << 40)] {
+        let mut corrupt = bytes.clone();
+        corrupt[at..at + 8].copy_from_slice(&length.to_le_bytes());
+        std::fs::write(&p, &corrupt).unwrap();
+        for e in [
+            err_text(ffi::read_float_grid(ps, "", 0, false, 2)),
+            err_text(ffi::read_float_grid_through_openvdb(ps, "", 0, false, 2)),
+        ] {
+            assert!(
+                e.starts_with(&format!("'{ps}' is not a valid VDB file")),
+                "length {length}: {e}"
+            );
+        }
+    }
 }
 
 #[test]
@@ -743,11 +881,6 @@ fn error_invalid_grid_data_is_rejected_before_writing() {
     g.metadata[1].value = "abc".into();
     let e = err_text(ffi::write_float_grids(p, &[g], false));
     assert!(e.contains("'abc' is not a valid float value"), "{e}");
-
-    let mut g = hand_built();
-    g.leaf_values.pop();
-    let e = err_text(ffi::write_float_grids(p, &[g], false));
-    assert!(e.contains("leaf_values"), "{e}");
 
     let mut g = hand_built();
     g.tile_origins = vec![0, 0, 0]; // the 128-tile would swallow the leaf at the origin

@@ -4,7 +4,7 @@
 
 use std::path::{Path, PathBuf};
 
-use volgrad::io::bridge::ffi::{self, FloatGridData};
+use volgrad::io::bridge::ffi::{self, FloatGridData, LeafData};
 
 mod common;
 use common::*;
@@ -39,9 +39,11 @@ fn fog(name: &str) -> FloatGridData {
         ],
         background: 0.0,
         saved_as_half: false,
-        leaf_origins: vec![0, 0, 0],
-        leaf_values: (0..512).map(|i| i as f32 / 511.0).collect(),
-        leaf_active: vec![u64::MAX; 8],
+        leaves: vec![LeafData {
+            origin: [0, 0, 0],
+            values: std::array::from_fn(|i| i as f32 / 511.0),
+            active: [u64::MAX; 8],
+        }],
         tile_origins: vec![],
         tile_sizes: vec![],
         tile_values: vec![],
@@ -66,7 +68,7 @@ fn level_set_ball(path: &Path) {
     d.index_to_world = [
         0.5, 0.0, 0.0, 0.0, 0.0, 0.5, 0.0, 0.0, 0.0, 0.0, 0.5, 0.0, 0.0, 0.0, 0.0, 1.0,
     ];
-    (d.leaf_origins, d.leaf_values, d.leaf_active) = (vec![], vec![], vec![]);
+    d.leaves.clear();
     (d.tile_origins, d.tile_sizes, d.tile_values) = (vec![], vec![], vec![]);
     for ox in [-16, -8, 0, 8] {
         for oy in [-16, -8, 0, 8] {
@@ -83,9 +85,11 @@ fn level_set_ball(path: &Path) {
                     }
                 }
                 if active.iter().any(|&w| w != 0) {
-                    d.leaf_origins.extend([ox, oy, oz]);
-                    d.leaf_values.extend(values);
-                    d.leaf_active.extend(active);
+                    d.leaves.push(LeafData {
+                        origin: [ox, oy, oz],
+                        values,
+                        active,
+                    });
                 }
             }
         }
@@ -95,10 +99,11 @@ fn level_set_ball(path: &Path) {
 
 /// The value at index `v` of a grid copy: its leaf's value, an active tile's, else the background.
 fn value_at(g: &FloatGridData, v: [i32; 3]) -> f32 {
-    for (l, o) in g.leaf_origins.chunks(3).enumerate() {
+    for leaf in &g.leaves {
+        let o = leaf.origin;
         if (0..3).all(|k| v[k] - o[k] >= 0 && v[k] - o[k] < 8) {
             let i = ((v[0] - o[0]) * 64 + (v[1] - o[1]) * 8 + (v[2] - o[2])) as usize;
-            return g.leaf_values[512 * l + i];
+            return leaf.values[i];
         }
     }
     for (t, o) in g.tile_origins.chunks(3).enumerate() {
@@ -138,16 +143,20 @@ fn level_sets_round_trip_and_convert_with_sdf_to_fog_volume() {
     assert_eq!(value_at(&fog, [0, 0, 0]), 1.0);
     assert_eq!(value_at(&fog, [7, 0, 0]), 0.0);
     assert!((value_at(&fog, [4, 0, 0]) - 1.0 / 3.0).abs() < 1e-6);
-    assert!(fog.leaf_values.iter().all(|v| (0.0..=1.0).contains(v)));
+    assert!(fog
+        .leaves
+        .iter()
+        .all(|leaf| leaf.values.iter().all(|v| (0.0..=1.0).contains(v))));
     // Fog volumes are unaffected by the flag.
     let cloud = asset("wdas_cloud_sixteenth.vdb");
     let a = ffi::read_float_grid(&cloud, "density", -1, true, 2).unwrap();
-    assert_eq!(
-        a.leaf_values,
-        ffi::read_float_grid(&cloud, "density", -1, false, 2)
-            .unwrap()
-            .leaf_values
-    );
+    let b = ffi::read_float_grid(&cloud, "density", -1, false, 2).unwrap();
+    assert_eq!(a.leaves.len(), b.leaves.len());
+    assert!(a
+        .leaves
+        .iter()
+        .zip(&b.leaves)
+        .all(|(x, y)| x.values == y.values));
 }
 
 #[test]
@@ -183,17 +192,15 @@ fn inactive_tiles_off_the_background_are_counted() {
     let p = dir.path().join("off.vdb");
     let mut d = fog("hand");
     assert_eq!(d.inactive_tiles_off_background, 0);
-    d.leaf_origins.extend([64, 64, 64]);
-    d.leaf_values.extend([0.7f32; 512]);
-    d.leaf_active.extend([0u64; 8]);
+    d.leaves.push(LeafData {
+        origin: [64, 64, 64],
+        values: [0.7; 512],
+        active: [0; 8],
+    });
     ffi::write_float_grids(path_str(&p), std::slice::from_ref(&d), false).unwrap();
     let back = ffi::read_float_grid(path_str(&p), "hand", -1, false, 2).unwrap();
     assert_eq!(back.inactive_tiles_off_background, 1);
-    assert_eq!(
-        back.leaf_origins.len(),
-        3,
-        "the inactive tile is not copied"
-    );
+    assert_eq!(back.leaves.len(), 1, "the inactive tile is not copied");
 }
 
 #[test]

@@ -47,8 +47,18 @@ pub mod ffi {
         pub metadata: Vec<MetaEntry>,
     }
 
-    /// A float grid as flat arrays: every leaf (with its whole 512-value buffer, inactive voxels
-    /// included, in OpenVDB order x*64 + y*8 + z) and every active tile.
+    /// One 8³ leaf: its origin (multiples of 8), its whole 512-value buffer (inactive voxels
+    /// included, in OpenVDB order x*64 + y*8 + z) and its active mask (bit offset % 64 of word
+    /// offset / 64). Laid out exactly as `volume::brickmap::Leaf`, so that the leaves a read
+    /// returns become a brick map's without a copy (`Grid::from_data`).
+    #[derive(Debug, Clone, PartialEq)]
+    pub struct LeafData {
+        pub origin: [i32; 3],
+        pub values: [f32; 512],
+        pub active: [u64; 8],
+    }
+
+    /// A float grid as plain data: every leaf and every active tile.
     #[derive(Debug, Clone)]
     pub struct FloatGridData {
         pub name: String,
@@ -56,12 +66,7 @@ pub mod ffi {
         pub index_to_world: [f64; 16],
         pub background: f32,
         pub saved_as_half: bool,
-        /// 3 per leaf: the leaf origin (multiples of 8).
-        pub leaf_origins: Vec<i32>,
-        /// 512 per leaf.
-        pub leaf_values: Vec<f32>,
-        /// 8 per leaf: the active mask, bit (offset % 64) of word (offset / 64).
-        pub leaf_active: Vec<u64>,
+        pub leaves: Vec<LeafData>,
         /// 3 per active tile: its minimum index corner.
         pub tile_origins: Vec<i32>,
         /// 1 per active tile: its edge length in voxels (8, 128 or 4096 for the standard tree).
@@ -87,8 +92,7 @@ pub mod ffi {
         /// `data()`: `rust::Vec::push_back` costs four calls into Rust per value, most of the
         /// time of reading a large grid.
         fn resize_f32s(v: &mut Vec<f32>, len: usize);
-        fn resize_i32s(v: &mut Vec<i32>, len: usize);
-        fn resize_u64s(v: &mut Vec<u64>, len: usize);
+        fn resize_leaves(v: &mut Vec<LeafData>, len: usize);
     }
 
     unsafe extern "C++" {
@@ -97,12 +101,30 @@ pub mod ffi {
         /// Every grid in the file, in file order.
         fn list_grids(path: &str) -> Result<Vec<GridSummary>>;
 
+        /// The names of the grids in the file, in file order, from its grid descriptors alone
+        /// (`list_grids` reads every grid to summarize it).
+        fn list_grid_names(path: &str) -> Result<Vec<String>>;
+
         /// Reads one float grid: by `index` (position in file order) when `index >= 0`, else by
         /// `name`. Errors name the file and the reason (missing, corrupt, no such grid, not float).
         /// With `level_set_to_fog`, a grid of class "level set" comes back converted by OpenVDB's
         /// `tools::sdfToFogVolume` (class "fog volume", background 0); other grids are unchanged.
-        /// The leaves are read and decompressed on `threads` threads.
+        /// A float or double grid in a current-format file is read by OpenVDB without its voxel
+        /// buffers, which are then decoded (by OpenVDB's decoder) on `threads` threads straight
+        /// into the returned arrays; other grids are read by OpenVDB end to end and copied on
+        /// `threads` threads.
         fn read_float_grid(
+            path: &str,
+            name: &str,
+            index: i32,
+            level_set_to_fog: bool,
+            threads: u32,
+        ) -> Result<FloatGridData>;
+
+        /// `read_float_grid` through OpenVDB's own reader end to end (voxel buffers decoded one
+        /// after another into its tree, then copied): the reference the parallel decoding is
+        /// tested against, and the bench's measure of it.
+        fn read_float_grid_through_openvdb(
             path: &str,
             name: &str,
             index: i32,
@@ -124,27 +146,38 @@ pub mod ffi {
     }
 }
 
-pub use ffi::{FloatGridData, GridSummary, ImageData, MetaEntry};
+pub use ffi::{FloatGridData, GridSummary, ImageData, LeafData, MetaEntry};
 
+/// `v` as `len` zeros, for the bridge to fill (an image's pixels): a fresh zeroed allocation gets
+/// its zero pages from the kernel as they are first written, where `resize` would write every
+/// byte once more first.
 fn resize_f32s(v: &mut Vec<f32>, len: usize) {
-    zeroed(v, len);
-}
-
-fn resize_i32s(v: &mut Vec<i32>, len: usize) {
-    zeroed(v, len);
-}
-
-fn resize_u64s(v: &mut Vec<u64>, len: usize) {
-    zeroed(v, len);
-}
-
-/// `v` as `len` zeros. The bridge sizes empty vectors it is about to fill: a fresh zeroed
-/// allocation gets its zero pages from the kernel as they are first written (by the bridge's
-/// threads), where `resize` would write every byte once more first (≈ 40 ms per 100 MiB).
-fn zeroed<T: Copy + Default>(v: &mut Vec<T>, len: usize) {
     if v.is_empty() {
-        *v = vec![T::default(); len];
+        *v = vec![0.0; len];
     } else {
-        v.resize(len, T::default());
+        v.resize(len, 0.0);
     }
+}
+
+/// `v` as `len` zeroed leaves, for the bridge to fill. Memory from `alloc_zeroed` gets its zero
+/// pages from the kernel as they are first written (by the bridge's threads), where `resize`
+/// would write every byte once more first (≈ 40 ms per 100 MiB).
+fn resize_leaves(v: &mut Vec<LeafData>, len: usize) {
+    if len == 0 {
+        v.clear();
+        return;
+    }
+    let layout = std::alloc::Layout::array::<LeafData>(len).unwrap_or_else(|_| {
+        // More leaves than an address space holds: only a corrupt count can ask for it.
+        std::alloc::handle_alloc_error(std::alloc::Layout::new::<LeafData>())
+    });
+    // SAFETY: a LeafData is integers and floats only, for which all-zero bytes are a valid value,
+    // and the allocation has the layout of `len` of them, as `Vec::from_raw_parts` requires.
+    *v = unsafe {
+        let p = std::alloc::alloc_zeroed(layout).cast::<LeafData>();
+        if p.is_null() {
+            std::alloc::handle_alloc_error(layout);
+        }
+        Vec::from_raw_parts(p, len, len)
+    };
 }

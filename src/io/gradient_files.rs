@@ -171,10 +171,9 @@ pub fn merge(inputs: &[&Path]) -> Result<Grid> {
     let mut total_spp = 0u64;
     let mut seeds: Vec<(String, &Path)> = Vec::new();
     for &path in inputs {
-        let summaries = vdb::list_grids(path)?;
-        let index = summaries
+        let index = vdb::list_grid_names(path)?
             .iter()
-            .position(|g| g.name.starts_with("grad_"))
+            .position(|name| name.starts_with("grad_"))
             .with_context(|| format!("'{}' has no grad_* grid", path.display()))?;
         let grid = vdb::read_grid(path, &GridSelector::Index(index))?;
         let provenance = Provenance::from_metadata(&grid.metadata, path)?;

@@ -8,8 +8,8 @@ use glam::IVec3;
 use rayon::prelude::*;
 
 use crate::io::bridge::ffi;
-use crate::io::bridge::{FloatGridData, GridSummary, MetaEntry};
-use crate::volume::brickmap::{BrickMap, Leaf, Tile, BRICK_VOXELS};
+use crate::io::bridge::{FloatGridData, GridSummary, LeafData, MetaEntry};
+use crate::volume::brickmap::{BrickMap, Leaf, Tile};
 use crate::volume::transform::IndexTransform;
 
 /// Which grid of a file to read.
@@ -54,6 +54,11 @@ fn path_str(path: &Path) -> Result<&str> {
 
 pub fn list_grids(path: &Path) -> Result<Vec<GridSummary>> {
     ffi::list_grids(path_str(path)?).map_err(|e| anyhow!("{}", e.what()))
+}
+
+/// The names of the grids in the file, in file order, without reading the grids.
+pub fn list_grid_names(path: &Path) -> Result<Vec<String>> {
+    ffi::list_grid_names(path_str(path)?).map_err(|e| anyhow!("{}", e.what()))
 }
 
 /// Reads a float grid as it is stored (any class, any background).
@@ -101,18 +106,17 @@ fn read_data(path: &Path, selector: &GridSelector, to_fog: bool) -> Result<Float
             Err(_) => bail!("grid index {i} out of range for '{}'", path.display()),
         },
         GridSelector::Default => {
-            let grids = list_grids(path)?;
-            match grids.iter().position(|g| g.name == "density") {
+            let grids = list_grid_names(path)?;
+            match grids.iter().position(|name| name == "density") {
                 Some(i) => ffi::read_float_grid(p, "", i as i32, to_fog, threads),
                 None if grids.is_empty() => bail!("'{}' holds no grids", path.display()),
                 None if grids.len() == 1 => ffi::read_float_grid(p, "", 0, to_fog, threads),
                 None => {
-                    let names: Vec<_> = grids.iter().map(|g| g.name.as_str()).collect();
                     bail!(
                         "'{}' has no grid named \"density\" and {} grids ({}): choose one with medium.grid or medium.grid_index",
                         path.display(),
                         grids.len(),
-                        names.join(", ")
+                        grids.join(", ")
                     )
                 }
             }
@@ -128,9 +132,9 @@ pub fn write_grids(path: &Path, grids: &[&Grid], save_half: bool, overwrite: boo
     ffi::write_float_grids(path_str(path)?, &data, save_half).map_err(|e| anyhow!("{}", e.what()))
 }
 
-/// As `write_grids` for one grid that the caller no longer needs: it is freed once its values are
-/// in the bridge's arrays, so that a large grid is held twice while OpenVDB builds its tree, not
-/// three times.
+/// As `write_grids` for one grid that the caller no longer needs: its leaves become the bridge's
+/// without a copy, so that a large grid is held twice while OpenVDB builds its tree, not three
+/// times.
 pub fn write_grid_consumed(
     path: &Path,
     grid: Grid,
@@ -138,36 +142,18 @@ pub fn write_grid_consumed(
     overwrite: bool,
 ) -> Result<()> {
     crate::io::output::refuse_overwrite(path, overwrite)?;
-    let data = grid.to_data();
-    drop(grid);
+    let data = grid.into_data();
     ffi::write_float_grids(path_str(path)?, &[data], save_half).map_err(|e| anyhow!("{}", e.what()))
 }
 
 impl Grid {
     pub fn from_data(d: FloatGridData) -> Result<Grid> {
-        let n = d.leaf_origins.len() / 3;
-        if d.leaf_values.len() != n * BRICK_VOXELS || d.leaf_active.len() != n * 8 {
-            bail!("inconsistent leaf arrays from the bridge");
-        }
         // In parallel: at 100 MiB of leaves each pass over the values is a noticeable part of the
-        // load. The check is a pass of its own, so that the copy is an indexed collect, written
-        // straight into the leaves' vector.
+        // load.
         let finite = |values: &[f32]| values.iter().fold(true, |ok, v| ok & v.is_finite());
-        if !d.leaf_values.par_chunks(1 << 16).all(finite) || !finite(&d.tile_values) {
+        if !d.leaves.par_iter().all(|leaf| finite(&leaf.values)) || !finite(&d.tile_values) {
             bail!("grid '{}' holds NaN or infinite values", d.name);
         }
-        // The lengths were checked above, so every chunk has exactly a leaf's worth.
-        let leaves: Vec<Leaf> = d
-            .leaf_origins
-            .par_chunks_exact(3)
-            .zip(d.leaf_values.par_chunks_exact(BRICK_VOXELS))
-            .zip(d.leaf_active.par_chunks_exact(8))
-            .map(|((origin, values), active)| Leaf {
-                origin: IVec3::from_slice(origin),
-                values: values.try_into().expect("chunks_exact gives whole leaves"),
-                active: active.try_into().expect("chunks_exact gives whole masks"),
-            })
-            .collect();
         let tiles = (0..d.tile_values.len())
             .map(|i| Tile {
                 origin: IVec3::from_slice(&d.tile_origins[3 * i..3 * i + 3]),
@@ -177,7 +163,7 @@ impl Grid {
             .collect();
         Ok(Grid {
             transform: IndexTransform::from_rows(&d.index_to_world)?,
-            bricks: BrickMap::new(leaves, tiles),
+            bricks: BrickMap::new(into_leaves(d.leaves), tiles),
             name: d.name,
             grid_class: d.grid_class,
             background: d.background,
@@ -187,24 +173,32 @@ impl Grid {
     }
 
     pub fn to_data(&self) -> FloatGridData {
-        let leaves = self.bricks.leaves();
+        let leaves = (self.bricks.leaves().iter())
+            .map(|leaf| LeafData {
+                origin: leaf.origin.to_array(),
+                values: leaf.values,
+                active: leaf.active,
+            })
+            .collect();
+        self.data_with(leaves)
+    }
+
+    /// As `to_data`, handing the leaves over instead of copying them.
+    pub fn into_data(self) -> FloatGridData {
+        let mut data = self.data_with(Vec::new());
+        data.leaves = from_leaves(self.bricks.into_leaves());
+        data
+    }
+
+    fn data_with(&self, leaves: Vec<LeafData>) -> FloatGridData {
         let tiles = self.bricks.tiles();
-        // Sized up front: a grown vector of a large grid's values would hold up to twice them.
-        let mut leaf_values = Vec::with_capacity(leaves.len() * BRICK_VOXELS);
-        let mut leaf_active = Vec::with_capacity(leaves.len() * 8);
-        for leaf in leaves {
-            leaf_values.extend_from_slice(&leaf.values);
-            leaf_active.extend_from_slice(&leaf.active);
-        }
         FloatGridData {
             name: self.name.clone(),
             grid_class: self.grid_class.clone(),
             index_to_world: self.transform.to_rows(),
             background: self.background,
             saved_as_half: self.saved_as_half,
-            leaf_origins: leaves.iter().flat_map(|l| l.origin.to_array()).collect(),
-            leaf_values,
-            leaf_active,
+            leaves,
             tile_origins: tiles.iter().flat_map(|t| t.origin.to_array()).collect(),
             tile_sizes: tiles.iter().map(|t| t.size).collect(),
             tile_values: tiles.iter().map(|t| t.value).collect(),
@@ -214,10 +208,92 @@ impl Grid {
     }
 }
 
+// The bridge's leaves and the brick map's are the same bytes: an origin of three i32, 512 f32 and
+// 8 u64, in that order, `repr(C)` both.
+const _: () = {
+    use std::mem::{align_of, offset_of, size_of};
+    assert!(size_of::<LeafData>() == size_of::<Leaf>());
+    assert!(align_of::<LeafData>() == align_of::<Leaf>());
+    assert!(offset_of!(LeafData, origin) == offset_of!(Leaf, origin));
+    assert!(offset_of!(LeafData, values) == offset_of!(Leaf, values));
+    assert!(offset_of!(LeafData, active) == offset_of!(Leaf, active));
+};
+
+/// The leaves the bridge read, as the brick map's, without copying them (100 MiB for a large
+/// grid: a copy was a sixth of its load).
+fn into_leaves(leaves: Vec<LeafData>) -> Vec<Leaf> {
+    // SAFETY: the two leaf types, whose layouts are checked above.
+    unsafe { relabel(leaves) }
+}
+
+/// A brick map's leaves as the bridge's, without copying them.
+fn from_leaves(leaves: Vec<Leaf>) -> Vec<LeafData> {
+    // SAFETY: the two leaf types, whose layouts are checked above.
+    unsafe { relabel(leaves) }
+}
+
+/// `v` as a vector of `B`, the same allocation.
+///
+/// SAFETY: `A` and `B` must have the same size, alignment and field offsets, with fields of the
+/// same types (IVec3 is three i32, `repr(C)`), so that every `A` is a valid `B`: `Leaf` and
+/// `LeafData`, either way round. The allocation then changes owner whole, with the layout it was
+/// made with.
+unsafe fn relabel<A, B>(v: Vec<A>) -> Vec<B> {
+    debug_assert!(std::mem::size_of::<A>() == std::mem::size_of::<B>());
+    let mut v = std::mem::ManuallyDrop::new(v);
+    Vec::from_raw_parts(v.as_mut_ptr().cast::<B>(), v.len(), v.capacity())
+}
+
 pub fn meta(name: &str, type_name: &str, value: impl ToString) -> MetaEntry {
     MetaEntry {
         name: name.into(),
         type_name: type_name.into(),
         value: value.to_string(),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_grid_handed_to_the_bridge_equals_its_copy_and_comes_back_whole() {
+        let make = || Grid {
+            name: "density".into(),
+            grid_class: "fog volume".into(),
+            transform: IndexTransform::from_rows(&[
+                0.5, 0.0, 0.0, 1.0, 0.0, 0.5, 0.0, 2.0, 0.0, 0.0, 0.5, 3.0, 0.0, 0.0, 0.0, 1.0,
+            ])
+            .unwrap(),
+            bricks: BrickMap::block(19, |v| (v.x + 19 * v.y + 361 * v.z) as f32 / 7000.0),
+            background: 0.0,
+            saved_as_half: false,
+            metadata: vec![meta("author", "string", "test")],
+        };
+        let grid = make();
+        let copied = grid.to_data();
+        let handed = make().into_data();
+        assert_eq!(handed.leaves.len(), 27);
+        assert!(handed.leaves == copied.leaves);
+        assert_eq!(
+            (
+                &handed.tile_origins,
+                &handed.tile_sizes,
+                &handed.tile_values
+            ),
+            (
+                &copied.tile_origins,
+                &copied.tile_sizes,
+                &copied.tile_values
+            )
+        );
+        assert_eq!(handed.metadata, copied.metadata);
+        // And back: the bridge's leaves become the brick map's as they are.
+        let back = Grid::from_data(copied).unwrap();
+        for v in [IVec3::ZERO, IVec3::new(18, 3, 11), IVec3::new(7, 8, 9)] {
+            assert_eq!(back.bricks.voxel(v), grid.bricks.voxel(v));
+            assert!(back.bricks.is_active(v));
+        }
+        assert_eq!(back.bricks.active_bounds(), grid.bricks.active_bounds());
     }
 }

@@ -167,6 +167,37 @@ impl Builder {
         }
     }
 
+    /// Raises each cell `first + (x, y, z)` of a table of `dims` cells (x-major) whose value is
+    /// positive to at least value × `scale`, as `raise` cell by cell would. A flat majorant takes
+    /// the table row by row: three million calls of `raise` were a third of a large grid's build.
+    fn raise_table(&mut self, first: IVec3, dims: IVec3, table: &[f32], scale: f32) {
+        let at = |c: IVec3| table[cell_offset(c - first, dims)];
+        let (lo, hi) = (first.max(self.c_lo), (first + dims - 1).min(self.c_hi));
+        if self.flat.is_empty() {
+            for k in 0..table.len() as i32 {
+                let cell =
+                    first + IVec3::new(k / (dims.y * dims.z), (k / dims.z) % dims.y, k % dims.z);
+                if at(cell) > 0.0 {
+                    self.raise(cell, cell, at(cell) * scale);
+                }
+            }
+            return;
+        }
+        let flat_dims = self.c_hi - self.c_lo + 1;
+        for x in lo.x..=hi.x {
+            for y in lo.y..=hi.y {
+                let row = cell_offset(IVec3::new(x, y, lo.z) - self.c_lo, flat_dims);
+                for z in lo.z..=hi.z {
+                    let value = at(IVec3::new(x, y, z));
+                    if value > 0.0 {
+                        let c = &mut self.flat[row + (z - lo.z) as usize];
+                        *c = c.max(value * scale);
+                    }
+                }
+            }
+        }
+    }
+
     /// Raises the majorant of every cell in the inclusive range `[lo, hi]` to at least `sigma`.
     fn raise(&mut self, lo: IVec3, hi: IVec3, sigma: f32) {
         let (lo, hi) = (lo.max(self.c_lo), hi.min(self.c_hi));
@@ -327,14 +358,7 @@ impl MajorantGrid {
             .filter_map(|leaf| leaf_cell_maxima(leaf, s, box_lo, box_hi))
             .collect();
         for (first_cell, dims, local) in tables {
-            for (k, &value) in local.iter().enumerate() {
-                if value > 0.0 {
-                    let k = k as i32;
-                    let cell = first_cell
-                        + IVec3::new(k / (dims.y * dims.z), (k / dims.z) % dims.y, k % dims.z);
-                    builder.raise(cell, cell, value * density_scale);
-                }
-            }
+            builder.raise_table(first_cell, dims, &local, density_scale);
         }
         for tile in bricks.tiles() {
             if tile.value > 0.0 {
@@ -463,36 +487,33 @@ fn leaf_cell_maxima(
             lo as usize..end.max(lo) as usize
         })
     });
-    // A cell's maximum is separable: reduce z into cells, then y, then x (each voxel is read
-    // once; raising every cell a voxel reaches cost three times as much).
-    let mut along_z = [0.0f32; 8 * 8 * MAX_LEAF_CELLS];
-    for (row, values) in leaf.values.chunks_exact(8).enumerate() {
-        let out = &mut along_z[row * dz..(row + 1) * dz];
-        for (z, &value) in values.iter().enumerate() {
-            for c in reach[2][z].clone() {
-                out[c] = out[c].max(value);
+    // A cell's maximum is separable. Reduce x first, whole (y, z) slabs of 64 values at a time,
+    // then y, rows of 8 z at a time, then z: the first two passes are element-wise maxima of
+    // contiguous arrays, which vectorise (reducing z first, a scalar pass over every voxel, took
+    // 1.8 times as long).
+    let mut along_x = [[0.0f32; 64]; MAX_LEAF_CELLS];
+    for (x, slab) in leaf.values.chunks_exact(64).enumerate() {
+        for cx in reach[0][x].clone() {
+            for (o, &v) in along_x[cx].iter_mut().zip(slab) {
+                *o = o.max(v);
             }
         }
     }
-    let mut along_yz = [0.0f32; 8 * MAX_LEAF_CELLS * MAX_LEAF_CELLS];
-    for x in 0..8 {
-        for y in 0..8 {
-            let from = &along_z[(x * 8 + y) * dz..(x * 8 + y + 1) * dz];
+    let mut along_xy = [[0.0f32; 8]; MAX_LEAF_CELLS * MAX_LEAF_CELLS];
+    for (cx, slab) in along_x[..dx].iter().enumerate() {
+        for (y, row) in slab.chunks_exact(8).enumerate() {
             for cy in reach[1][y].clone() {
-                let out = &mut along_yz[(x * dy + cy) * dz..(x * dy + cy + 1) * dz];
-                for (o, &m) in out.iter_mut().zip(from) {
-                    *o = o.max(m);
+                for (o, &v) in along_xy[cx * dy + cy].iter_mut().zip(row) {
+                    *o = o.max(v);
                 }
             }
         }
     }
     let mut local = vec![0.0f32; dx * dy * dz];
-    for (x, cells) in reach[0].iter().enumerate() {
-        let from = &along_yz[x * dy * dz..(x + 1) * dy * dz];
-        for cx in cells.clone() {
-            let out = &mut local[cx * dy * dz..(cx + 1) * dy * dz];
-            for (o, &m) in out.iter_mut().zip(from) {
-                *o = o.max(m);
+    for (out, row) in local.chunks_exact_mut(dz).zip(&along_xy[..dx * dy]) {
+        for (z, &v) in row.iter().enumerate() {
+            for cz in reach[2][z].clone() {
+                out[cz] = out[cz].max(v);
             }
         }
     }
