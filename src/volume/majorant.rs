@@ -172,7 +172,6 @@ impl Builder {
     /// the table row by row: three million calls of `raise` were a third of a large grid's build.
     fn raise_table(&mut self, first: IVec3, dims: IVec3, table: &[f32], scale: f32) {
         let at = |c: IVec3| table[cell_offset(c - first, dims)];
-        let (lo, hi) = (first.max(self.c_lo), (first + dims - 1).min(self.c_hi));
         if self.flat.is_empty() {
             for k in 0..table.len() as i32 {
                 let cell =
@@ -183,6 +182,7 @@ impl Builder {
             }
             return;
         }
+        let (lo, hi) = (first.max(self.c_lo), (first + dims - 1).min(self.c_hi));
         let flat_dims = self.c_hi - self.c_lo + 1;
         for x in lo.x..=hi.x {
             for y in lo.y..=hi.y {
