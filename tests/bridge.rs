@@ -354,6 +354,26 @@ fn the_parallel_decoder_reads_every_asset_as_openvdb_does() {
 }
 
 #[test]
+fn the_parallel_decoder_reads_grids_without_leaves() {
+    // No leaves at all, and active tiles only: nothing to decode, and the walk over the buffers
+    // must still end where the grid does.
+    let dir = tempfile::tempdir().unwrap();
+    let mut grid = hand_built();
+    grid.leaves.clear();
+    for (name, tiles) in [("tiles", true), ("empty", false)] {
+        if !tiles {
+            (grid.tile_origins, grid.tile_sizes, grid.tile_values) = (vec![], vec![], vec![]);
+        }
+        let out = dir.path().join(format!("{name}.vdb"));
+        ffi::write_float_grids(path_str(&out), std::slice::from_ref(&grid), false).unwrap();
+        assert_readers_agree(path_str(&out), 0);
+        let back = ffi::read_float_grid(path_str(&out), "", 0, false, 2).unwrap();
+        assert!(back.leaves.is_empty(), "{name}");
+        assert_eq!(back.tile_values.len(), usize::from(tiles), "{name}");
+    }
+}
+
+#[test]
 fn the_parallel_decoder_restores_every_kind_of_inactive_values() {
     // OpenVDB stores a leaf's active values only, with one flag saying how its inactive ones
     // come back: all the background, all minus it, all one other value, a mask choosing between
