@@ -210,10 +210,11 @@ fn a_run_started_at_the_truth_stays_near_it() {
 #[test]
 fn a_resumed_run_equals_the_uninterrupted_one_bit_for_bit() {
     // The global and brick scales on, so that their moments cross the checkpoint and the
-    // upsampling too.
+    // upsampling too; two priors, computed brick by brick in parallel.
     let run = run_file(
         "0.2",
-        "spp = 2\niterations = 12\nfit_scale = true\nfit_brick_scales = true",
+        "spp = 2\niterations = 12\nfit_scale = true\nfit_brick_scales = true\n\
+         prior = [{ kind = \"tv\", weight = 0.01 }, { kind = \"log\", weight = 0.01, scale = 0.05 }]",
     )
     .replace("checkpoint_every = 50", "checkpoint_every = 4")
     .replace("start = 0.2", "start = 0.2\nlevels = [0.5]");

@@ -6,6 +6,7 @@
 
 use anyhow::{bail, Result};
 use glam::IVec3;
+use rayon::prelude::*;
 
 use crate::volume::brickmap::{leaf_offset, BrickMap, Leaf, BRICK_VOXELS};
 use crate::volume::sparse_index::KeyMap;
@@ -296,7 +297,9 @@ impl Parameters {
             1.0
         };
         let zero = [0.0f32; BRICK_VOXELS];
-        for (key, brick) in self.bricks.iter_mut() {
+        // Each brick's step reads only its own state and gradient: in parallel, with the same
+        // result at any thread count.
+        self.bricks.par_iter_mut().for_each(|(key, brick)| {
             let grads = touched.get(key).map_or(&zero, |g| &**g);
             let scale = if adam.fit_brick_scales {
                 let g = brick.scale_gradient(grads) as f32;
@@ -310,7 +313,7 @@ impl Parameters {
                 brick.v[i] = v;
                 brick.theta[i] = (brick.theta[i] * scale - step).max(0.0);
             }
-        }
+        });
         self.drop_empty(&touched);
     }
 

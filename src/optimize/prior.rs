@@ -1,12 +1,16 @@
-//! An optional smoothness prior on the unknown, for reconstructions from few views:
+//! Optional priors on the unknown, for reconstructions from few views. Each is
 //!
 //! R(θ) = weight · (1/N) · Σ_{pairs} φ(θ_{v+e_a} − θ_v)
 //!
-//! over the pairs of neighbours (a ∈ x, y, z) with at least one of the N stored voxels, with φ(d) = √(d² + ε²) − ε (total variation, smoothed at ε so its
-//! gradient exists at 0) or φ(d) = d² (the "laplacian" prior: its gradient is the discrete
-//! Laplacian); or R(θ) = weight · (1/N) · Σ_v θ_v ("l1", a sparsity prior). Dividing by N keeps a weight meaningful across levels of the coarse-to-fine schedule.
+//! over the pairs of neighbours (a ∈ x, y, z) with at least one of the N stored voxels, with
+//! φ(d) = √(d² + ε²) − ε (total variation, smoothed at ε so its gradient exists at 0) or φ(d) = d²
+//! (the "laplacian" prior: its gradient is the discrete Laplacian); or a sum over the voxels
+//! themselves, R(θ) = weight · (1/N) · Σ_v ψ(θ_v), with ψ(θ) = θ ("l1") or ψ(θ) = δ·ln(1 + θ/δ)
+//! ("log", δ its `scale`). Dividing by N keeps a weight meaningful across levels of the
+//! coarse-to-fine schedule.
 
 use glam::IVec3;
+use rayon::prelude::*;
 
 use crate::optimize::parameters::{local_of, Parameters};
 use crate::volume::brickmap::{leaf_offset, BRICK_VOXELS};
@@ -22,12 +26,19 @@ pub enum PriorKind {
     /// say nothing about a voxel its gradient is noise, and the θ ≥ 0 projection turns a random
     /// walk into haze; this pull is what clears it, while voxels the images need hardly feel it.
     L1,
+    /// δ·ln(1 + θ/δ) per voxel (the log penalty of reweighted ℓ1, Candès, Wakin & Boyd 2008): the
+    /// pull towards 0 is l1's at θ = 0 and falls as δ/(δ + θ) above the scale δ, so it clears
+    /// faint density (haze, a blurred boundary's tail) and leaves dense voxels nearly alone,
+    /// where l1's constant pull erodes them too.
+    Log,
 }
 
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Prior {
     pub kind: PriorKind,
     pub weight: f32,
+    /// δ of the log prior (grid-value units); unused by the others.
+    pub scale: f32,
 }
 
 /// Where total variation's kink at 0 is rounded off, in grid-value units.
@@ -40,7 +51,7 @@ impl Prior {
         match self.kind {
             PriorKind::Tv => (d * d + TV_EPSILON * TV_EPSILON).sqrt() - TV_EPSILON,
             PriorKind::Laplacian => d * d,
-            PriorKind::L1 => 0.0, // not a difference prior (see `evaluate`)
+            PriorKind::L1 | PriorKind::Log => 0.0, // not difference priors (see `evaluate`)
         }
     }
 
@@ -48,47 +59,71 @@ impl Prior {
         match self.kind {
             PriorKind::Tv => d / (d * d + TV_EPSILON * TV_EPSILON).sqrt(),
             PriorKind::Laplacian => 2.0 * d,
-            PriorKind::L1 => 0.0,
+            PriorKind::L1 | PriorKind::Log => 0.0,
         }
     }
 
     /// R(θ) and ∂R/∂θ_v for every stored voxel v. Each voxel's derivative is computed from its
-    /// own neighbourhood, in one expression, and the bricks are visited in key order, so the
-    /// result does not depend on the hash map's order.
+    /// own neighbourhood, in one expression, and the bricks are joined in key order, so the
+    /// result does not depend on the hash map's order or the thread count.
     pub fn evaluate(&self, p: &Parameters) -> (f64, Vec<(IVec3, f64)>) {
         let stored = p.brick_count() * BRICK_VOXELS;
         if stored == 0 || self.weight == 0.0 {
             return (0.0, Vec::new());
         }
         let scale = self.weight as f64 / stored as f64;
-        let mut value = 0.0;
-        let mut gradient = Vec::with_capacity(stored);
-        if self.kind == PriorKind::L1 {
-            let value = p.voxels().map(|(_, theta, ..)| theta as f64).sum::<f64>();
-            let gradient = p.voxels().map(|(v, ..)| (v, scale)).collect();
-            return (scale * value, gradient);
-        }
-        for (key, theta, ..) in p.sorted_bricks() {
-            let around = Neighbourhood::new(p, key, theta);
-            for (i, &t) in theta.iter().enumerate() {
-                let (local, t) = (local_of(i), t as f64);
-                let mut g = 0.0;
-                for e in AXES {
-                    let (after, _) = around.at(local + e);
-                    let (before, before_stored) = around.at(local - e);
-                    let forward = after as f64 - t;
-                    let backward = t - before as f64;
-                    // Each pair of neighbours counts once: as the forward pair of its lower
-                    // voxel when that one is stored, else here.
-                    value += self.phi(forward);
-                    if !before_stored {
-                        value += self.phi(backward);
-                    }
-                    g += self.phi_derivative(backward) - self.phi_derivative(forward);
-                }
-                gradient.push(((key << 3) + local, scale * g));
+        let delta = f64::from(self.scale);
+        let per_voxel = |psi: fn(f64, f64) -> (f64, f64)| {
+            let mut value = 0.0;
+            let gradient = p
+                .voxels()
+                .map(|(v, theta, ..)| {
+                    let (psi, derivative) = psi(f64::from(theta), delta);
+                    value += psi;
+                    (v, scale * derivative)
+                })
+                .collect();
+            (scale * value, gradient)
+        };
+        match self.kind {
+            PriorKind::L1 => return per_voxel(|theta, _| (theta, 1.0)),
+            PriorKind::Log => {
+                return per_voxel(|theta, delta| {
+                    (delta * (theta / delta).ln_1p(), delta / (delta + theta))
+                })
             }
+            PriorKind::Tv | PriorKind::Laplacian => {}
         }
+        let parts: Vec<(f64, Vec<(IVec3, f64)>)> = p
+            .sorted_bricks()
+            .into_par_iter()
+            .map(|(key, theta, ..)| {
+                let around = Neighbourhood::new(p, key, theta);
+                let mut value = 0.0;
+                let mut gradient = Vec::with_capacity(BRICK_VOXELS);
+                for (i, &t) in theta.iter().enumerate() {
+                    let (local, t) = (local_of(i), t as f64);
+                    let mut g = 0.0;
+                    for e in AXES {
+                        let (after, _) = around.at(local + e);
+                        let (before, before_stored) = around.at(local - e);
+                        let forward = after as f64 - t;
+                        let backward = t - before as f64;
+                        // Each pair of neighbours counts once: as the forward pair of its lower
+                        // voxel when that one is stored, else here.
+                        value += self.phi(forward);
+                        if !before_stored {
+                            value += self.phi(backward);
+                        }
+                        g += self.phi_derivative(backward) - self.phi_derivative(forward);
+                    }
+                    gradient.push(((key << 3) + local, scale * g));
+                }
+                (value, gradient)
+            })
+            .collect();
+        let value: f64 = parts.iter().map(|(v, _)| v).sum();
+        let gradient = parts.into_iter().flat_map(|(_, g)| g).collect();
         (scale * value, gradient)
     }
 }
@@ -129,8 +164,17 @@ mod tests {
     /// The gradient against central differences of R, on a random-looking field.
     #[test]
     fn gradient_matches_finite_differences() {
-        for kind in [PriorKind::Tv, PriorKind::Laplacian, PriorKind::L1] {
-            let prior = Prior { kind, weight: 2.0 };
+        for kind in [
+            PriorKind::Tv,
+            PriorKind::Laplacian,
+            PriorKind::L1,
+            PriorKind::Log,
+        ] {
+            let prior = Prior {
+                kind,
+                weight: 2.0,
+                scale: 0.05,
+            };
             let mut p = Parameters::default();
             for x in 0..8 {
                 for y in 0..8 {
@@ -169,6 +213,7 @@ mod tests {
         let prior = Prior {
             kind: PriorKind::Laplacian,
             weight: 1.0,
+            scale: 0.0,
         };
         let mut p = Parameters::default();
         for x in 0..16 {

@@ -112,7 +112,7 @@ pub struct Settings {
     pub batch: u32,
     pub spp: u32,
     pub max_depth: u32,
-    pub prior: Option<Prior>,
+    pub priors: Vec<Prior>,
     /// Gradient smoothing at the finer levels (`smoothing::smooth`).
     pub smooth_gradient: bool,
     pub moments: Moments,
@@ -273,7 +273,7 @@ impl Problem {
             batch: o.batch,
             spp: o.spp,
             max_depth: scene.settings.max_depth,
-            prior: o.prior(),
+            priors: o.priors(),
             smooth_gradient: o.smooth_gradient,
             moments: file.unknown.moments,
             level_starts: file.unknown.levels.clone(),

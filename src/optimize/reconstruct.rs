@@ -246,14 +246,16 @@ fn step(
         let run = gradient(scene, &adjoint.delta, &options);
         total.merge(&run.gradient, weight);
     }
-    let (prior_value, prior_gradient) = s
-        .prior
-        .map_or((0.0, Vec::new()), |p| p.evaluate(parameters));
     let passes = if s.smooth_gradient { level as u32 } else { 0 };
     let (lo, hi) = problem.domain.voxel_box(level);
-    let data_gradient = smooth(total.voxels(), passes, lo, hi);
-    parameters.adam_step(adam, data_gradient.into_iter().chain(prior_gradient));
-    Ok(loss + prior_value)
+    let mut gradient = smooth(total.voxels(), passes, lo, hi);
+    for prior in &s.priors {
+        let (value, prior_gradient) = prior.evaluate(parameters);
+        loss += value;
+        gradient.extend(prior_gradient);
+    }
+    parameters.adam_step(adam, gradient);
+    Ok(loss)
 }
 
 /// The views of iteration `iteration`: consecutive slots of a sequence of epochs, each epoch a

@@ -190,7 +190,9 @@ pub struct OptimizerFile {
     /// Iterations when the command line gives neither --iterations nor --budget.
     #[serde(default = "default_iterations")]
     pub iterations: u32,
-    pub prior: Option<PriorFile>,
+    /// One prior (`prior = { kind = …, weight = … }`) or several, summed (`prior = [{ … }, { … }]`).
+    #[serde(default, deserialize_with = "one_or_many")]
+    pub prior: Vec<PriorFile>,
     /// Filter the gradient with [1 2 1]/4 per axis, once per upsampling done (`smoothing`).
     #[serde(default = "default_smooth_gradient")]
     pub smooth_gradient: bool,
@@ -250,6 +252,21 @@ fn default_iterations() -> u32 {
 pub struct PriorFile {
     pub kind: PriorKind,
     pub weight: f32,
+    /// δ of the log prior, required by it and refused by the others.
+    pub scale: Option<f32>,
+}
+
+/// A table or an array of tables, each read as a `PriorFile` (its errors, e.g. an unknown kind,
+/// kept as they are: an untagged enum would replace them with "did not match any variant").
+fn one_or_many<'de, D: serde::Deserializer<'de>>(d: D) -> Result<Vec<PriorFile>, D::Error> {
+    let items = match toml::Value::deserialize(d)? {
+        toml::Value::Array(items) => items,
+        one => vec![one],
+    };
+    items
+        .into_iter()
+        .map(|item| PriorFile::deserialize(item).map_err(serde::de::Error::custom))
+        .collect()
 }
 
 impl RunFile {
@@ -414,12 +431,26 @@ impl OptimizerFile {
                 bail!("optimizer.{key} must be at least 1");
             }
         }
-        if let Some(p) = &self.prior {
+        for p in &self.prior {
             if !(p.weight >= 0.0 && p.weight.is_finite()) {
                 bail!(
                     "optimizer.prior.weight must be a number ≥ 0 (got {})",
                     p.weight
                 );
+            }
+            match (p.kind, p.scale) {
+                (PriorKind::Log, Some(d)) if d > 0.0 && d.is_finite() => {}
+                (PriorKind::Log, d) => bail!(
+                    "optimizer.prior.scale must be a number > 0 for kind \"log\" (got {})",
+                    d.map_or("nothing".into(), |d| d.to_string())
+                ),
+                (_, Some(_)) => {
+                    bail!(
+                        "optimizer.prior.scale is only for kind \"log\" (got {:?})",
+                        p.kind
+                    )
+                }
+                (_, None) => {}
             }
         }
         Ok(())
@@ -436,11 +467,13 @@ impl OptimizerFile {
         }
     }
 
-    pub fn prior(&self) -> Option<Prior> {
-        self.prior.as_ref().map(|p| Prior {
+    pub fn priors(&self) -> Vec<Prior> {
+        let prior = |p: &PriorFile| Prior {
             kind: p.kind,
             weight: p.weight,
-        })
+            scale: p.scale.unwrap_or(0.0),
+        };
+        self.prior.iter().map(prior).collect()
     }
 }
 
@@ -542,11 +575,51 @@ mod tests {
                 format!("{GOOD}\n[optimizer]\nlevel_lr = 0"),
                 "optimizer.level_lr",
             ),
+            (
+                format!("{GOOD}\n[optimizer]\nprior = {{ kind = \"tvv\", weight = 1 }}"),
+                "unknown variant",
+            ),
+            (
+                format!("{GOOD}\n[optimizer]\nprior = {{ kind = \"log\", weight = 1 }}"),
+                "optimizer.prior.scale",
+            ),
+            (
+                format!("{GOOD}\n[optimizer]\nprior = {{ kind = \"log\", weight = 1, scale = 0 }}"),
+                "optimizer.prior.scale",
+            ),
+            (
+                format!(
+                    "{GOOD}\n[optimizer]\nprior = [{{ kind = \"tv\", weight = 1, scale = 0.1 }}]"
+                ),
+                "optimizer.prior.scale",
+            ),
+            (
+                format!("{GOOD}\n[optimizer]\nprior = [{{ kind = \"tv\", weight = -1 }}]"),
+                "optimizer.prior.weight",
+            ),
         ];
         for (text, key) in cases {
             let err = format!("{:#}", check(&text).unwrap_err());
             assert!(err.contains(key), "expected '{key}' in: {err}");
         }
+    }
+
+    #[test]
+    fn one_prior_or_several() {
+        let one = format!("{GOOD}\n[optimizer]\nprior = {{ kind = \"tv\", weight = 0.5 }}");
+        let priors = check(&one).unwrap().optimizer.priors();
+        assert_eq!(priors.len(), 1);
+        assert_eq!((priors[0].kind, priors[0].weight), (PriorKind::Tv, 0.5));
+        let two = format!(
+            "{GOOD}\n[optimizer]\nprior = [{{ kind = \"tv\", weight = 0.5 }}, {{ kind = \"log\", weight = 2, scale = 0.01 }}]"
+        );
+        let priors = check(&two).unwrap().optimizer.priors();
+        assert_eq!(priors.len(), 2);
+        assert_eq!(
+            (priors[1].kind, priors[1].weight, priors[1].scale),
+            (PriorKind::Log, 2.0, 0.01)
+        );
+        assert!(check(GOOD).unwrap().optimizer.priors().is_empty());
     }
 
     #[test]
