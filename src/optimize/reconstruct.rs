@@ -4,7 +4,7 @@
 //! 2. builds the medium from θ over the domain's fixed bounds;
 //! 3. for each view of a batch (reshuffled each epoch): a primal render and the adjoint image
 //!    δ = ∂loss/∂pixel, then the estimator's gradient pass (independent random streams), averaged
-//!    over the batch; plus the prior's gradient;
+//!    over the batch; plus the priors' gradients;
 //!    at the finer levels the gradient is smoothed (`smoothing`: a preconditioner);
 //! 4. one Adam step with θ ≥ 0 kept by projection; bricks that stay at 0 are dropped.
 //!

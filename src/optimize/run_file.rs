@@ -444,12 +444,7 @@ impl OptimizerFile {
                     "optimizer.prior.scale must be a number > 0 for kind \"log\" (got {})",
                     d.map_or("nothing".into(), |d| d.to_string())
                 ),
-                (_, Some(_)) => {
-                    bail!(
-                        "optimizer.prior.scale is only for kind \"log\" (got {:?})",
-                        p.kind
-                    )
-                }
+                (_, Some(_)) => bail!("optimizer.prior.scale is only for kind \"log\""),
                 (_, None) => {}
             }
         }
