@@ -9,7 +9,7 @@
 
 use anyhow::{bail, Context, Result};
 use glam::IVec3;
-use volgrad::io::vdb::{read_grid, write_grids, GridSelector};
+use volgrad::io::vdb::{read_density, write_grids, GridSelector, LevelSet};
 use volgrad::optimize::parameters::Parameters;
 use volgrad::optimize::smoothing::smooth;
 
@@ -29,7 +29,12 @@ fn run() -> Result<()> {
         passes.parse().ok().filter(|&p| p <= 16).with_context(|| {
             format!("PASSES must be a whole number from 0 to 16 (got '{passes}')")
         })?;
-    let mut grid = read_grid(input.as_ref(), &GridSelector::Default)?;
+    // A density: a level set, a non-zero background or negative values would not be blurred
+    // as they are (the voxels below are kept ≥ 0).
+    let mut grid = read_density(input.as_ref(), &GridSelector::Default, LevelSet::Refuse)?;
+    if grid.bricks.min_value() < 0.0 {
+        bail!("'{input}' has negative values; the filter reads densities (≥ 0)");
+    }
     let Some((lo, hi)) = grid.bricks.active_bounds() else {
         bail!("'{input}' has no active voxels");
     };
