@@ -31,6 +31,10 @@ pub struct Adam {
     /// too thin while its surface, which the views pin down, is right), which one global scale
     /// cannot move and per-voxel steps move slowly.
     pub fit_brick_scales: bool,
+    /// The brick log-scales' learning rate as a multiple of `lr`: each brick's Σ θ·g sums fewer
+    /// voxels than the global one's, so it is noisier, but the interior it moves has no other
+    /// fast mode.
+    pub brick_scale_lr: f32,
 }
 
 impl Default for Adam {
@@ -42,6 +46,7 @@ impl Default for Adam {
             epsilon: 1e-8,
             fit_scale: false,
             fit_brick_scales: false,
+            brick_scale_lr: 1.0,
         }
     }
 }
@@ -84,16 +89,16 @@ pub struct ScalarMoments {
 }
 
 impl ScalarMoments {
-    /// Adam's step of a log-scale u whose gradient is `g`; returns the factor e^Δu it applies to
-    /// θ. A step that is not finite (a Σ θ·g beyond f32 makes it inf/inf) is skipped, moments
-    /// unchanged, like a non-finite voxel gradient: max(NaN, 0) would set θ to 0.
-    fn step(&mut self, at: &AdamStep, g: f32) -> f32 {
+    /// Adam's step of a log-scale u whose gradient is `g`, at `lr_factor` × Adam's learning
+    /// rate; returns the factor e^Δu it applies to θ. A step that is not finite (a Σ θ·g beyond
+    /// f32 makes it inf/inf) is skipped, moments unchanged, like a non-finite voxel gradient: max(NaN, 0) would set θ to 0.
+    fn step(&mut self, at: &AdamStep, g: f32, lr_factor: f32) -> f32 {
         let (m, v, step) = at.update(self.m, self.v, g);
         if !step.is_finite() {
             return 1.0;
         }
         *self = ScalarMoments { m, v };
-        (-step).exp()
+        (-step * lr_factor).exp()
     }
 
     /// The moments of a log-scale whose gradient becomes `factor` times what it was (after an
@@ -292,7 +297,7 @@ impl Parameters {
         let at = AdamStep::new(adam, self.steps);
         let global = if adam.fit_scale {
             let g = self.scale_gradient(&touched);
-            self.scale.step(&at, g)
+            self.scale.step(&at, g, 1.0)
         } else {
             1.0
         };
@@ -303,7 +308,7 @@ impl Parameters {
             let grads = touched.get(key).map_or(&zero, |g| &**g);
             let scale = if adam.fit_brick_scales {
                 let g = brick.scale_gradient(grads) as f32;
-                global * brick.scale.step(&at, g)
+                global * brick.scale.step(&at, g, adam.brick_scale_lr)
             } else {
                 global
             };
@@ -471,25 +476,48 @@ mod tests {
         assert_eq!(p.steps(), 2);
     }
 
-    /// The global scale's step by hand: one voxel θ = 2 with gradient 0.5, so ∂loss/∂u = θ·g = 1.
-    #[test]
-    fn the_global_scale_matches_a_hand_computed_step() {
+    /// One Adam step (lr 0.1, β 0.9 / 0.99) of one voxel θ = 2 with gradient 0.5, so its
+    /// brick's and the grid's ∂loss/∂u = θ·g = 1; at t = 1 every m̂ = g and v̂ = g², so each
+    /// log-scale steps by its lr and the voxel by 0.1.
+    fn one_voxel_step(adam: Adam) -> (f32, Parameters) {
         let adam = Adam {
             lr: 0.1,
             beta1: 0.9,
             beta2: 0.99,
             epsilon: 1e-8,
-            fit_scale: true,
-            ..Adam::default()
+            ..adam
         };
         let v = IVec3::new(0, 5, 1);
         let mut p = Parameters::default();
         p.set(v, 2.0);
         p.adam_step(&adam, [(v, 0.5)]);
-        // t = 1: the scale's m̂ = 1, v̂ = 1, Δu = −0.1; the voxel's m̂ = 0.5, v̂ = 0.25, step 0.1.
+        (p.get(v), p)
+    }
+
+    #[test]
+    fn the_global_scale_matches_a_hand_computed_step() {
+        let (theta, p) = one_voxel_step(Adam {
+            fit_scale: true,
+            ..Adam::default()
+        });
         let expected = 2.0 * (-0.1f64).exp() - 0.1;
-        assert!((p.get(v) as f64 - expected).abs() < 1e-6, "{}", p.get(v));
+        assert!((theta as f64 - expected).abs() < 1e-6, "{theta}");
         let ScalarMoments { m, v } = p.scale_moments();
+        assert!((m - 0.1).abs() < 1e-6 && (v - 0.01).abs() < 1e-6, "{m} {v}");
+    }
+
+    /// A brick's scale at `brick_scale_lr` = 3: three times the global one's step above, with
+    /// the same moments (they are the gradient's, whatever the learning rate).
+    #[test]
+    fn a_brick_scale_steps_at_its_own_learning_rate() {
+        let (theta, p) = one_voxel_step(Adam {
+            fit_brick_scales: true,
+            brick_scale_lr: 3.0,
+            ..Adam::default()
+        });
+        let expected = 2.0 * (-0.3f64).exp() - 0.1;
+        assert!((theta as f64 - expected).abs() < 1e-6, "{theta}");
+        let ScalarMoments { m, v } = p.sorted_bricks()[0].4;
         assert!((m - 0.1).abs() < 1e-6 && (v - 0.01).abs() < 1e-6, "{m} {v}");
     }
 

@@ -202,6 +202,9 @@ pub struct OptimizerFile {
     /// Fit a log-scale of θ per brick beside the voxels (`Adam::fit_brick_scales`).
     #[serde(default = "default_fit_scale")]
     pub fit_brick_scales: bool,
+    /// The brick log-scales' learning rate as a multiple of `lr` (`Adam::brick_scale_lr`).
+    #[serde(default = "default_brick_scale_lr")]
+    pub brick_scale_lr: f32,
 }
 
 impl Default for OptimizerFile {
@@ -233,6 +236,9 @@ fn default_smooth_gradient() -> bool {
 }
 fn default_fit_scale() -> bool {
     false
+}
+fn default_brick_scale_lr() -> f32 {
+    1.0
 }
 fn default_loss() -> Loss {
     Loss::L2
@@ -419,6 +425,12 @@ impl OptimizerFile {
                 self.level_lr
             );
         }
+        if !(self.brick_scale_lr > 0.0 && self.brick_scale_lr.is_finite()) {
+            bail!(
+                "optimizer.brick_scale_lr must be a positive number (got {})",
+                self.brick_scale_lr
+            );
+        }
         if self.loss == Loss::Mean {
             bail!("optimizer.loss must compare against the targets: l2, l1 or relative-l2");
         }
@@ -459,6 +471,7 @@ impl OptimizerFile {
             epsilon: self.epsilon,
             fit_scale: self.fit_scale,
             fit_brick_scales: self.fit_brick_scales,
+            brick_scale_lr: self.brick_scale_lr,
         }
     }
 
@@ -521,6 +534,10 @@ mod tests {
             (format!("{GOOD}\n[optimizer]\nlr = 0"), "optimizer.lr"),
             (format!("{GOOD}\n[optimizer]\nlr = -1"), "optimizer.lr"),
             (format!("{GOOD}\n[optimizer]\nbatch = 0"), "optimizer.batch"),
+            (
+                format!("{GOOD}\n[optimizer]\nbrick_scale_lr = 0"),
+                "optimizer.brick_scale_lr",
+            ),
             (
                 format!("{GOOD}\n[optimizer]\nloss = \"mean\""),
                 "optimizer.loss",
