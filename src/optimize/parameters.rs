@@ -90,15 +90,17 @@ pub struct ScalarMoments {
 
 impl ScalarMoments {
     /// Adam's step of a log-scale u whose gradient is `g`, at `lr_factor` × Adam's learning
-    /// rate; returns the factor e^Δu it applies to θ. A step that is not finite (a Σ θ·g beyond
-    /// f32 makes it inf/inf) is skipped, moments unchanged, like a non-finite voxel gradient: max(NaN, 0) would set θ to 0.
+    /// rate; returns the factor e^Δu it applies to θ. A step whose factor is not finite (a Σ θ·g
+    /// beyond f32 makes it inf/inf; a learning rate so large that e^Δu overflows) is skipped,
+    /// moments unchanged, like a non-finite voxel gradient: θ·inf would leave θ infinite.
     fn step(&mut self, at: &AdamStep, g: f32, lr_factor: f32) -> f32 {
         let (m, v, step) = at.update(self.m, self.v, g);
-        if !step.is_finite() {
+        let factor = (-step * lr_factor).exp();
+        if !factor.is_finite() {
             return 1.0;
         }
         *self = ScalarMoments { m, v };
-        (-step * lr_factor).exp()
+        factor
     }
 
     /// The moments of a log-scale whose gradient becomes `factor` times what it was (after an
@@ -519,6 +521,25 @@ mod tests {
         assert!((theta as f64 - expected).abs() < 1e-6, "{theta}");
         let ScalarMoments { m, v } = p.sorted_bricks()[0].4;
         assert!((m - 0.1).abs() < 1e-6 && (v - 0.01).abs() < 1e-6, "{m} {v}");
+    }
+
+    /// A learning rate whose log-scale step overflows e^Δu (Δu ≈ +3e29: the gradient −0.5 asks
+    /// for more density): the scale's step is skipped and θ stays finite.
+    #[test]
+    fn a_scale_step_beyond_f32_is_skipped() {
+        let adam = Adam {
+            lr: 0.1,
+            fit_brick_scales: true,
+            brick_scale_lr: 3e30,
+            ..Adam::default()
+        };
+        let v = IVec3::new(0, 5, 1);
+        let mut p = Parameters::default();
+        p.set(v, 2.0);
+        p.adam_step(&adam, [(v, -0.5)]);
+        // Only the voxel's own step, −lr·sign(g): θ = 2.1.
+        assert!((p.get(v) - 2.1).abs() < 1e-6, "{}", p.get(v));
+        assert_eq!(p.sorted_bricks()[0].4, ScalarMoments::default());
     }
 
     /// Huge values and gradients whose Σ θ·g overflows f32: the scales' steps are skipped, θ
