@@ -204,6 +204,33 @@ fn a_run_started_at_the_truth_stays_near_it() {
     }
 }
 
+/// `primal_spp` sets the samples of the primal render whose residual is the adjoint image, apart
+/// from the gradient pass's `spp`. Started at the truth, the training loss is that render's noise
+/// plus the 256-spp targets' (1/64 of a 4-spp render's): a 4-spp primal gives about 13× the loss
+/// of a 64-spp one, and a primal that kept the gradient pass's 4 spp would give the same loss twice.
+#[test]
+fn primal_spp_sets_the_residuals_noise() {
+    let run = |primal_spp: u32| {
+        run_file(
+            "\"ball.vdb\"",
+            &format!("spp = 4\nprimal_spp = {primal_spp}\niterations = 1"),
+        )
+    };
+    let dir = fixture(&run(4));
+    std::fs::write(dir.path().join("run64.toml"), run(64)).unwrap();
+    let losses: Vec<f64> = [("run.toml", "p4"), ("run64.toml", "p64")]
+        .into_iter()
+        .map(|(file, out)| {
+            ok(volgrad_in(
+                dir.path(),
+                &["optimize", file, "--out", out, "-q"],
+            ));
+            number(&log(&dir.path().join(out))[1], "loss")
+        })
+        .collect();
+    assert!(losses[0] > 5.0 * losses[1], "training losses {losses:?}");
+}
+
 /// A run resumed from a checkpoint on another thread count ends bit for bit where the
 /// uninterrupted run ends (the upsampling and the learning-rate decay included), and the VDBs it
 /// writes read back through OpenVDB with their metadata.
@@ -213,7 +240,7 @@ fn a_resumed_run_equals_the_uninterrupted_one_bit_for_bit() {
     // upsampling too; two priors, computed brick by brick in parallel.
     let run = run_file(
         "0.2",
-        "spp = 2\niterations = 12\nfit_scale = true\nfit_brick_scales = true\n\
+        "spp = 2\nprimal_spp = 3\niterations = 12\nfit_scale = true\nfit_brick_scales = true\n\
          prior = [{ kind = \"tv\", weight = 0.01 }, { kind = \"log\", weight = 0.01, scale = 0.05 }]",
     )
     .replace("checkpoint_every = 50", "checkpoint_every = 4")
@@ -284,6 +311,7 @@ fn a_resumed_run_equals_the_uninterrupted_one_bit_for_bit() {
     };
     assert_eq!(meta("volgrad_iterations"), "12");
     assert_eq!(meta("volgrad_estimator"), "joint");
+    assert_eq!(meta("volgrad_primal_spp"), "3");
     assert!(meta("volgrad_heldout_psnr").parse::<f64>().unwrap() > 10.0);
 
     // The result is an ordinary grid: a scene pointing at it renders.

@@ -110,7 +110,10 @@ pub struct Settings {
     pub level_lr: f32,
     pub loss: Loss,
     pub batch: u32,
+    /// Samples per pixel of the gradient pass.
     pub spp: u32,
+    /// Samples per pixel of the primal render that gives the adjoint image.
+    pub primal_spp: u32,
     pub max_depth: u32,
     pub priors: Vec<Prior>,
     /// Gradient smoothing at the finer levels (`smoothing::smooth`).
@@ -272,6 +275,7 @@ impl Problem {
             loss: o.loss,
             batch: o.batch,
             spp: o.spp,
+            primal_spp: o.primal_spp.unwrap_or(o.spp),
             max_depth: scene.settings.max_depth,
             priors: o.priors(),
             smooth_gradient: o.smooth_gradient,

@@ -2,10 +2,10 @@
 //!
 //! 1. moves to the next level when the schedule says so (×2 upsampling, `resample`);
 //! 2. builds the medium from θ over the domain's fixed bounds;
-//! 3. for each view of a batch (reshuffled each epoch): a primal render and the adjoint image
-//!    δ = ∂loss/∂pixel, then the estimator's gradient pass (independent random streams), averaged
-//!    over the batch; plus the priors' gradients;
-//!    at the finer levels the gradient is smoothed (`smoothing`: a preconditioner);
+//! 3. for each view of a batch (reshuffled each epoch): a primal render (`primal_spp`) and the
+//!    adjoint image δ = ∂loss/∂pixel, then the estimator's gradient pass (`spp`; independent
+//!    random streams), averaged over the batch; plus the priors' gradients; at the finer levels
+//!    the gradient is smoothed (`smoothing`: a preconditioner);
 //! 4. one Adam step with θ ≥ 0 kept by projection; bricks that stay at 0 are dropped.
 //!
 //! Every random number is a function of (seed, iteration, view slot, pixel, sample) and every
@@ -241,7 +241,11 @@ fn step(
         scene.camera = view.camera;
         let seed = pixel_rng(s.seed, iteration, slot as u64).next_u64();
         let options = GradOptions::new(estimator, s.spp, seed, s.max_depth);
-        let adjoint = adjoint_image(scene, s.loss, Some(&view.target), &options)?;
+        let primal = GradOptions {
+            spp: s.primal_spp,
+            ..options
+        };
+        let adjoint = adjoint_image(scene, s.loss, Some(&view.target), &primal)?;
         loss += weight * adjoint.loss.unwrap_or(0.0);
         let run = gradient(scene, &adjoint.delta, &options);
         total.merge(&run.gradient, weight);
@@ -339,6 +343,7 @@ fn metadata(
         meta("volgrad_estimator", "string", options.estimator),
         meta("volgrad_loss", "string", s.loss),
         meta("volgrad_spp", "int64", s.spp),
+        meta("volgrad_primal_spp", "int64", s.primal_spp),
         meta("volgrad_seed", "int64", s.seed),
         meta("volgrad_level", "int64", position.level),
     ];

@@ -184,9 +184,15 @@ pub struct OptimizerFile {
     /// Views per iteration: a random batch, reshuffled each epoch.
     #[serde(default = "default_batch")]
     pub batch: u32,
-    /// Samples per pixel of each view's primal and gradient pass.
+    /// Samples per pixel of each view's gradient pass (and of its primal render, unless
+    /// `primal_spp` is given).
     #[serde(default = "default_spp")]
     pub spp: u32,
+    /// Samples per pixel of the primal render whose residual against the target is the adjoint
+    /// image. Near convergence an 8-spp residual is mostly Monte Carlo noise, which the gradient
+    /// pass multiplies into every voxel; the primal costs less per sample than the gradient pass.
+    #[serde(default)]
+    pub primal_spp: Option<u32>,
     /// Iterations when the command line gives neither --iterations nor --budget.
     #[serde(default = "default_iterations")]
     pub iterations: u32,
@@ -437,6 +443,7 @@ impl OptimizerFile {
         for (key, n) in [
             ("batch", self.batch),
             ("spp", self.spp),
+            ("primal_spp", self.primal_spp.unwrap_or(self.spp)),
             ("iterations", self.iterations),
         ] {
             if n == 0 {
@@ -534,6 +541,10 @@ mod tests {
             (format!("{GOOD}\n[optimizer]\nlr = 0"), "optimizer.lr"),
             (format!("{GOOD}\n[optimizer]\nlr = -1"), "optimizer.lr"),
             (format!("{GOOD}\n[optimizer]\nbatch = 0"), "optimizer.batch"),
+            (
+                format!("{GOOD}\n[optimizer]\nprimal_spp = 0"),
+                "optimizer.primal_spp",
+            ),
             (
                 format!("{GOOD}\n[optimizer]\nbrick_scale_lr = 0"),
                 "optimizer.brick_scale_lr",
