@@ -9,7 +9,6 @@
 //! ```
 
 use anyhow::{bail, Context, Result};
-use glam::IVec3;
 use volgrad::io::vdb::{read_density, write_grids, GridSelector, LevelSet};
 use volgrad::optimize::parameters::Parameters;
 use volgrad::optimize::resample::{upsample, Moments};
@@ -37,9 +36,8 @@ fn run() -> Result<()> {
     for _ in 0..levels {
         // Old voxels 2i and 2i + 1 are the halves of coarse voxel i (`resample`'s convention).
         let mut coarse = Parameters::default();
-        let fine: Vec<(IVec3, f32)> = theta.voxels().map(|(v, t, ..)| (v, t)).collect();
-        for (voxel, value) in fine {
-            let parent = IVec3::new(voxel.x >> 1, voxel.y >> 1, voxel.z >> 1);
+        for (voxel, value, ..) in theta.voxels() {
+            let parent = voxel >> 1;
             coarse.set(parent, coarse.get(parent) + value / 8.0);
         }
         theta = coarse;
