@@ -10,6 +10,7 @@
 use anyhow::{bail, Context, Result};
 use glam::IVec3;
 use volgrad::io::vdb::{read_density, write_grids, GridSelector, LevelSet};
+use volgrad::optimize::brick_gradient::BrickGradient;
 use volgrad::optimize::parameters::Parameters;
 use volgrad::optimize::smoothing::smooth;
 
@@ -40,11 +41,12 @@ fn run() -> Result<()> {
     };
     // Tiles voxelised, as an unknown started from this grid would be.
     let voxels = Parameters::from_grid(&grid.bricks)?;
-    let voxels = voxels.voxels().map(|(v, value, ..)| (v, f64::from(value)));
+    let voxels =
+        BrickGradient::from_voxels(voxels.voxels().map(|(v, value, ..)| (v, f64::from(value))));
     // Each pass widens the support by one voxel per side.
     let margin = IVec3::splat(passes as i32);
     let mut blurred = Parameters::default();
-    for (voxel, value) in smooth(voxels, passes, lo - margin, hi + margin) {
+    for (voxel, value) in smooth(voxels, passes, lo - margin, hi + margin).voxels() {
         blurred.set(voxel, value as f32);
     }
     blurred.prune();

@@ -238,9 +238,11 @@ fn primal_spp_sets_the_residuals_noise() {
 fn a_resumed_run_equals_the_uninterrupted_one_bit_for_bit() {
     // The global and brick scales on, so that their moments cross the checkpoint and the
     // upsampling too; two priors, computed brick by brick in parallel.
+    // The run file says 5 iterations, the command line 12: a resumed run continues the stop
+    // rule of the run it resumes (it once took the run file's and ended at 5).
     let run = run_file(
         "0.2",
-        "spp = 2\nprimal_spp = 3\niterations = 12\nfit_scale = true\nfit_brick_scales = true\n\
+        "spp = 2\nprimal_spp = 3\niterations = 5\nfit_scale = true\nfit_brick_scales = true\n\
          prior = [{ kind = \"tv\", weight = 0.01 }, { kind = \"log\", weight = 0.01, scale = 0.05 }]",
     )
     .replace("checkpoint_every = 50", "checkpoint_every = 4")
@@ -254,6 +256,8 @@ fn a_resumed_run_equals_the_uninterrupted_one_bit_for_bit() {
             "run.toml",
             "--out",
             "whole",
+            "--iterations",
+            "12",
             "--threads",
             "2",
             "-q",
@@ -343,6 +347,91 @@ fn a_resumed_run_equals_the_uninterrupted_one_bit_for_bit() {
         ),
         &["another run"],
     );
+}
+
+/// θ of a `final.vdb`, bit for bit, leaf by leaf.
+fn final_bits(path: &Path) -> Vec<(glam::IVec3, Vec<u32>)> {
+    let grid = read_grid(path, &GridSelector::Default).unwrap();
+    let leaves = grid.bricks.leaves().iter();
+    leaves
+        .map(|l| (l.origin, l.values.iter().map(|x| x.to_bits()).collect()))
+        .collect()
+}
+
+/// A `--budget` run places its levels and learning rate by wall time, so it is not reproducible
+/// by itself; its log records the fraction each iteration used, and `--schedule-from` replays
+/// them. The replay starts from the run's `settings.toml` (every key resolved, absolute paths),
+/// from another folder: the same grid, bit for bit.
+#[test]
+fn a_budget_run_is_replayed_bit_for_bit_from_its_settings_and_log() {
+    let run = run_file(
+        "0.2",
+        "spp = 1\nprimal_spp = 2\nprior = { kind = \"l1\", weight = 0.01 }",
+    )
+    .replace("start = 0.2", "start = 0.2\nlevels = [0.5]");
+    let dir = fixture(&run);
+    let d = dir.path();
+    ok(volgrad_in(
+        d,
+        &[
+            "optimize", "run.toml", "--out", "timed", "--budget", "1500ms", "-q",
+        ],
+    ));
+    let rows = log(&d.join("timed"));
+    assert!(
+        rows.iter().any(|r| r["level"] == "1") && rows.len() > 4,
+        "the budget run reached the second level: {} rows",
+        rows.len()
+    );
+    std::fs::create_dir(d.join("elsewhere")).unwrap();
+    let settings = d.join("timed/settings.toml");
+    ok(volgrad_in(
+        &d.join("elsewhere"),
+        &[
+            "optimize",
+            settings.to_str().unwrap(),
+            "--schedule-from",
+            "../timed/log.csv",
+            "--out",
+            "replay",
+            "--threads",
+            "1",
+            "-q",
+        ],
+    ));
+    assert_eq!(
+        final_bits(&d.join("timed/final.vdb")),
+        final_bits(&d.join("elsewhere/replay/final.vdb"))
+    );
+    let losses =
+        |dir: &Path| -> Vec<String> { log(dir).iter().map(|r| r["loss"].clone()).collect() };
+    assert_eq!(
+        losses(&d.join("timed")),
+        losses(&d.join("elsewhere/replay"))
+    );
+}
+
+/// `--seed` changes the optimisation's random numbers, not the data: the targets rendered from
+/// the truth depend on the run file alone (they once took the run's seed, so "seeds 1–3" fitted
+/// three sets of images). `target_seed` in the run file does change them.
+#[test]
+fn the_seed_leaves_the_targets_as_they_are() {
+    use volgrad::optimize::problem::Problem;
+    let dir = fixture(&run_file("0.2", ""));
+    let run = dir.path().join("run.toml");
+    let targets = |seed: Option<u64>| -> Vec<Vec<glam::Vec3>> {
+        let problem = Problem::load(&run, seed, false).unwrap();
+        let views = problem.views.iter().chain(&problem.holdouts);
+        views.map(|v| v.target.pixels.clone()).collect()
+    };
+    let (one, two) = (targets(Some(1)), targets(Some(2)));
+    assert_eq!(one, two);
+    std::fs::write(
+        &run,
+        run_file("0.2", "").replace("[views.orbit]", "target_seed = 9\n[views.orbit]"),
+    )
+    .unwrap();
+    assert_ne!(targets(Some(1)), one, "target_seed changes the targets");
 }
 
 /// Ctrl-C stops the run after the current iteration with a checkpoint and says how to resume.

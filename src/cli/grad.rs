@@ -228,11 +228,16 @@ pub fn run(args: &Args) -> Result<()> {
     let scale = gradient_files::write_projection_png(&png, &grid)?;
     let (grid_name, voxels) = (grid.name.clone(), grid.bricks.active_voxel_count());
     vdb::write_grid_consumed(&vdb_out, grid, false, args.force)?;
+    let picture = match scale {
+        Some(scale) => format!(
+            "and {} (sum along index z; full colour at ±{scale:.3e})",
+            png.display()
+        ),
+        None => "(no picture: no voxel has gradient)".into(),
+    };
     eprintln!(
-        "wrote {} (grid {grid_name}, {voxels} voxels with gradient, ⟨g, 1⟩ = {gradient_sum:.6e}) and {} (sum along index z; full colour at ±{:.3e})",
+        "wrote {} (grid {grid_name}, {voxels} voxels with gradient, ⟨g, 1⟩ = {gradient_sum:.6e}) {picture}",
         vdb_out.display(),
-        png.display(),
-        scale.unwrap_or(0.0)
     );
     if let Some((lo, hi, (image, stats))) = derivative {
         report_non_finite(&stats);

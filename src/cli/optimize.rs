@@ -12,7 +12,8 @@ use super::{set_threads, values};
 use volgrad::gradient::adjoint::Estimator;
 use volgrad::optimize::checkpoint;
 use volgrad::optimize::problem::Problem;
-use volgrad::optimize::reconstruct::{reconstruct, RunOptions, Stop};
+use volgrad::optimize::reconstruct::{reconstruct, RunOptions};
+use volgrad::optimize::schedule::Stop;
 use volgrad::optimize::study;
 
 #[derive(clap::Args)]
@@ -26,9 +27,14 @@ pub struct Args {
     /// Seconds of optimisation (evaluation excluded), e.g. 90s, 10m. Exclusive with --iterations.
     #[arg(long, value_parser = values::duration, conflicts_with = "iterations")]
     pub budget: Option<Duration>,
-    /// Iterations (default: the run file's optimizer.iterations).
+    /// Iterations (default: the run file's optimizer.iterations; resuming, the stop rule of the
+    /// run resumed).
     #[arg(long)]
     pub iterations: Option<u64>,
+    /// Replay the schedule (levels, learning rate) a run's log.csv records, iteration by
+    /// iteration: a --budget run reproduced bit for bit on any machine.
+    #[arg(long, value_name = "LOG", conflicts_with_all = ["iterations", "budget"])]
+    pub schedule_from: Option<PathBuf>,
     /// The gradient estimator.
     #[arg(long, value_enum, default_value_t = Estimator::Joint, conflicts_with = "estimators")]
     pub estimator: Estimator,
@@ -78,12 +84,13 @@ pub fn run(args: &Args) -> Result<()> {
     if !args.force && !resuming_in_place {
         refuse_non_empty(&out)?;
     }
-    let problem = Problem::load(&args.run, args.seed, !args.quiet)?;
-    let stop = match (args.iterations, args.budget) {
-        (Some(n), _) => Stop::Iterations(n),
-        (None, Some(b)) => Stop::Budget(b),
-        (None, None) => Stop::Iterations(problem.settings.iterations.into()),
+    let stop = match (args.iterations, args.budget, &args.schedule_from) {
+        (Some(n), ..) => Some(Stop::Iterations(n)),
+        (_, Some(b), _) => Some(Stop::Budget(b)),
+        (.., Some(log)) => Some(Stop::replay_log(log)?),
+        (None, None, None) => None,
     };
+    let problem = Problem::load(&args.run, args.seed, !args.quiet)?;
     ctrlc::set_handler(|| INTERRUPTED.store(true, Ordering::SeqCst))
         .context("cannot install the Ctrl-C handler")?;
     let options = RunOptions {

@@ -9,10 +9,8 @@ use crate::gradient::loss::Loss;
 use crate::gradient::passes::GradOptions;
 use crate::io::images::RgbImage;
 use crate::render::image::{render, RenderOptions};
+use crate::render::sampling::TARGET_SEED_SALT;
 use crate::render::scene::Scene;
-
-/// Seeds the target render apart from the gradient pass, so that their noise does not correlate.
-const TARGET_SEED_SALT: u64 = 0x5eed;
 
 /// The render of `target_scene` that a loss compares against, at `spp` samples per pixel. Its
 /// seed is derived from the gradient pass's `gradient_seed` but differs from it.

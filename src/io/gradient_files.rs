@@ -135,10 +135,18 @@ pub fn gradient_grid(
     }
 }
 
+/// The longest side of the projection picture, in pixels.
+const MAX_PROJECTION_SIDE: i64 = 1024;
+
 /// Sum of a grid's values along index z over its active box: a picture of where the gradient is.
+/// A box wider than `MAX_PROJECTION_SIDE` voxels sums square cells of voxels into each pixel, so
+/// the picture's memory follows the picture, not the box (two voxels 60,000 apart along the
+/// diagonal once asked for a 56,000² picture: 12.5 GB).
 pub fn projection(grid: &Grid) -> Option<(u32, u32, Vec<f32>)> {
     let (lo, hi) = grid.bricks.active_bounds()?;
-    let (w, h) = ((hi.x - lo.x + 1) as u32, (hi.y - lo.y + 1) as u32);
+    let extent = (hi - lo).as_i64vec3() + 1;
+    let cell = (extent.x.max(extent.y) + MAX_PROJECTION_SIDE - 1) / MAX_PROJECTION_SIDE;
+    let (w, h) = ((extent.x + cell - 1) / cell, (extent.y + cell - 1) / cell);
     let mut values = vec![0.0f32; (w * h) as usize];
     for leaf in grid.bricks.leaves() {
         for (o, &v) in leaf.values.iter().enumerate() {
@@ -146,11 +154,15 @@ pub fn projection(grid: &Grid) -> Option<(u32, u32, Vec<f32>)> {
                 leaf.origin + IVec3::new((o >> 6) as i32, ((o >> 3) & 7) as i32, (o & 7) as i32);
             if p.cmpge(lo).all() && p.cmple(hi).all() {
                 // Image rows run top to bottom, index y bottom to top.
-                values[((hi.y - p.y) as u32 * w + (p.x - lo.x) as u32) as usize] += v;
+                let (x, y) = (
+                    (i64::from(p.x) - i64::from(lo.x)) / cell,
+                    (i64::from(hi.y) - i64::from(p.y)) / cell,
+                );
+                values[(y * w + x) as usize] += v;
             }
         }
     }
-    Some((w, h, values))
+    Some((w as u32, h as u32, values))
 }
 
 /// Writes the projection picture; returns the colour scale, or None for an empty grid.

@@ -25,6 +25,33 @@ pub fn prepare_out_dir(out: &Path, files: &[PathBuf], overwrite: bool) -> Result
         .with_context(|| format!("cannot create the output directory '{}'", out.display()))
 }
 
+/// Writes `path` whole: `write` fills a temporary file beside it, which is then renamed over
+/// `path`, so that a process killed mid-write leaves the old file (or none), never half of one.
+pub fn write_whole(
+    path: &Path,
+    write: impl FnOnce(&mut std::io::BufWriter<std::fs::File>) -> std::io::Result<()>,
+) -> Result<()> {
+    let name = path
+        .file_name()
+        .map_or("out".into(), |n| n.to_string_lossy());
+    let temporary = path.with_file_name(format!(".{name}.{}.tmp", std::process::id()));
+    let written = std::fs::File::create(&temporary).and_then(|file| {
+        let mut w = std::io::BufWriter::new(file);
+        write(&mut w)?;
+        w.into_inner().map_err(|e| e.into_error())?.sync_all()
+    });
+    let renamed = written.and_then(|()| std::fs::rename(&temporary, path));
+    if renamed.is_err() {
+        let _ = std::fs::remove_file(&temporary);
+    }
+    renamed.with_context(|| format!("writing '{}'", path.display()))
+}
+
+/// `write_whole` of a text or bytes.
+pub fn write_bytes_whole(path: &Path, bytes: impl AsRef<[u8]>) -> Result<()> {
+    write_whole(path, |w| std::io::Write::write_all(w, bytes.as_ref()))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -41,5 +68,22 @@ mod tests {
         prepare_out_dir(&out, std::slice::from_ref(&file), true).unwrap();
         assert!(out.is_dir());
         assert_eq!(std::fs::read_to_string(&file).unwrap(), "mine");
+    }
+
+    /// A write that fails half-way leaves the old file as it was and no temporary beside it.
+    #[test]
+    fn a_failed_write_leaves_the_old_file() {
+        let dir = tempfile::tempdir().unwrap();
+        let file = dir.path().join("state");
+        write_bytes_whole(&file, "old").unwrap();
+        let failed = write_whole(&file, |w| {
+            std::io::Write::write_all(w, b"half")?;
+            Err(std::io::Error::other("disk full"))
+        });
+        assert!(failed.unwrap_err().to_string().contains("state"));
+        assert_eq!(std::fs::read_to_string(&file).unwrap(), "old");
+        assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 1);
+        write_bytes_whole(&file, "new").unwrap();
+        assert_eq!(std::fs::read_to_string(&file).unwrap(), "new");
     }
 }

@@ -3,23 +3,26 @@
 //! count and the global scale's moments, the iteration, level and clocks, and the log so far, so
 //! that `--resume` continues exactly where the run stopped.
 //!
-//! The state file is little-endian binary: the magic line, the run's fingerprint, the counters and
-//! the global scale's (m, v), the log text, then the bricks in key order (origin as 3 × i32, then
+//! The state file is little-endian binary: the magic line, the run's fingerprint, the stop rule
+//! (`Stop::to_text`), the counters and the global scale's (m, v), the log text, then the bricks in key order (origin as 3 × i32, then
 //! θ, m, v as 512 × f32 each, then the brick's log-scale (m, v) as 2 × f32).
 
-use std::io::{BufReader, BufWriter, Read, Write};
+use std::io::{BufReader, Read, Write};
 use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context, Result};
 use glam::IVec3;
 
 use crate::io::bridge::MetaEntry;
+use crate::io::output::write_whole;
 use crate::io::vdb::{self, Grid};
-use crate::optimize::parameters::{Parameters, ScalarMoments};
+use crate::optimize::adam::ScalarMoments;
+use crate::optimize::parameters::Parameters;
+use crate::optimize::schedule::Stop;
 use crate::volume::brickmap::BRICK_VOXELS;
 use crate::volume::transform::IndexTransform;
 
-const MAGIC: &[u8] = b"volgrad optimizer state 3\n";
+const MAGIC: &[u8] = b"volgrad optimizer state 4\n";
 
 /// Where a run is, apart from θ and Adam's moments.
 #[derive(Debug, Clone, Default, PartialEq)]
@@ -33,6 +36,8 @@ pub struct Position {
     pub evaluation_seconds: f64,
     /// log.csv's rows so far (without the header).
     pub log: String,
+    /// When the run ends (none before a run has resolved it).
+    pub stop: Option<Stop>,
 }
 
 /// The files of checkpoint `iteration`: (VDB, state).
@@ -76,19 +81,18 @@ pub fn write_state(
     position: &Position,
     parameters: &Parameters,
 ) -> Result<()> {
-    let file = std::fs::File::create(path)
-        .with_context(|| format!("cannot create '{}'", path.display()))?;
-    let mut w = BufWriter::new(file);
-    let mut write = || -> std::io::Result<()> {
+    let stop = position.stop.as_ref().map_or(String::new(), Stop::to_text);
+    write_whole(path, |w| {
         w.write_all(MAGIC)?;
-        write_text(&mut w, fingerprint)?;
+        write_text(w, fingerprint)?;
+        write_text(w, &stop)?;
         w.write_all(&position.iteration.to_le_bytes())?;
         w.write_all(&position.level.to_le_bytes())?;
         w.write_all(&parameters.steps().to_le_bytes())?;
-        write_moments(&mut w, parameters.scale_moments())?;
+        write_moments(w, parameters.scale_moments())?;
         w.write_all(&position.optimisation_seconds.to_le_bytes())?;
         w.write_all(&position.evaluation_seconds.to_le_bytes())?;
-        write_text(&mut w, &position.log)?;
+        write_text(w, &position.log)?;
         let bricks = parameters.sorted_bricks();
         w.write_all(&(bricks.len() as u64).to_le_bytes())?;
         for (key, theta, m, v, scale) in bricks {
@@ -100,11 +104,10 @@ pub fn write_state(
                     w.write_all(&x.to_le_bytes())?;
                 }
             }
-            write_moments(&mut w, scale)?;
+            write_moments(w, scale)?;
         }
-        w.flush()
-    };
-    write().with_context(|| format!("writing '{}'", path.display()))
+        Ok(())
+    })
 }
 
 fn write_moments(w: &mut impl Write, moments: ScalarMoments) -> std::io::Result<()> {
@@ -155,6 +158,8 @@ pub fn read_state(path: &Path, fingerprint: &str) -> Result<(Position, Parameter
         );
     }
     let mut read = || -> Result<(Position, Parameters)> {
+        let stop = read_text(&mut r, size)?;
+        let stop = (!stop.is_empty()).then(|| Stop::parse(&stop)).transpose()?;
         let iteration = u64::from_le_bytes(read_array(&mut r)?);
         let level = u32::from_le_bytes(read_array(&mut r)?);
         let steps = u32::from_le_bytes(read_array(&mut r)?);
@@ -193,6 +198,7 @@ pub fn read_state(path: &Path, fingerprint: &str) -> Result<(Position, Parameter
             optimisation_seconds,
             evaluation_seconds,
             log,
+            stop,
         };
         Ok((position, p))
     };
@@ -239,7 +245,8 @@ pub fn write_grid(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::optimize::parameters::Adam;
+    use crate::optimize::adam::Adam;
+    use crate::optimize::brick_gradient::BrickGradient;
 
     #[test]
     fn state_round_trips_bit_for_bit_and_refuses_other_runs() {
@@ -254,13 +261,18 @@ mod tests {
             ..Default::default()
         };
         let gradient = [(IVec3::new(-9, 3, 100), 0.5), (IVec3::new(1, 2, 3), -0.5)];
-        p.adam_step(&adam, gradient);
+        p.adam_step(
+            &adam,
+            &BrickGradient::from_voxels(gradient),
+            &BrickGradient::default(),
+        );
         let position = Position {
             iteration: 42,
             level: 1,
             optimisation_seconds: 1.5,
             evaluation_seconds: 0.25,
             log: "1,2,3\n".into(),
+            stop: Some(Stop::Replay(vec![0.0, 0.5])),
         };
         let path = dir.path().join("checkpoint-0042.state");
         write_state(&path, "abc", &position, &p).unwrap();

@@ -10,6 +10,9 @@ use crate::optimize::evaluate::Evaluation;
 pub struct LogRow {
     pub iteration: u64,
     pub level: u32,
+    /// The fraction of the run done when this iteration began: what placed its level and
+    /// learning rate (`schedule::Stop`; `--schedule-from` replays this column).
+    pub fraction: f32,
     /// Optimisation seconds so far (evaluation and checkpoints excluded).
     pub seconds: f64,
     /// Evaluation and checkpoint seconds so far.
@@ -26,9 +29,10 @@ pub struct LogRow {
     pub state_bytes: u64,
 }
 
-const COLUMNS: [&str; 11] = [
+const COLUMNS: [&str; 12] = [
     "iteration",
     "level",
+    "fraction",
     "seconds",
     "evaluation_seconds",
     "loss",
@@ -53,10 +57,12 @@ impl LogRow {
         self.haze = e.haze;
     }
 
-    fn cells(&self) -> [String; 11] {
+    fn cells(&self) -> [String; 12] {
         [
             self.iteration.to_string(),
             self.level.to_string(),
+            // f32's shortest text that reads back to the same bits.
+            self.fraction.to_string(),
             format!("{}", self.seconds),
             format!("{}", self.evaluation_seconds),
             format!("{}", self.loss),
@@ -108,15 +114,16 @@ impl LogRow {
         Ok(LogRow {
             iteration: cells[0].parse()?,
             level: cells[1].parse()?,
-            seconds: cells[2].parse()?,
-            evaluation_seconds: cells[3].parse()?,
-            loss: cells[4].parse()?,
-            psnr: opt(5)?,
-            relative_rmse: opt(6)?,
-            volume_rmse: opt(7)?,
-            haze: opt(8)?,
-            active_voxels: cells[9].parse()?,
-            state_bytes: cells[10].parse()?,
+            fraction: cells[2].parse()?,
+            seconds: cells[3].parse()?,
+            evaluation_seconds: cells[4].parse()?,
+            loss: cells[5].parse()?,
+            psnr: opt(6)?,
+            relative_rmse: opt(7)?,
+            volume_rmse: opt(8)?,
+            haze: opt(9)?,
+            active_voxels: cells[10].parse()?,
+            state_bytes: cells[11].parse()?,
         })
     }
 }
@@ -138,6 +145,7 @@ mod tests {
             LogRow {
                 iteration: 2,
                 level: 1,
+                fraction: 0.33333334,
                 seconds: 1.0,
                 loss: 1e-3,
                 psnr: Some(31.5),
@@ -149,7 +157,7 @@ mod tests {
             },
         ];
         let csv = LogRow::csv(&rows);
-        assert!(csv.starts_with("iteration,level,seconds"), "{csv}");
+        assert!(csv.starts_with("iteration,level,fraction,seconds"), "{csv}");
         assert_eq!(LogRow::parse_all(&LogRow::csv_rows(&rows)).unwrap(), rows);
         assert!(LogRow::parse_all("1,2").is_err());
     }

@@ -3,15 +3,20 @@
 //! checkpoints and the equal-time study of estimators. Uses `volume`, `io`, `render` and
 //! `gradient`.
 
+pub mod adam;
+pub mod brick_gradient;
 pub mod checkpoint;
+pub mod descent;
 pub mod evaluate;
 pub mod log;
+pub mod optimizer_file;
 pub mod parameters;
 pub mod prior;
 pub mod problem;
 pub mod reconstruct;
 pub mod resample;
 pub mod run_file;
+pub mod schedule;
 pub mod smoothing;
 pub mod study;
 pub mod views;

@@ -2,12 +2,15 @@
 //!
 //! R(θ) = weight · (1/N) · Σ_{pairs} φ(θ_{v+e_a} − θ_v)
 //!
-//! over the pairs of neighbours (a ∈ x, y, z) with at least one of the N stored voxels, with
+//! over the pairs of neighbours (a ∈ x, y, z) with at least one stored voxel, N the voxels of the
+//! current level's box, with
 //! φ(d) = √(d² + ε²) − ε (total variation, smoothed at ε so its gradient exists at 0) or φ(d) = d²
 //! (the "laplacian" prior: its gradient is the discrete Laplacian); or a sum over the voxels
 //! themselves, R(θ) = weight · (1/N) · Σ_v ψ(θ_v), with ψ(θ) = θ ("l1") or ψ(θ) = δ·ln(1 + θ/δ)
-//! ("log", δ its `scale`). Dividing by N keeps a weight meaningful across levels of the
-//! coarse-to-fine schedule.
+//! ("log", δ its `scale`). N is fixed for a level: a finer level has 8× the voxels, so each
+//! voxel's ∂R/∂θ is 1/8 of its parent's, as the images' gradient is (the rule of the levels,
+//! `reconstruct`), and R itself keeps its size. (N was once the stored voxels, which grew as the
+//! run went on and weakened the prior.)
 
 use glam::IVec3;
 use rayon::prelude::*;
@@ -15,7 +18,7 @@ use rayon::prelude::*;
 use crate::optimize::parameters::{local_of, Parameters};
 use crate::volume::brickmap::{leaf_offset, BRICK_VOXELS};
 
-#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Deserialize, serde::Serialize)]
 #[serde(rename_all = "kebab-case")]
 pub enum PriorKind {
     /// Total variation: penalises edges by their height, keeps them sharp.
@@ -63,26 +66,27 @@ impl Prior {
         }
     }
 
-    /// R(θ) and ∂R/∂θ_v for every stored voxel v. Each voxel's derivative is computed from its
-    /// own neighbourhood, in one expression, and the bricks are joined in key order, so the
-    /// result does not depend on the hash map's order or the thread count.
-    pub fn evaluate(&self, p: &Parameters) -> (f64, Vec<(IVec3, f64)>) {
-        let stored = p.brick_count() * BRICK_VOXELS;
-        if stored == 0 || self.weight == 0.0 {
+    /// R(θ) and ∂R/∂θ_v for every stored voxel v, with N = `level_voxels`. Each voxel's
+    /// derivative is computed from its own neighbourhood, in one expression, and the bricks are
+    /// joined in key order, so the result does not depend on the hash map's order or the thread
+    /// count.
+    pub fn evaluate(&self, p: &Parameters, level_voxels: u64) -> (f64, Vec<(IVec3, f64)>) {
+        if p.brick_count() == 0 || level_voxels == 0 || self.weight == 0.0 {
             return (0.0, Vec::new());
         }
-        let scale = self.weight as f64 / stored as f64;
+        let scale = self.weight as f64 / level_voxels as f64;
         let delta = f64::from(self.scale);
+        // In key order, so that the sum does not depend on the hash map's history.
         let per_voxel = |psi: fn(f64, f64) -> (f64, f64)| {
             let mut value = 0.0;
-            let gradient = p
-                .voxels()
-                .map(|(v, theta, ..)| {
-                    let (psi, derivative) = psi(f64::from(theta), delta);
+            let mut gradient = Vec::with_capacity(p.brick_count() * BRICK_VOXELS);
+            for (key, theta, ..) in p.sorted_bricks() {
+                for (i, &t) in theta.iter().enumerate() {
+                    let (psi, derivative) = psi(f64::from(t), delta);
                     value += psi;
-                    (v, scale * derivative)
-                })
-                .collect();
+                    gradient.push(((key << 3) + local_of(i), scale * derivative));
+                }
+            }
             (scale * value, gradient)
         };
         match self.kind {
@@ -184,7 +188,7 @@ mod tests {
                     }
                 }
             }
-            let (_, gradient) = prior.evaluate(&p);
+            let (_, gradient) = prior.evaluate(&p, 512);
             // Voxels with θ > ε (`set` clamps θ − ε at 0): a corner of the block, inside, an edge.
             for v in [
                 IVec3::new(1, 0, 0),
@@ -197,7 +201,7 @@ mod tests {
                 let at = |x: f32| {
                     let mut q = p.clone();
                     q.set(v, x);
-                    prior.evaluate(&q).0
+                    prior.evaluate(&q, 512).0
                 };
                 let numeric = (at(theta + eps) - at(theta - eps)) / (2.0 * eps as f64);
                 assert!(
@@ -223,7 +227,7 @@ mod tests {
                 }
             }
         }
-        let (_, gradient) = prior.evaluate(&p);
+        let (_, gradient) = prior.evaluate(&p, 512);
         let inner = gradient
             .iter()
             .find(|(v, _)| *v == IVec3::new(7, 3, 3))

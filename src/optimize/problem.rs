@@ -11,12 +11,14 @@ use crate::gradient::loss::Loss;
 use crate::io::fingerprint::Fingerprint;
 use crate::io::images::{self, RgbImage};
 use crate::io::vdb::{self, GridSelector, LevelSet};
-use crate::optimize::parameters::{Adam, Parameters, MAX_VOXELS};
+use crate::optimize::adam::Adam;
+use crate::optimize::parameters::{Parameters, MAX_VOXELS};
 use crate::optimize::prior::Prior;
 use crate::optimize::resample::Moments;
 use crate::optimize::run_file::{BoundsFile, RunFile, StartFile, ViewFile};
 use crate::render::camera::Camera;
 use crate::render::image::{render, RenderOptions};
+use crate::render::sampling::TARGET_SEED_SALT;
 use crate::render::scene::{CameraFile, Scene};
 use crate::volume::brickmap::{floor_ivec3, BrickMap};
 use crate::volume::medium::Medium;
@@ -97,9 +99,20 @@ impl Domain {
 
     /// Voxels in the final box.
     pub fn voxel_count(&self) -> u64 {
-        let n = (self.hi - self.lo + IVec3::ONE).as_i64vec3();
-        (n.x * n.y * n.z).max(0) as u64
+        box_voxels(self.lo, self.hi)
     }
+
+    /// Voxels of level `level` (`voxel_box`).
+    pub fn voxel_count_at(&self, level: usize) -> u64 {
+        let (lo, hi) = self.voxel_box(level);
+        box_voxels(lo, hi)
+    }
+}
+
+/// Voxels in the inclusive box `lo..=hi` (0 for an empty box).
+fn box_voxels(lo: IVec3, hi: IVec3) -> u64 {
+    let n = (hi - lo + IVec3::ONE).as_i64vec3().max(glam::I64Vec3::ZERO);
+    (n.x * n.y * n.z) as u64
 }
 
 /// The optimiser's settings, resolved.
@@ -143,17 +156,19 @@ pub struct Problem {
     pub settings: Settings,
     /// What a checkpoint must match to be resumed: every setting that changes the computation.
     pub fingerprint: String,
+    /// The run file as this run resolved it (every key, absolute paths): `OUT/settings.toml`.
+    pub settings_toml: String,
 }
-
-/// Seeds the target renders apart from the training passes.
-const TARGET_SEED_SALT: u64 = 0x7a26_e7b1_d0c5_1a11;
 
 impl Problem {
     /// Reads the run file and everything it names; renders the targets a truth gives. `seed`
-    /// overrides the run file's.
+    /// overrides the run file's for the optimisation only: the targets are the run file's data,
+    /// rendered from its own seed, so that runs of several seeds fit the same images.
     pub fn load(run_path: &Path, seed: Option<u64>, progress: bool) -> Result<Problem> {
         let mut file = RunFile::read(run_path)?;
+        file.target_seed = Some(file.target_seed.unwrap_or(file.seed));
         file.seed = seed.unwrap_or(file.seed);
+        file.optimizer.primal_spp = Some(file.optimizer.primal_spp.unwrap_or(file.optimizer.spp));
         let resolve = |name: &str| RunFile::resolve(run_path, name);
         let mut scene = Scene::load(&resolve(&file.scene)).context("scene")?;
         let read = |key: &str, name: &str, grid: Option<&String>| -> Result<vdb::Grid> {
@@ -242,7 +257,7 @@ impl Problem {
         let mut targets = TargetRenderer {
             truth: truth_scene,
             spp: file.target_spp,
-            seed: file.seed,
+            seed: file.target_seed.unwrap_or(file.seed),
             progress,
             rendered: 0,
         };
@@ -296,7 +311,9 @@ impl Problem {
             transform,
             (Vec3::ZERO, Vec3::ZERO),
         );
+        let settings_toml = file.resolved(run_path)?;
         Ok(Problem {
+            settings_toml,
             grid_name: scene.grid_name.clone(),
             scene,
             views,

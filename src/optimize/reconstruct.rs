@@ -15,7 +15,7 @@
 
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
-use std::time::{Duration, Instant};
+use std::time::Instant;
 
 use anyhow::{Context, Result};
 use rand::seq::SliceRandom;
@@ -27,38 +27,26 @@ use crate::gradient::objective::adjoint_image;
 use crate::gradient::passes::{gradient, GradOptions};
 use crate::io::chart::{self, Chart, Scale, Series};
 use crate::io::fingerprint::Fingerprint;
+use crate::io::output::write_bytes_whole;
 use crate::io::vdb::meta;
+use crate::optimize::adam::Adam;
+use crate::optimize::brick_gradient::BrickGradient;
 use crate::optimize::checkpoint::{self, Position};
 use crate::optimize::evaluate::{evaluate, write_holdout_picture, Evaluation};
 use crate::optimize::log::LogRow;
-use crate::optimize::parameters::{Adam, Parameters};
+use crate::optimize::parameters::Parameters;
 use crate::optimize::problem::Problem;
 use crate::optimize::resample::upsample;
+use crate::optimize::schedule::Stop;
 use crate::optimize::smoothing::smooth;
 use crate::render::sampling::pixel_rng;
 use crate::render::scene::Scene;
 
-/// When a run ends.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub enum Stop {
-    Iterations(u64),
-    /// Seconds of optimisation (evaluation excluded).
-    Budget(Duration),
-}
-
-impl Stop {
-    /// How far the run is, in [0, 1]: what the level schedule and the learning-rate decay follow.
-    fn fraction(&self, position: &Position) -> f64 {
-        match *self {
-            Stop::Iterations(n) => position.iteration as f64 / n.max(1) as f64,
-            Stop::Budget(b) => position.optimisation_seconds / b.as_secs_f64().max(1e-9),
-        }
-    }
-}
-
 pub struct RunOptions<'a> {
     pub estimator: Estimator,
-    pub stop: Stop,
+    /// When the run ends; `None`: as the checkpoint resumed from says, else the run file's
+    /// `iterations`.
+    pub stop: Option<Stop>,
     pub out: PathBuf,
     /// A checkpoint's state file to continue from.
     pub resume: Option<PathBuf>,
@@ -82,142 +70,249 @@ pub fn run_fingerprint(problem: &Problem, estimator: Estimator) -> String {
     f.hex()
 }
 
-/// Runs the optimisation, writing checkpoints, `log.csv`, `progress.png/.svg`, held-out pictures
-/// and `final.vdb` into `options.out`.
+/// Runs the optimisation, writing `settings.toml`, checkpoints, `log.csv`, `progress.png/.svg`,
+/// held-out pictures and `final.vdb` into `options.out`.
 pub fn reconstruct(problem: &Problem, options: &RunOptions) -> Result<Outcome> {
-    let s = &problem.settings;
-    let fingerprint = run_fingerprint(problem, options.estimator);
-    let (mut position, mut parameters) = match &options.resume {
-        Some(state) => checkpoint::read_state(state, &fingerprint)?,
-        None => (Position::default(), problem.start.clone()),
-    };
-    let mut log = LogRow::parse_all(&position.log)?;
-    std::fs::create_dir_all(&options.out).with_context(|| {
-        format!(
-            "cannot create the output directory '{}'",
-            options.out.display()
-        )
-    })?;
-    let bar = progress_bar(options);
-    let mut evaluation = Evaluation::default();
-    if position.iteration == 0 {
-        // The start, so that charts and summaries show what the optimisation gained.
-        let started = Instant::now();
-        let level = position.level as usize;
-        evaluation = evaluate(
-            problem,
-            &problem.scene_at(parameters.to_brickmap(), level),
-            level,
-        );
-        position.evaluation_seconds += started.elapsed().as_secs_f64();
-        let mut row = LogRow {
-            evaluation_seconds: position.evaluation_seconds,
-            loss: f64::NAN,
-            active_voxels: parameters.active_voxels(),
-            state_bytes: parameters.memory_bytes() as u64,
-            ..Default::default()
-        };
-        row.record(&evaluation);
-        log = vec![row];
-    }
-    let mut interrupted = false;
-    while options.stop.fraction(&position) < 1.0 {
-        let fraction = options.stop.fraction(&position) as f32;
-        let started = Instant::now();
-        let mut level = position.level as usize;
-        while level < problem.domain.levels && fraction >= s.level_starts[level] {
-            parameters = upsample(&parameters, &problem.domain.transform(level), s.moments)?.0;
-            level += 1;
+    let mut run = Run::start(problem, options)?;
+    while run.fraction() < 1.0 {
+        run.iterate()?;
+        if run.interrupted {
+            break;
         }
-        position.level = level as u32;
+    }
+    run.finish()
+}
+
+/// A run under way: where it is, θ with Adam's state, and the log so far.
+struct Run<'a> {
+    problem: &'a Problem,
+    options: &'a RunOptions<'a>,
+    fingerprint: String,
+    stop: Stop,
+    position: Position,
+    parameters: Parameters,
+    log: Vec<LogRow>,
+    evaluation: Evaluation,
+    bar: indicatif::ProgressBar,
+    interrupted: bool,
+}
+
+impl<'a> Run<'a> {
+    /// A fresh run at the start (evaluated, so that charts show what the optimisation gained), or
+    /// the checkpoint `options.resume` names.
+    fn start(problem: &'a Problem, options: &'a RunOptions<'a>) -> Result<Self> {
+        let fingerprint = run_fingerprint(problem, options.estimator);
+        let (mut position, parameters) = match &options.resume {
+            Some(state) => checkpoint::read_state(state, &fingerprint)?,
+            None => (Position::default(), problem.start.clone()),
+        };
+        let stop = options
+            .stop
+            .clone()
+            .or_else(|| position.stop.clone())
+            .unwrap_or(Stop::Iterations(problem.settings.iterations.into()));
+        position.stop = Some(stop.clone());
+        std::fs::create_dir_all(&options.out).with_context(|| {
+            format!(
+                "cannot create the output directory '{}'",
+                options.out.display()
+            )
+        })?;
+        write_bytes_whole(&options.out.join("settings.toml"), &problem.settings_toml)?;
+        let mut run = Run {
+            problem,
+            options,
+            fingerprint,
+            log: LogRow::parse_all(&position.log)?,
+            bar: progress_bar(options.progress, &stop),
+            stop,
+            position,
+            parameters,
+            evaluation: Evaluation::default(),
+            interrupted: false,
+        };
+        if run.position.iteration == 0 {
+            let started = Instant::now();
+            run.evaluation = run.evaluate();
+            run.position.evaluation_seconds += started.elapsed().as_secs_f64();
+            let mut row = run.row(f64::NAN, 0.0);
+            row.record(&run.evaluation);
+            run.log = vec![row];
+        }
+        Ok(run)
+    }
+
+    fn fraction(&self) -> f64 {
+        let p = &self.position;
+        self.stop.fraction(p.iteration, p.optimisation_seconds)
+    }
+
+    fn evaluate(&self) -> Evaluation {
+        let level = self.position.level as usize;
+        let scene = self.problem.scene_at(self.parameters.to_brickmap(), level);
+        evaluate(self.problem, &scene, level)
+    }
+
+    /// This iteration's row of the log, before any evaluation.
+    fn row(&self, loss: f64, fraction: f32) -> LogRow {
+        LogRow {
+            iteration: self.position.iteration,
+            level: self.position.level,
+            fraction,
+            seconds: self.position.optimisation_seconds,
+            evaluation_seconds: self.position.evaluation_seconds,
+            loss,
+            active_voxels: self.parameters.active_voxels(),
+            state_bytes: self.parameters.memory_bytes() as u64,
+            ..Default::default()
+        }
+    }
+
+    /// One iteration: the level the schedule asks for, a step, its row of the log, and an
+    /// evaluation and a checkpoint when they are due.
+    fn iterate(&mut self) -> Result<()> {
+        let (problem, s) = (self.problem, &self.problem.settings);
+        let fraction = self.fraction() as f32;
+        let started = Instant::now();
+        self.advance_levels(fraction)?;
+        let level = self.position.level as usize;
         // lr · decay^fraction, and × level_lr per upsampling done.
         let adam = Adam {
             lr: s.adam.lr * s.lr_decay.powf(fraction) * s.level_lr.powi(level as i32),
             ..s.adam
         };
-        let mut scene = problem.scene_at(parameters.to_brickmap(), level);
+        let mut scene = problem.scene_at(self.parameters.to_brickmap(), level);
+        let iteration = self.position.iteration;
+        let estimator = self.options.estimator;
         let loss = step(
             problem,
             &mut scene,
-            &mut parameters,
-            options.estimator,
-            position.iteration,
+            &mut self.parameters,
+            estimator,
+            iteration,
             level,
             &adam,
         )?;
-        position.iteration += 1;
-        position.optimisation_seconds += started.elapsed().as_secs_f64();
-        interrupted = options
+        self.position.iteration += 1;
+        self.position.optimisation_seconds += started.elapsed().as_secs_f64();
+        self.interrupted = self
+            .options
             .interrupt
             .is_some_and(|flag| flag.load(Ordering::SeqCst));
-        let done = interrupted || options.stop.fraction(&position) >= 1.0;
-        let mut row = LogRow {
-            iteration: position.iteration,
-            level: position.level,
-            seconds: position.optimisation_seconds,
-            evaluation_seconds: position.evaluation_seconds,
-            loss,
-            active_voxels: parameters.active_voxels(),
-            state_bytes: parameters.memory_bytes() as u64,
-            ..Default::default()
-        };
-        let it = position.iteration;
+        let done = self.interrupted || self.fraction() >= 1.0;
+        let mut row = self.row(loss, fraction);
+        let it = self.position.iteration;
         // A checkpoint comes with an evaluation: its VDB carries the held-out PSNR and its
         // picture shows the held-out renders.
-        let checkpoint_now = it % u64::from(s.checkpoint_every) == 0 || done;
-        if checkpoint_now || it % u64::from(s.eval_every) == 0 {
+        let checkpoint_now = it.is_multiple_of(u64::from(s.checkpoint_every)) || done;
+        if checkpoint_now || it.is_multiple_of(u64::from(s.eval_every)) {
             let started = Instant::now();
-            let scene = problem.scene_at(parameters.to_brickmap(), level);
-            evaluation = evaluate(problem, &scene, level);
-            row.record(&evaluation);
+            self.evaluation = self.evaluate();
+            row.record(&self.evaluation);
             if checkpoint_now {
-                let saved = Saved {
-                    position: &position,
-                    parameters: &parameters,
-                    evaluation: &evaluation,
-                    log: &log,
-                    row: &row,
-                };
-                write_checkpoint(problem, options, &saved, &fingerprint)?;
+                self.write_checkpoint(&row)?;
             }
-            position.evaluation_seconds += started.elapsed().as_secs_f64();
-            row.evaluation_seconds = position.evaluation_seconds;
+            self.position.evaluation_seconds += started.elapsed().as_secs_f64();
+            row.evaluation_seconds = self.position.evaluation_seconds;
         }
         let evaluated = row.psnr.is_some();
-        log.push(row);
-        bar.set_message(format!(
+        self.log.push(row);
+        self.bar.set_message(format!(
             "it {it} · level {level} · loss {loss:.3e} · held-out PSNR {:.2} dB",
-            evaluation.psnr
+            self.evaluation.psnr
         ));
-        bar.set_position(bar_position(options.stop, &position));
+        let p = &self.position;
+        self.bar
+            .set_position(self.stop.bar_position(p.iteration, p.optimisation_seconds));
         if evaluated {
-            write_log(&options.out, &log)?;
+            write_bytes_whole(&self.options.out.join("log.csv"), LogRow::csv(&self.log))?;
         }
-        if interrupted {
-            break;
-        }
+        Ok(())
     }
-    bar.finish_and_clear();
-    // Kept as text only here and in checkpoints: rebuilding it every iteration would cost time
-    // quadratic in the run's length.
-    position.log = LogRow::csv_rows(&log);
-    if !interrupted {
-        let level = position.level as usize;
+
+    /// Upsamples ×2 for every level whose start the run's `fraction` has reached.
+    fn advance_levels(&mut self, fraction: f32) -> Result<()> {
+        let (domain, s) = (&self.problem.domain, &self.problem.settings);
+        let mut level = self.position.level as usize;
+        while level < domain.levels && fraction >= s.level_starts[level] {
+            self.parameters = upsample(&self.parameters, &domain.transform(level), s.moments)?.0;
+            level += 1;
+        }
+        self.position.level = level as u32;
+        Ok(())
+    }
+
+    /// The checkpoint's VDB, its state (the log up to `row`, included, so that a resumed run's
+    /// log.csv is the uninterrupted run's), the held-out picture and the progress chart.
+    fn write_checkpoint(&self, row: &LogRow) -> Result<()> {
+        let (problem, out) = (self.problem, &self.options.out);
+        let (vdb_path, state_path) = checkpoint::paths(out, self.position.iteration);
+        self.write_grid(&vdb_path)?;
+        let mut with_row = self.log.clone();
+        with_row.push(row.clone());
+        let state = Position {
+            log: LogRow::csv_rows(&with_row),
+            ..self.position.clone()
+        };
+        checkpoint::write_state(&state_path, &self.fingerprint, &state, &self.parameters)?;
+        if !self.evaluation.renders.is_empty() {
+            write_holdout_picture(
+                &out.join(format!("holdout-{:04}.png", self.position.iteration)),
+                &problem.holdouts,
+                &self.evaluation.renders,
+                problem.scene.settings.exposure,
+            )?;
+        }
+        write_progress_chart(out, &with_row)
+    }
+
+    /// θ as a VDB at the current level's transform, with the run's metadata.
+    fn write_grid(&self, path: &Path) -> Result<()> {
+        let level = self.position.level as usize;
         checkpoint::write_grid(
-            &options.out.join("final.vdb"),
-            &parameters,
-            problem.domain.transform(level),
-            &problem.grid_name,
-            metadata(problem, options, &position, &evaluation),
-        )?;
-        write_progress_chart(&options.out, &log)?;
+            path,
+            &self.parameters,
+            self.problem.domain.transform(level),
+            &self.problem.grid_name,
+            self.metadata(),
+        )
     }
-    Ok(Outcome {
-        position,
-        parameters,
-        evaluation,
-        interrupted,
-    })
+
+    fn metadata(&self) -> Vec<crate::io::bridge::MetaEntry> {
+        let (s, position) = (&self.problem.settings, &self.position);
+        let mut m = vec![
+            meta("volgrad_iterations", "int64", position.iteration),
+            meta("volgrad_seconds", "double", position.optimisation_seconds),
+            meta("volgrad_estimator", "string", self.options.estimator),
+            meta("volgrad_loss", "string", s.loss),
+            meta("volgrad_spp", "int64", s.spp),
+            meta("volgrad_primal_spp", "int64", s.primal_spp),
+            meta("volgrad_seed", "int64", s.seed),
+            meta("volgrad_level", "int64", position.level),
+        ];
+        if !self.problem.holdouts.is_empty() && !self.evaluation.renders.is_empty() {
+            m.push(meta("volgrad_heldout_psnr", "double", self.evaluation.psnr));
+        }
+        m
+    }
+
+    /// `final.vdb` and the progress chart, unless the run was interrupted.
+    fn finish(mut self) -> Result<Outcome> {
+        self.bar.finish_and_clear();
+        // Kept as text only here and in checkpoints: rebuilding it every iteration would cost
+        // time quadratic in the run's length.
+        self.position.log = LogRow::csv_rows(&self.log);
+        if !self.interrupted {
+            self.write_grid(&self.options.out.join("final.vdb"))?;
+            write_progress_chart(&self.options.out, &self.log)?;
+        }
+        Ok(Outcome {
+            position: self.position,
+            parameters: self.parameters,
+            evaluation: self.evaluation,
+            interrupted: self.interrupted,
+        })
+    }
 }
 
 /// One iteration's gradient and Adam step; returns the training loss (batch mean, prior
@@ -252,13 +347,9 @@ fn step(
     }
     let passes = if s.smooth_gradient { level as u32 } else { 0 };
     let (lo, hi) = problem.domain.voxel_box(level);
-    let mut gradient = smooth(total.voxels(), passes, lo, hi);
-    for prior in &s.priors {
-        let (value, prior_gradient) = prior.evaluate(parameters);
-        loss += value;
-        gradient.extend(prior_gradient);
-    }
-    parameters.adam_step(adam, gradient);
+    let gradient = smooth(BrickGradient::from_voxels(total.voxels()), passes, lo, hi);
+    let level_voxels = problem.domain.voxel_count_at(level);
+    loss += parameters.descend(adam, &gradient, &s.priors, level_voxels);
     Ok(loss)
 }
 
@@ -274,88 +365,6 @@ pub fn batch(views: usize, size: u32, seed: u64, iteration: u64) -> Vec<usize> {
             order[(slot % n) as usize]
         })
         .collect()
-}
-
-/// What a checkpoint saves.
-struct Saved<'a> {
-    position: &'a Position,
-    parameters: &'a Parameters,
-    evaluation: &'a Evaluation,
-    /// The log before this iteration, and this iteration's row.
-    log: &'a [LogRow],
-    row: &'a LogRow,
-}
-
-fn write_checkpoint(
-    problem: &Problem,
-    options: &RunOptions,
-    saved: &Saved,
-    fingerprint: &str,
-) -> Result<()> {
-    let Saved {
-        position,
-        parameters,
-        evaluation,
-        log,
-        row,
-    } = *saved;
-    let (vdb_path, state_path) = checkpoint::paths(&options.out, position.iteration);
-    let level = position.level as usize;
-    checkpoint::write_grid(
-        &vdb_path,
-        parameters,
-        problem.domain.transform(level),
-        &problem.grid_name,
-        metadata(problem, options, position, evaluation),
-    )?;
-    // The state's log includes this iteration's row, so a resumed run's log.csv is the
-    // uninterrupted run's.
-    let mut with_row = log.to_vec();
-    with_row.push(row.clone());
-    let state = Position {
-        log: LogRow::csv_rows(&with_row),
-        ..position.clone()
-    };
-    checkpoint::write_state(&state_path, fingerprint, &state, parameters)?;
-    if !evaluation.renders.is_empty() {
-        write_holdout_picture(
-            &options
-                .out
-                .join(format!("holdout-{:04}.png", position.iteration)),
-            &problem.holdouts,
-            &evaluation.renders,
-            problem.scene.settings.exposure,
-        )?;
-    }
-    write_progress_chart(&options.out, &with_row)
-}
-
-fn metadata(
-    problem: &Problem,
-    options: &RunOptions,
-    position: &Position,
-    evaluation: &Evaluation,
-) -> Vec<crate::io::bridge::MetaEntry> {
-    let s = &problem.settings;
-    let mut m = vec![
-        meta("volgrad_iterations", "int64", position.iteration),
-        meta("volgrad_seconds", "double", position.optimisation_seconds),
-        meta("volgrad_estimator", "string", options.estimator),
-        meta("volgrad_loss", "string", s.loss),
-        meta("volgrad_spp", "int64", s.spp),
-        meta("volgrad_primal_spp", "int64", s.primal_spp),
-        meta("volgrad_seed", "int64", s.seed),
-        meta("volgrad_level", "int64", position.level),
-    ];
-    if !problem.holdouts.is_empty() && !evaluation.renders.is_empty() {
-        m.push(meta("volgrad_heldout_psnr", "double", evaluation.psnr));
-    }
-    m
-}
-
-fn write_log(out: &Path, log: &[LogRow]) -> Result<()> {
-    let path = out.join("log.csv");
-    std::fs::write(&path, LogRow::csv(log)).with_context(|| format!("writing '{}'", path.display()))
 }
 
 /// progress.png/.svg: held-out PSNR (top) and training loss (bottom) against optimisation time.
@@ -387,22 +396,17 @@ fn write_progress_chart(out: &Path, log: &[LogRow]) -> Result<()> {
         psnr,
     );
     let bottom = chart("training loss", "loss", Scale::Log, "training", loss);
-    std::fs::write(
-        out.join("progress.svg"),
+    write_bytes_whole(
+        &out.join("progress.svg"),
         chart::stack_to_svg(&[&top, &bottom])?,
-    )
-    .with_context(|| format!("writing '{}'", out.join("progress.svg").display()))?;
+    )?;
     chart::write_stack_png(&[&top, &bottom], &out.join("progress.png"))?;
     Ok(())
 }
 
-fn progress_bar(options: &RunOptions) -> indicatif::ProgressBar {
-    let total = match options.stop {
-        Stop::Iterations(n) => n,
-        Stop::Budget(b) => b.as_millis() as u64,
-    };
-    let bar = crate::io::progress::bar(options.progress, total, "optimize");
-    if options.progress {
+fn progress_bar(progress: bool, stop: &Stop) -> indicatif::ProgressBar {
+    let bar = crate::io::progress::bar(progress, stop.bar_total(), "optimize");
+    if progress {
         bar.set_style(
             indicatif::ProgressStyle::with_template(
                 "[{bar:30}] {percent:>3}% {msg} · {elapsed_precise} (eta {eta})",
@@ -413,13 +417,6 @@ fn progress_bar(options: &RunOptions) -> indicatif::ProgressBar {
         bar.set_message("starting");
     }
     bar
-}
-
-fn bar_position(stop: Stop, position: &Position) -> u64 {
-    match stop {
-        Stop::Iterations(_) => position.iteration,
-        Stop::Budget(_) => (position.optimisation_seconds * 1000.0) as u64,
-    }
 }
 
 #[cfg(test)]

@@ -23,7 +23,7 @@ use crate::volume::transform::IndexTransform;
 /// size of the first steps after an upsampling, what they were.
 const FINE_GRADIENT_SCALE: f32 = 1.0 / 8.0;
 
-#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Deserialize, serde::Serialize)]
 #[serde(rename_all = "kebab-case")]
 pub enum Moments {
     /// The moments are resampled like θ (scaled to the finer voxels' gradients) and the step
@@ -168,11 +168,12 @@ mod tests {
         let v = IVec3::new(4, 4, 4);
         let mut p = Parameters::default();
         p.set(v, 1.0);
-        let adam = crate::optimize::parameters::Adam {
+        let adam = crate::optimize::adam::Adam {
             fit_brick_scales: true,
             ..Default::default()
         };
-        p.adam_step(&adam, [(v, 1.0)]);
+        let gradient = crate::optimize::brick_gradient::BrickGradient::from_voxels([(v, 1.0)]);
+        p.adam_step(&adam, &gradient, &Default::default());
         let (kept, _) = upsample(
             &p,
             &IndexTransform::uniform(1.0, DVec3::ZERO),

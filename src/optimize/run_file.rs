@@ -7,15 +7,19 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context, Result};
-use serde::Deserialize;
+use serde::{Deserialize, Serialize};
 
-use crate::gradient::loss::Loss;
-use crate::optimize::parameters::Adam;
-use crate::optimize::prior::{Prior, PriorKind};
+use crate::optimize::optimizer_file::OptimizerFile;
 use crate::optimize::resample::Moments;
 use crate::optimize::views::Orbit;
 
-#[derive(Debug, Clone, Deserialize)]
+/// The most views in a set (`[[view]]`s and the orbit's, or the held-out ones).
+pub const MAX_VIEWS: u64 = 10_000;
+
+/// The most target pixels of a run, all views together (2^28: 3 GiB of RGB f32).
+pub const MAX_TARGET_PIXELS: u64 = 1 << 28;
+
+#[derive(Debug, Clone, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct RunFile {
     /// The scene file: lights, medium constants (density_scale, albedo, phase_g, filter) and
@@ -38,8 +42,12 @@ pub struct RunFile {
     /// A checkpoint every this many iterations (and at the end).
     #[serde(default = "default_checkpoint_every")]
     pub checkpoint_every: u32,
+    /// The optimisation's random numbers (`--seed` overrides it).
     #[serde(default = "default_seed")]
     pub seed: u64,
+    /// The random numbers of the targets rendered from `truth` (default: `seed`). `--seed` leaves
+    /// it: runs of several seeds fit the same images.
+    pub target_seed: Option<u64>,
     #[serde(default)]
     pub view: Vec<ViewFile>,
     #[serde(default)]
@@ -70,7 +78,7 @@ fn default_seed() -> u64 {
 }
 
 /// A camera as in a scene file, with the image it sees.
-#[derive(Debug, Clone, Deserialize)]
+#[derive(Debug, Clone, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct ViewFile {
     pub position: [f32; 3],
@@ -85,14 +93,14 @@ pub struct ViewFile {
     pub image: Option<String>,
 }
 
-#[derive(Debug, Clone, Default, Deserialize)]
+#[derive(Debug, Clone, Default, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct ViewSetFile {
     pub orbit: Option<OrbitFile>,
 }
 
 /// Cameras on a Fibonacci spiral around the unknown's box, targets rendered from `truth`.
-#[derive(Debug, Clone, Deserialize)]
+#[derive(Debug, Clone, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct OrbitFile {
     pub count: u32,
@@ -121,7 +129,7 @@ impl OrbitFile {
 }
 
 /// The unknown grid.
-#[derive(Debug, Clone, Deserialize)]
+#[derive(Debug, Clone, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct UnknownFile {
     /// "truth" (the truth's active box and transform), "start" (the start VDB's), or
@@ -145,140 +153,18 @@ fn default_moments() -> Moments {
     Moments::Resample
 }
 
-#[derive(Debug, Clone, Deserialize)]
+#[derive(Debug, Clone, Deserialize, Serialize)]
 #[serde(untagged)]
 pub enum BoundsFile {
     Named(String),
     Box { min: [f32; 3], max: [f32; 3] },
 }
 
-#[derive(Debug, Clone, Deserialize)]
+#[derive(Debug, Clone, Deserialize, Serialize)]
 #[serde(untagged)]
 pub enum StartFile {
     Constant(f32),
     Vdb(String),
-}
-
-#[derive(Debug, Clone, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct OptimizerFile {
-    #[serde(default = "default_lr")]
-    pub lr: f32,
-    #[serde(default = "default_beta1")]
-    pub beta1: f32,
-    #[serde(default = "default_beta2")]
-    pub beta2: f32,
-    #[serde(default = "default_epsilon")]
-    pub epsilon: f32,
-    /// The learning rate at the end of the budget, as a fraction of `lr` (exponential decay in
-    /// between); 1 keeps it constant.
-    #[serde(default = "default_lr_decay")]
-    pub lr_decay: f32,
-    /// The learning rate is multiplied by this at each upsampling: a finer voxel is crossed by
-    /// half the path length, so the same change in θ moves the image half as much, while its
-    /// gradient is noisier; 0.5 keeps the change of optical depth per step and voxel what it was.
-    #[serde(default = "default_level_lr")]
-    pub level_lr: f32,
-    #[serde(default = "default_loss")]
-    pub loss: Loss,
-    /// Views per iteration: a random batch, reshuffled each epoch.
-    #[serde(default = "default_batch")]
-    pub batch: u32,
-    /// Samples per pixel of each view's gradient pass (and of its primal render, unless
-    /// `primal_spp` is given).
-    #[serde(default = "default_spp")]
-    pub spp: u32,
-    /// Samples per pixel of the primal render whose residual against the target is the adjoint
-    /// image. Near convergence an 8-spp residual is mostly Monte Carlo noise, which the gradient
-    /// pass multiplies into every voxel; the primal costs less per sample than the gradient pass.
-    #[serde(default)]
-    pub primal_spp: Option<u32>,
-    /// Iterations when the command line gives neither --iterations nor --budget.
-    #[serde(default = "default_iterations")]
-    pub iterations: u32,
-    /// One prior (`prior = { kind = …, weight = … }`) or several, summed (`prior = [{ … }, { … }]`).
-    #[serde(default, deserialize_with = "one_or_many")]
-    pub prior: Vec<PriorFile>,
-    /// Filter the gradient with [1 2 1]/4 per axis, once per upsampling done (`smoothing`).
-    #[serde(default = "default_smooth_gradient")]
-    pub smooth_gradient: bool,
-    /// Fit a global log-scale of θ beside the voxels (`Adam::fit_scale`).
-    #[serde(default = "default_fit_scale")]
-    pub fit_scale: bool,
-    /// Fit a log-scale of θ per brick beside the voxels (`Adam::fit_brick_scales`).
-    #[serde(default = "default_fit_scale")]
-    pub fit_brick_scales: bool,
-    /// The brick log-scales' learning rate as a multiple of `lr` (`Adam::brick_scale_lr`).
-    #[serde(default = "default_brick_scale_lr")]
-    pub brick_scale_lr: f32,
-}
-
-impl Default for OptimizerFile {
-    fn default() -> Self {
-        toml::from_str("").expect("every optimizer key has a default")
-    }
-}
-
-fn default_lr() -> f32 {
-    0.05
-}
-fn default_beta1() -> f32 {
-    0.9
-}
-fn default_beta2() -> f32 {
-    0.999
-}
-fn default_epsilon() -> f32 {
-    1e-8
-}
-fn default_lr_decay() -> f32 {
-    1.0
-}
-fn default_level_lr() -> f32 {
-    0.5
-}
-fn default_smooth_gradient() -> bool {
-    true
-}
-fn default_fit_scale() -> bool {
-    false
-}
-fn default_brick_scale_lr() -> f32 {
-    1.0
-}
-fn default_loss() -> Loss {
-    Loss::L2
-}
-fn default_batch() -> u32 {
-    4
-}
-fn default_spp() -> u32 {
-    4
-}
-fn default_iterations() -> u32 {
-    100
-}
-
-#[derive(Debug, Clone, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct PriorFile {
-    pub kind: PriorKind,
-    pub weight: f32,
-    /// δ of the log prior, required by it and refused by the others.
-    pub scale: Option<f32>,
-}
-
-/// A table or an array of tables, each read as a `PriorFile` (its errors, e.g. an unknown kind,
-/// kept as they are: an untagged enum would replace them with "did not match any variant").
-fn one_or_many<'de, D: serde::Deserializer<'de>>(d: D) -> Result<Vec<PriorFile>, D::Error> {
-    let items = match toml::Value::deserialize(d)? {
-        toml::Value::Array(items) => items,
-        one => vec![one],
-    };
-    items
-        .into_iter()
-        .map(|item| PriorFile::deserialize(item).map_err(serde::de::Error::custom))
-        .collect()
 }
 
 impl RunFile {
@@ -290,6 +176,71 @@ impl RunFile {
         file.validate()
             .with_context(|| format!("invalid run file '{}'", path.display()))?;
         Ok(file)
+    }
+
+    /// Every view's target is an image kept in memory for the whole run, and a truth renders it
+    /// before the first iteration: the counts and pixels are checked before anything is
+    /// allocated or rendered.
+    fn check_sizes(&self) -> Result<()> {
+        let mut pixels = 0u64;
+        for (key, listed, orbit) in [
+            ("view", &self.view, &self.views.orbit),
+            ("holdout", &self.holdout, &self.holdouts.orbit),
+        ] {
+            let listed_pixels = listed
+                .iter()
+                .map(|v| u64::from(v.width) * u64::from(v.height));
+            pixels += listed_pixels.sum::<u64>();
+            if let Some(o) = orbit {
+                if u64::from(o.count) > MAX_VIEWS {
+                    bail!(
+                        "{key}s.orbit.count is {}: at most {MAX_VIEWS} views per set (each is a target image held in memory, rendered before the first iteration when it comes from a truth)",
+                        o.count
+                    );
+                }
+                pixels += u64::from(o.count) * u64::from(o.width) * u64::from(o.height);
+            }
+            if listed.len() as u64 > MAX_VIEWS {
+                bail!(
+                    "{} [[{key}]] entries: at most {MAX_VIEWS} views per set",
+                    listed.len()
+                );
+            }
+        }
+        if pixels > MAX_TARGET_PIXELS {
+            bail!(
+                "the views and held-out views have {pixels} pixels in all: at most 2^28 = {MAX_TARGET_PIXELS} (3 GiB of target images); use fewer or smaller views"
+            );
+        }
+        Ok(())
+    }
+
+    /// The file with every key written out and every path absolute, as TOML that `optimize`
+    /// reads back: what a run resolved, to reproduce or edit it from anywhere.
+    pub fn resolved(&self, run_path: &Path) -> Result<String> {
+        let absolute = |name: &String| -> String {
+            let path = Self::resolve(run_path, name);
+            std::path::absolute(&path)
+                .unwrap_or(path)
+                .to_string_lossy()
+                .into_owned()
+        };
+        let mut file = self.clone();
+        file.scene = absolute(&file.scene);
+        file.truth = file.truth.as_ref().map(absolute);
+        for view in file.view.iter_mut().chain(&mut file.holdout) {
+            view.image = view.image.as_ref().map(absolute);
+        }
+        if let StartFile::Vdb(name) = &file.unknown.start {
+            file.unknown.start = StartFile::Vdb(absolute(name));
+        }
+        let mut value = toml::Value::try_from(&file).context("writing the resolved run file")?;
+        shortest_floats(&mut value);
+        let text = toml::to_string(&value).context("writing the resolved run file")?;
+        Ok(format!(
+            "# The run file '{}' as volgrad resolved it: every key, absolute paths.\n\n{text}",
+            run_path.display()
+        ))
     }
 
     /// A path named in the run file, relative to it.
@@ -328,8 +279,23 @@ impl RunFile {
         if needs_truth && self.truth.is_none() {
             bail!("truth: views without an image ([views.orbit], [holdouts.orbit], or a [[view]] without `image`) are rendered from a true grid; give `truth = \"file.vdb\"` or an image per view");
         }
+        self.check_sizes()?;
         self.unknown.validate(self.truth.is_some())?;
         self.optimizer.validate()
+    }
+}
+
+/// Every number of a run file is an f32, which TOML writes through f64 (0.1 as
+/// 0.10000000149011612): each is rewritten as the shortest decimal that reads back as the same f32.
+fn shortest_floats(value: &mut toml::Value) {
+    match value {
+        toml::Value::Float(x) => {
+            let shortest = (*x as f32).to_string();
+            *x = shortest.parse().unwrap_or(*x);
+        }
+        toml::Value::Array(items) => items.iter_mut().for_each(shortest_floats),
+        toml::Value::Table(table) => table.iter_mut().for_each(|(_, v)| shortest_floats(v)),
+        _ => {}
     }
 }
 
@@ -403,98 +369,11 @@ impl UnknownFile {
     }
 }
 
-impl OptimizerFile {
-    fn validate(&self) -> Result<()> {
-        if !(self.lr > 0.0 && self.lr.is_finite()) {
-            bail!("optimizer.lr must be a positive number (got {})", self.lr);
-        }
-        for (key, beta) in [("beta1", self.beta1), ("beta2", self.beta2)] {
-            if !(0.0..1.0).contains(&beta) {
-                bail!("optimizer.{key} must be in [0, 1) (got {beta})");
-            }
-        }
-        if !(self.epsilon > 0.0 && self.epsilon.is_finite()) {
-            bail!(
-                "optimizer.epsilon must be a positive number (got {})",
-                self.epsilon
-            );
-        }
-        if !(self.lr_decay > 0.0 && self.lr_decay <= 1.0) {
-            bail!(
-                "optimizer.lr_decay must be in (0, 1] (got {})",
-                self.lr_decay
-            );
-        }
-        if !(self.level_lr > 0.0 && self.level_lr <= 1.0) {
-            bail!(
-                "optimizer.level_lr must be in (0, 1] (got {})",
-                self.level_lr
-            );
-        }
-        if !(self.brick_scale_lr > 0.0 && self.brick_scale_lr.is_finite()) {
-            bail!(
-                "optimizer.brick_scale_lr must be a positive number (got {})",
-                self.brick_scale_lr
-            );
-        }
-        if self.loss == Loss::Mean {
-            bail!("optimizer.loss must compare against the targets: l2, l1 or relative-l2");
-        }
-        for (key, n) in [
-            ("batch", self.batch),
-            ("spp", self.spp),
-            ("primal_spp", self.primal_spp.unwrap_or(self.spp)),
-            ("iterations", self.iterations),
-        ] {
-            if n == 0 {
-                bail!("optimizer.{key} must be at least 1");
-            }
-        }
-        for p in &self.prior {
-            if !(p.weight >= 0.0 && p.weight.is_finite()) {
-                bail!(
-                    "optimizer.prior.weight must be a number ≥ 0 (got {})",
-                    p.weight
-                );
-            }
-            match (p.kind, p.scale) {
-                (PriorKind::Log, Some(d)) if d > 0.0 && d.is_finite() => {}
-                (PriorKind::Log, d) => bail!(
-                    "optimizer.prior.scale must be a number > 0 for kind \"log\" (got {})",
-                    d.map_or("nothing".into(), |d| d.to_string())
-                ),
-                (_, Some(_)) => bail!("optimizer.prior.scale is only for kind \"log\""),
-                (_, None) => {}
-            }
-        }
-        Ok(())
-    }
-
-    pub fn adam(&self) -> Adam {
-        Adam {
-            lr: self.lr,
-            beta1: self.beta1,
-            beta2: self.beta2,
-            epsilon: self.epsilon,
-            fit_scale: self.fit_scale,
-            fit_brick_scales: self.fit_brick_scales,
-            brick_scale_lr: self.brick_scale_lr,
-        }
-    }
-
-    pub fn priors(&self) -> Vec<Prior> {
-        let prior = |p: &PriorFile| Prior {
-            kind: p.kind,
-            weight: p.weight,
-            scale: p.scale.unwrap_or(0.0),
-        };
-        self.prior.iter().map(prior).collect()
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::gradient::loss::Loss;
+    use crate::optimize::prior::PriorKind;
 
     const GOOD: &str = r#"
         scene = "s.toml"
@@ -592,6 +471,17 @@ mod tests {
             ),
             (GOOD.replace("[[holdout]]", "[[view]]"), "no held-out views"),
             (format!("target_spp = 0\n{GOOD}"), "target_spp"),
+            (
+                GOOD.replace("count = 4", "count = 4294967295"),
+                "views.orbit.count is 4294967295: at most 10000",
+            ),
+            (
+                GOOD.replace("count = 4", "count = 9000").replace(
+                    "width = 8\n        height = 8\n        [[holdout]]",
+                    "width = 256\n        height = 256\n        [[holdout]]",
+                ),
+                "at most 2^28",
+            ),
             (format!("colour = 1\n{GOOD}"), "unknown field"),
             (format!("eval_every = 0\n{GOOD}"), "eval_every"),
             (

@@ -18,10 +18,11 @@ use glam::IVec3;
 use rayon::prelude::*;
 
 use super::parameters::local_of;
-use crate::volume::brickmap::{leaf_offset, BRICK_VOXELS};
+use crate::optimize::brick_gradient::{BrickGradient, BrickValues};
+use crate::volume::brickmap::BRICK_VOXELS;
 use crate::volume::sparse_index::KeyMap;
 
-type Bricks = KeyMap<Box<[f64; BRICK_VOXELS]>>;
+type Bricks = KeyMap<BrickValues>;
 
 /// Stride of one voxel along axis 0, 1, 2 in a brick's voxel order (`leaf_offset`).
 const STRIDE: [usize; 3] = [64, 8, 1];
@@ -29,35 +30,18 @@ const AXES: [IVec3; 3] = [IVec3::X, IVec3::Y, IVec3::Z];
 
 /// `gradient` filtered with `passes` passes of [1 2 1]/4 along each axis, restricted to the
 /// voxels in `lo..=hi` (the level's voxels: the filter must not carry gradient onto voxels the
-/// unknown does not have). Each voxel appears once in the result.
-pub fn smooth(
-    gradient: impl IntoIterator<Item = (IVec3, f64)>,
-    passes: u32,
-    lo: IVec3,
-    hi: IVec3,
-) -> Vec<(IVec3, f64)> {
-    let mut bricks = Bricks::default();
-    for (voxel, g) in gradient {
-        if g != 0.0 && g.is_finite() {
-            bricks
-                .entry(voxel >> 3)
-                .or_insert_with(|| Box::new([0.0; BRICK_VOXELS]))[leaf_offset(voxel & 7)] += g;
-        }
+/// unknown does not have).
+pub fn smooth(gradient: BrickGradient, passes: u32, lo: IVec3, hi: IVec3) -> BrickGradient {
+    if passes == 0 {
+        return gradient;
     }
+    let mut bricks: Bricks = gradient.into_bricks().collect();
     for _ in 0..passes {
         for axis in 0..3 {
             bricks = blur_along(&bricks, axis, lo, hi);
         }
     }
-    let mut out = Vec::with_capacity(bricks.len() * BRICK_VOXELS);
-    for (key, values) in &bricks {
-        for (i, &g) in values.iter().enumerate() {
-            if g != 0.0 {
-                out.push(((*key << 3) + local_of(i), g));
-            }
-        }
-    }
-    out
+    BrickGradient::from_bricks(bricks)
 }
 
 /// One pass of out[v] = ¼·in[v − e] + ½·in[v] + ¼·in[v + e] along `axis`, each output brick
@@ -110,10 +94,17 @@ mod tests {
     use super::*;
     use std::collections::HashMap;
 
-    fn as_map(v: Vec<(IVec3, f64)>) -> HashMap<IVec3, f64> {
-        let n = v.len();
-        let map: HashMap<_, _> = v.into_iter().collect();
-        assert_eq!(map.len(), n, "each voxel once");
+    /// `smooth` of the voxels `v`, as a map of the non-zero results.
+    fn smoothed(
+        v: impl IntoIterator<Item = (IVec3, f64)>,
+        passes: u32,
+        lo: IVec3,
+        hi: IVec3,
+    ) -> HashMap<IVec3, f64> {
+        let out = smooth(BrickGradient::from_voxels(v), passes, lo, hi);
+        let voxels: Vec<_> = out.voxels().collect();
+        let map: HashMap<_, _> = voxels.iter().copied().collect();
+        assert_eq!(map.len(), voxels.len(), "each voxel once");
         map
     }
 
@@ -122,7 +113,7 @@ mod tests {
         // At a brick corner, so that every neighbour lies in another brick.
         let at = IVec3::new(8, 16, 24);
         let big = IVec3::splat(1000);
-        let out = as_map(smooth([(at, 64.0)], 1, -big, big));
+        let out = smoothed([(at, 64.0)], 1, -big, big);
         assert_eq!(out.len(), 27);
         for (v, g) in &out {
             let d = (*v - at).abs();
@@ -130,7 +121,7 @@ mod tests {
             assert!((g - expected).abs() < 1e-12, "{v}: {g} vs {expected}");
         }
         // Two passes: [1 4 6 4 1]/16 per axis, the sum kept.
-        let out = as_map(smooth([(at, 1.0)], 2, -big, big));
+        let out = smoothed([(at, 1.0)], 2, -big, big);
         assert_eq!(out.len(), 125);
         assert!((out.values().sum::<f64>() - 1.0).abs() < 1e-12);
         assert!((out[&at] - (6.0f64 / 16.0).powi(3)).abs() < 1e-12);
@@ -145,7 +136,7 @@ mod tests {
         let voxels: Vec<_> = (0..24 * 24 * 24)
             .map(|i| IVec3::new(i / 576, (i / 24) % 24, i % 24))
             .collect();
-        let out = as_map(smooth(voxels.iter().map(|&v| (v, ramp(v))), 1, lo, hi));
+        let out = smoothed(voxels.iter().map(|&v| (v, ramp(v))), 1, lo, hi);
         for &v in &voxels {
             if v.cmpgt(lo).all() && v.cmplt(hi).all() {
                 assert!((out[&v] - ramp(v)).abs() < 1e-9, "{v}");
@@ -160,7 +151,7 @@ mod tests {
                 -1.0
             }
         };
-        let out = as_map(smooth(voxels.iter().map(|&v| (v, checker(v))), 1, lo, hi));
+        let out = smoothed(voxels.iter().map(|&v| (v, checker(v))), 1, lo, hi);
         assert!(out.keys().all(|v| v.cmple(lo).any() || v.cmpge(hi).any()));
     }
 }

@@ -83,9 +83,11 @@ pub fn equal_time(
         }
         let run_options = RunOptions {
             estimator,
+            stop: options.stop.clone(),
             out: out.join(estimator.to_string()),
             resume: None,
-            ..*options
+            progress: options.progress,
+            interrupt: options.interrupt,
         };
         let outcome = reconstruct(problem, &run_options)?;
         if outcome.interrupted {

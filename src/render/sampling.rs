@@ -7,6 +7,10 @@ use glam::Vec3;
 use rand::rngs::SmallRng;
 use rand::SeedableRng;
 
+/// Seeds the renders of target images apart from the passes that are compared with them, so
+/// that their noise does not correlate (`grad --target-scene`, an optimisation's targets).
+pub const TARGET_SEED_SALT: u64 = 0x7a26_e7b1_d0c5_1a11;
+
 /// A random stream that depends only on (seed, pixel, stream), never on the thread that runs it:
 /// the same seed gives the same image for any thread count.
 pub fn pixel_rng(seed: u64, pixel: u64, stream: u64) -> SmallRng {

@@ -1,0 +1,185 @@
+//! `[optimizer]` of a run file: Adam's settings and schedule, the loss, the batch and samples per
+//! view, the priors and the optional fits beside the voxels. Every key has a default; every check
+//! names its key.
+
+use anyhow::{bail, Result};
+use serde::{Deserialize, Serialize};
+
+use crate::gradient::loss::Loss;
+use crate::optimize::adam::Adam;
+use crate::optimize::prior::{Prior, PriorKind};
+
+/// `[optimizer]`: every key may be left out (`Default`).
+#[derive(Debug, Clone, Deserialize, Serialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct OptimizerFile {
+    pub lr: f32,
+    pub beta1: f32,
+    pub beta2: f32,
+    pub epsilon: f32,
+    /// The learning rate at the end of the budget, as a fraction of `lr` (exponential decay in
+    /// between); 1 keeps it constant.
+    pub lr_decay: f32,
+    /// The learning rate is multiplied by this at each upsampling: a finer voxel is crossed by
+    /// half the path length, so the same change in θ moves the image half as much, while its
+    /// gradient is noisier; 0.5 keeps the change of optical depth per step and voxel what it was.
+    pub level_lr: f32,
+    pub loss: Loss,
+    /// Views per iteration: a random batch, reshuffled each epoch.
+    pub batch: u32,
+    /// Samples per pixel of each view's gradient pass (and of its primal render, unless
+    /// `primal_spp` is given).
+    pub spp: u32,
+    /// Samples per pixel of the primal render whose residual against the target is the adjoint
+    /// image. Near convergence an 8-spp residual is mostly Monte Carlo noise, which the gradient
+    /// pass multiplies into every voxel; the primal costs less per sample than the gradient pass.
+    pub primal_spp: Option<u32>,
+    /// Iterations when the command line gives neither --iterations nor --budget.
+    pub iterations: u32,
+    /// One prior (`prior = { kind = …, weight = … }`) or several, summed (`prior = [{ … }, { … }]`).
+    #[serde(deserialize_with = "one_or_many")]
+    pub prior: Vec<PriorFile>,
+    /// Filter the gradient with [1 2 1]/4 per axis, once per upsampling done (`smoothing`).
+    pub smooth_gradient: bool,
+    /// Fit a global log-scale of θ beside the voxels (`Adam::fit_scale`).
+    pub fit_scale: bool,
+    /// Fit a log-scale of θ per brick beside the voxels (`Adam::fit_brick_scales`).
+    pub fit_brick_scales: bool,
+    /// The brick log-scales' learning rate as a multiple of `lr` (`Adam::brick_scale_lr`).
+    pub brick_scale_lr: f32,
+}
+
+impl Default for OptimizerFile {
+    fn default() -> Self {
+        OptimizerFile {
+            lr: 0.05,
+            beta1: 0.9,
+            beta2: 0.999,
+            epsilon: 1e-8,
+            lr_decay: 1.0,
+            level_lr: 0.5,
+            loss: Loss::L2,
+            batch: 4,
+            spp: 4,
+            primal_spp: None,
+            iterations: 100,
+            prior: Vec::new(),
+            smooth_gradient: true,
+            fit_scale: false,
+            fit_brick_scales: false,
+            brick_scale_lr: 1.0,
+        }
+    }
+}
+
+#[derive(Debug, Clone, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct PriorFile {
+    pub kind: PriorKind,
+    pub weight: f32,
+    /// δ of the log prior, required by it and refused by the others.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub scale: Option<f32>,
+}
+
+/// A table or an array of tables, each read as a `PriorFile` (its errors, e.g. an unknown kind,
+/// kept as they are: an untagged enum would replace them with "did not match any variant").
+fn one_or_many<'de, D: serde::Deserializer<'de>>(d: D) -> Result<Vec<PriorFile>, D::Error> {
+    let items = match toml::Value::deserialize(d)? {
+        toml::Value::Array(items) => items,
+        one => vec![one],
+    };
+    items
+        .into_iter()
+        .map(|item| PriorFile::deserialize(item).map_err(serde::de::Error::custom))
+        .collect()
+}
+
+impl OptimizerFile {
+    pub fn validate(&self) -> Result<()> {
+        if !(self.lr > 0.0 && self.lr.is_finite()) {
+            bail!("optimizer.lr must be a positive number (got {})", self.lr);
+        }
+        for (key, beta) in [("beta1", self.beta1), ("beta2", self.beta2)] {
+            if !(0.0..1.0).contains(&beta) {
+                bail!("optimizer.{key} must be in [0, 1) (got {beta})");
+            }
+        }
+        if !(self.epsilon > 0.0 && self.epsilon.is_finite()) {
+            bail!(
+                "optimizer.epsilon must be a positive number (got {})",
+                self.epsilon
+            );
+        }
+        if !(self.lr_decay > 0.0 && self.lr_decay <= 1.0) {
+            bail!(
+                "optimizer.lr_decay must be in (0, 1] (got {})",
+                self.lr_decay
+            );
+        }
+        if !(self.level_lr > 0.0 && self.level_lr <= 1.0) {
+            bail!(
+                "optimizer.level_lr must be in (0, 1] (got {})",
+                self.level_lr
+            );
+        }
+        if !(self.brick_scale_lr > 0.0 && self.brick_scale_lr.is_finite()) {
+            bail!(
+                "optimizer.brick_scale_lr must be a positive number (got {})",
+                self.brick_scale_lr
+            );
+        }
+        if self.loss == Loss::Mean {
+            bail!("optimizer.loss must compare against the targets: l2, l1 or relative-l2");
+        }
+        for (key, n) in [
+            ("batch", self.batch),
+            ("spp", self.spp),
+            ("primal_spp", self.primal_spp.unwrap_or(self.spp)),
+            ("iterations", self.iterations),
+        ] {
+            if n == 0 {
+                bail!("optimizer.{key} must be at least 1");
+            }
+        }
+        for p in &self.prior {
+            if !(p.weight >= 0.0 && p.weight.is_finite()) {
+                bail!(
+                    "optimizer.prior.weight must be a number ≥ 0 (got {})",
+                    p.weight
+                );
+            }
+            match (p.kind, p.scale) {
+                (PriorKind::Log, Some(d)) if d > 0.0 && d.is_finite() => {}
+                (PriorKind::Log, d) => bail!(
+                    "optimizer.prior.scale must be a number > 0 for kind \"log\" (got {})",
+                    d.map_or("nothing".into(), |d| d.to_string())
+                ),
+                (_, Some(_)) => bail!("optimizer.prior.scale is only for kind \"log\""),
+                (_, None) => {}
+            }
+        }
+        Ok(())
+    }
+
+    pub fn adam(&self) -> Adam {
+        Adam {
+            lr: self.lr,
+            beta1: self.beta1,
+            beta2: self.beta2,
+            epsilon: self.epsilon,
+            fit_scale: self.fit_scale,
+            fit_brick_scales: self.fit_brick_scales,
+            brick_scale_lr: self.brick_scale_lr,
+        }
+    }
+
+    pub fn priors(&self) -> Vec<Prior> {
+        let prior = |p: &PriorFile| Prior {
+            kind: p.kind,
+            weight: p.weight,
+            scale: p.scale.unwrap_or(0.0),
+        };
+        self.prior.iter().map(prior).collect()
+    }
+}
