@@ -183,13 +183,15 @@ fn a_tiny_reconstruction_converges_and_naive_cannot_grow_from_empty() {
 /// The known failure of noisy per-voxel gradients: started at the truth, an optimiser that moves
 /// every voxel by about the learning rate drifts away. Over 20 iterations at the final level's
 /// settings the held-out PSNR stays within 3 dB of the truth's. The global and brick scales are
-/// on, as in the cloud's run: their steps must not carry it away either.
+/// on, as by default: their steps must not carry it away either.
 #[test]
 fn a_run_started_at_the_truth_stays_near_it() {
     let dir = fixture(
         &run_file(
             "\"ball.vdb\"",
-            "spp = 8\niterations = 20\nfit_scale = true\nfit_brick_scales = true",
+            // No prior: on this 6-view toy the default priors pull at the faint voxels its 24²
+            // views barely see, −3.4 dB at the first evaluation, back to −1.3 dB by the 20th.
+            "spp = 8\niterations = 20\nfit_scale = true\nfit_brick_scales = true\nprior = []",
         )
         .replace("eval_every = 10", "eval_every = 5"),
     );

@@ -391,6 +391,7 @@ mod tests {
                 kind,
                 weight: 1.0,
                 scale: 0.01,
+                tv_epsilon: 1e-3,
             };
             let adam = Adam {
                 lr: 0.01,

@@ -8,35 +8,48 @@ use serde::{Deserialize, Serialize};
 use crate::gradient::loss::Loss;
 use crate::optimize::adam::Adam;
 use crate::optimize::prior::{Prior, PriorKind};
+use crate::optimize::scene_units::{self, SceneUnits};
 
-/// `[optimizer]`: every key may be left out (`Default`).
+/// `[optimizer]`: every key may be left out (`Default`). The keys that would be grid values are
+/// optical depths and weights relative to the images (`scene_units`), so the defaults carry over
+/// from scene to scene; `Problem::load` resolves them and `OUT/settings.toml` shows the result.
 #[derive(Debug, Clone, Deserialize, Serialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct OptimizerFile {
-    pub lr: f32,
+    /// The learning rate as the optical depth along the unknown box's longest edge that one
+    /// Adam step may change (each voxel moves by about lr = τ·u in grid values).
+    pub step_optical_depth: f32,
+    /// The learning rate in grid values, instead of `step_optical_depth` (settings.toml writes
+    /// the one a run used).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub lr: Option<f32>,
     pub beta1: f32,
     pub beta2: f32,
     pub epsilon: f32,
-    /// The learning rate at the end of the budget, as a fraction of `lr` (exponential decay in
-    /// between); 1 keeps it constant.
+    /// The learning rate at the end of the budget, as a fraction of the first (exponential decay
+    /// in between); 1 keeps it constant.
     pub lr_decay: f32,
-    /// The learning rate is multiplied by this at each upsampling: a finer voxel is crossed by
-    /// half the path length, so the same change in θ moves the image half as much, while its
-    /// gradient is noisier; 0.5 keeps the change of optical depth per step and voxel what it was.
+    /// The learning rate is multiplied by this at each upsampling (see "One rule per level" in
+    /// `reconstruct`).
     pub level_lr: f32,
     pub loss: Loss,
-    /// Views per iteration: a random batch, reshuffled each epoch.
-    pub batch: u32,
-    /// Samples per pixel of each view's gradient pass (and of its primal render, unless
-    /// `primal_spp` is given).
+    /// Views per iteration: a random batch, reshuffled each epoch (default: 8, or every view
+    /// when there are fewer).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub batch: Option<u32>,
+    /// Samples per pixel of each view's gradient pass.
     pub spp: u32,
     /// Samples per pixel of the primal render whose residual against the target is the adjoint
-    /// image. Near convergence an 8-spp residual is mostly Monte Carlo noise, which the gradient
-    /// pass multiplies into every voxel; the primal costs less per sample than the gradient pass.
+    /// image (default: 2 × spp). Near convergence a low-spp residual is mostly Monte Carlo noise,
+    /// which the gradient pass multiplies into every voxel; a primal sample costs about 1/5 of a
+    /// gradient one.
+    #[serde(skip_serializing_if = "Option::is_none")]
     pub primal_spp: Option<u32>,
     /// Iterations when the command line gives neither --iterations nor --budget.
     pub iterations: u32,
-    /// One prior (`prior = { kind = …, weight = … }`) or several, summed (`prior = [{ … }, { … }]`).
+    /// One prior (`prior = { kind = …, weight = … }`) or several, summed (`prior = [{ … }, { … }]`);
+    /// `prior = []` for none. Weights are relative to the images' power, the log prior's `scale`
+    /// is an optical depth (`scene_units`).
     #[serde(deserialize_with = "one_or_many")]
     pub prior: Vec<PriorFile>,
     /// Filter the gradient with [1 2 1]/4 per axis, once per upsampling done (`smoothing`).
@@ -45,29 +58,42 @@ pub struct OptimizerFile {
     pub fit_scale: bool,
     /// Fit a log-scale of θ per brick beside the voxels (`Adam::fit_brick_scales`).
     pub fit_brick_scales: bool,
-    /// The brick log-scales' learning rate as a multiple of `lr` (`Adam::brick_scale_lr`).
+    /// The brick log-scales' learning rate as a multiple of lr (`Adam::brick_scale_lr`).
     pub brick_scale_lr: f32,
 }
 
 impl Default for OptimizerFile {
     fn default() -> Self {
+        let prior = |kind, weight, scale| PriorFile {
+            kind,
+            weight,
+            scale,
+        };
         OptimizerFile {
-            lr: 0.05,
+            step_optical_depth: scene_units::STEP_OPTICAL_DEPTH,
+            lr: None,
             beta1: 0.9,
             beta2: 0.999,
             epsilon: 1e-8,
-            lr_decay: 1.0,
+            lr_decay: 0.1,
             level_lr: 0.5,
             loss: Loss::L2,
-            batch: 4,
-            spp: 4,
+            batch: None,
+            spp: 8,
             primal_spp: None,
             iterations: 100,
-            prior: Vec::new(),
+            prior: vec![
+                prior(PriorKind::Tv, scene_units::DEFAULT_TV_WEIGHT, None),
+                prior(
+                    PriorKind::Log,
+                    scene_units::DEFAULT_LOG_WEIGHT,
+                    Some(scene_units::DEFAULT_LOG_SCALE),
+                ),
+            ],
             smooth_gradient: true,
-            fit_scale: false,
-            fit_brick_scales: false,
-            brick_scale_lr: 1.0,
+            fit_scale: true,
+            fit_brick_scales: true,
+            brick_scale_lr: 3.0,
         }
     }
 }
@@ -97,8 +123,16 @@ fn one_or_many<'de, D: serde::Deserializer<'de>>(d: D) -> Result<Vec<PriorFile>,
 
 impl OptimizerFile {
     pub fn validate(&self) -> Result<()> {
-        if !(self.lr > 0.0 && self.lr.is_finite()) {
-            bail!("optimizer.lr must be a positive number (got {})", self.lr);
+        for (key, value) in [
+            ("step_optical_depth", Some(self.step_optical_depth)),
+            ("lr", self.lr),
+        ] {
+            match value {
+                Some(v) if !(v > 0.0 && v.is_finite()) => {
+                    bail!("optimizer.{key} must be a positive number (got {v})")
+                }
+                _ => {}
+            }
         }
         for (key, beta) in [("beta1", self.beta1), ("beta2", self.beta2)] {
             if !(0.0..1.0).contains(&beta) {
@@ -133,7 +167,7 @@ impl OptimizerFile {
             bail!("optimizer.loss must compare against the targets: l2, l1 or relative-l2");
         }
         for (key, n) in [
-            ("batch", self.batch),
+            ("batch", self.batch.unwrap_or(1)),
             ("spp", self.spp),
             ("primal_spp", self.primal_spp.unwrap_or(self.spp)),
             ("iterations", self.iterations),
@@ -162,9 +196,18 @@ impl OptimizerFile {
         Ok(())
     }
 
-    pub fn adam(&self) -> Adam {
+    /// Fills in what the scene decides: the learning rate (from `step_optical_depth`), the batch
+    /// (8, or the number of views) and `primal_spp` (2 × spp).
+    pub fn resolve(&mut self, units: &SceneUnits, views: usize) {
+        self.lr = Some(self.lr.unwrap_or(units.theta(self.step_optical_depth)));
+        self.batch = Some(self.batch.unwrap_or(8.min(views as u32)));
+        self.primal_spp = Some(self.primal_spp.unwrap_or(2 * self.spp));
+    }
+
+    /// Adam's settings once `resolve` has run.
+    pub fn adam(&self, units: &SceneUnits) -> Adam {
         Adam {
-            lr: self.lr,
+            lr: self.lr.unwrap_or(units.theta(self.step_optical_depth)),
             beta1: self.beta1,
             beta2: self.beta2,
             epsilon: self.epsilon,
@@ -174,12 +217,9 @@ impl OptimizerFile {
         }
     }
 
-    pub fn priors(&self) -> Vec<Prior> {
-        let prior = |p: &PriorFile| Prior {
-            kind: p.kind,
-            weight: p.weight,
-            scale: p.scale.unwrap_or(0.0),
-        };
+    /// The priors in grid units.
+    pub fn priors(&self, units: &SceneUnits) -> Vec<Prior> {
+        let prior = |p: &PriorFile| units.prior(p.kind, p.weight, p.scale);
         self.prior.iter().map(prior).collect()
     }
 }

@@ -42,17 +42,17 @@ pub struct Prior {
     pub weight: f32,
     /// δ of the log prior (grid-value units); unused by the others.
     pub scale: f32,
+    /// Where total variation's kink at 0 is rounded off, so that its gradient exists there
+    /// (grid-value units).
+    pub tv_epsilon: f64,
 }
-
-/// Where total variation's kink at 0 is rounded off, in grid-value units.
-const TV_EPSILON: f64 = 1e-3;
 
 const AXES: [IVec3; 3] = [IVec3::X, IVec3::Y, IVec3::Z];
 
 impl Prior {
     fn phi(&self, d: f64) -> f64 {
         match self.kind {
-            PriorKind::Tv => (d * d + TV_EPSILON * TV_EPSILON).sqrt() - TV_EPSILON,
+            PriorKind::Tv => (d * d + self.tv_epsilon.powi(2)).sqrt() - self.tv_epsilon,
             PriorKind::Laplacian => d * d,
             PriorKind::L1 | PriorKind::Log => 0.0, // not difference priors (see `evaluate`)
         }
@@ -60,7 +60,7 @@ impl Prior {
 
     fn phi_derivative(&self, d: f64) -> f64 {
         match self.kind {
-            PriorKind::Tv => d / (d * d + TV_EPSILON * TV_EPSILON).sqrt(),
+            PriorKind::Tv => d / (d * d + self.tv_epsilon.powi(2)).sqrt(),
             PriorKind::Laplacian => 2.0 * d,
             PriorKind::L1 | PriorKind::Log => 0.0,
         }
@@ -178,6 +178,7 @@ mod tests {
                 kind,
                 weight: 2.0,
                 scale: 0.05,
+                tv_epsilon: 1e-3,
             };
             let mut p = Parameters::default();
             for x in 0..8 {
@@ -218,6 +219,7 @@ mod tests {
             kind: PriorKind::Laplacian,
             weight: 1.0,
             scale: 0.0,
+            tv_epsilon: 1e-3,
         };
         let mut p = Parameters::default();
         for x in 0..16 {

@@ -9,27 +9,21 @@ use glam::{DAffine3, DQuat, DVec3, IVec3, Vec3};
 
 use crate::gradient::loss::Loss;
 use crate::io::fingerprint::Fingerprint;
-use crate::io::images::{self, RgbImage};
 use crate::io::vdb::{self, GridSelector, LevelSet};
 use crate::optimize::adam::Adam;
 use crate::optimize::parameters::{Parameters, MAX_VOXELS};
 use crate::optimize::prior::Prior;
 use crate::optimize::resample::Moments;
-use crate::optimize::run_file::{BoundsFile, RunFile, StartFile, ViewFile};
+use crate::optimize::run_file::{BoundsFile, RunFile, StartFile};
+use crate::optimize::scene_units::{self, SceneUnits};
+use crate::optimize::targets::{image_power, view_specs, TargetRenderer};
 use crate::render::camera::Camera;
-use crate::render::image::{render, RenderOptions};
-use crate::render::sampling::TARGET_SEED_SALT;
-use crate::render::scene::{CameraFile, Scene};
+use crate::render::scene::Scene;
 use crate::volume::brickmap::{floor_ivec3, BrickMap};
 use crate::volume::medium::Medium;
 use crate::volume::transform::IndexTransform;
 
-/// A camera and the image it should see.
-#[derive(Clone)]
-pub struct View {
-    pub camera: Camera,
-    pub target: RgbImage,
-}
+pub use crate::optimize::targets::View;
 
 /// Where the unknown lives: the final level's transform and inclusive voxel box, and how many ×2
 /// upsamplings lead there. Level k (0 = coarsest) has voxels s = 2^(levels − k) times larger; its
@@ -97,6 +91,12 @@ impl Domain {
         out
     }
 
+    /// The longest edge of the final box, in world units (along the grid's index axes).
+    pub fn longest_edge(&self) -> f64 {
+        let voxels = (self.hi - self.lo + IVec3::ONE).as_dvec3();
+        (voxels * self.transform.voxel_size()).max_element()
+    }
+
     /// Voxels in the final box.
     pub fn voxel_count(&self) -> u64 {
         box_voxels(self.lo, self.hi)
@@ -161,164 +161,95 @@ pub struct Problem {
 }
 
 impl Problem {
-    /// Reads the run file and everything it names; renders the targets a truth gives. `seed`
-    /// overrides the run file's for the optimisation only: the targets are the run file's data,
-    /// rendered from its own seed, so that runs of several seeds fit the same images.
+    /// Reads the run file and everything it names, resolves what the scene decides
+    /// (`scene_units`: the levels, the learning rate, the start, the priors' weights) and renders
+    /// the targets a truth gives. `seed` overrides the run file's for the optimisation only: the
+    /// targets are the run file's data, rendered from its own seed, so that runs of several seeds
+    /// fit the same images.
     pub fn load(run_path: &Path, seed: Option<u64>, progress: bool) -> Result<Problem> {
         let mut file = RunFile::read(run_path)?;
         file.target_seed = Some(file.target_seed.unwrap_or(file.seed));
         file.seed = seed.unwrap_or(file.seed);
-        file.optimizer.primal_spp = Some(file.optimizer.primal_spp.unwrap_or(file.optimizer.spp));
-        let resolve = |name: &str| RunFile::resolve(run_path, name);
-        let mut scene = Scene::load(&resolve(&file.scene)).context("scene")?;
-        let read = |key: &str, name: &str, grid: Option<&String>| -> Result<vdb::Grid> {
-            let selector = grid.map_or(GridSelector::Default, |g| GridSelector::Name(g.clone()));
-            let grid = vdb::read_density(&resolve(name), &selector, LevelSet::Refuse)
-                .with_context(|| key.to_string())?;
-            if grid.bricks.min_value() < 0.0 {
-                bail!(
-                    "{key}: grid '{}' has negative values (min {}): densities are ≥ 0",
-                    grid.name,
-                    grid.bricks.min_value()
-                );
-            }
-            Ok(grid)
-        };
-        let truth = file
-            .truth
-            .as_ref()
-            .map(|t| read("truth", t, file.truth_grid.as_ref()))
-            .transpose()?;
-        let start_grid = match &file.unknown.start {
-            StartFile::Vdb(name) => Some(read("unknown.start", name, None)?),
-            StartFile::Constant(_) => None,
-        };
-        let levels = file.unknown.levels.len();
-        let (transform, lo, hi) = match &file.unknown.bounds {
-            BoundsFile::Named(name) => {
-                let grid = if name == "truth" {
-                    truth.as_ref()
-                } else {
-                    start_grid.as_ref()
-                };
-                let grid = grid.context("validated: the grid named by unknown.bounds exists")?;
-                let Some((lo, hi)) = grid.bricks.active_bounds() else {
-                    bail!(
-                        "unknown.bounds = \"{name}\": grid '{}' has no active voxels",
-                        grid.name
-                    );
-                };
-                (grid.transform, lo, hi)
-            }
-            BoundsFile::Box { min, max } => {
-                let voxel = file.unknown.voxel_size.context("validated")? as f64;
-                let (min, max) = (
-                    DVec3::from(min.map(f64::from)),
-                    DVec3::from(max.map(f64::from)),
-                );
-                let n = ((max - min) / voxel).ceil();
-                if n.max_element() > i32::MAX as f64 / 2.0 {
-                    bail!("unknown.bounds / unknown.voxel_size: {n} voxels per axis is too many");
-                }
-                let transform = IndexTransform::uniform(voxel, min + voxel / 2.0);
-                (transform, IVec3::ZERO, n.as_ivec3() - IVec3::ONE)
-            }
-        };
-        let domain = Domain {
-            transform,
-            lo,
-            hi,
-            levels,
-        };
-        if domain.voxel_count() > MAX_VOXELS {
-            bail!(
-                "unknown.bounds: the unknown has {} voxels at the final level; at most {MAX_VOXELS} (each is stored with Adam's two moments)",
-                domain.voxel_count()
-            );
-        }
+        let mut scene = Scene::load(&RunFile::resolve(run_path, &file.scene)).context("scene")?;
+        let grids = KnownGrids::read(run_path, &file)?;
+        let mut domain = final_domain(&file, &grids)?;
+        let world_box = domain.world_box();
+        let (o, h) = (&file.views.orbit, &file.holdouts.orbit);
+        let training = view_specs("view", &file.view, o.as_ref(), world_box)?;
+        let held_out = view_specs("holdout", &file.holdout, h.as_ref(), world_box)?;
+
+        let cameras: Vec<Camera> = training.iter().map(|v| v.camera).collect();
+        let centre = (world_box.0 + world_box.1) / 2.0;
+        let voxel = domain.transform.voxel_size().min_element();
+        let footprint = scene_units::footprint(&cameras, centre) / voxel;
+        let levels = file
+            .unknown
+            .levels
+            .clone()
+            .unwrap_or_else(|| scene_units::level_starts(scene_units::level_count(footprint)));
+        domain.levels = levels.len();
         file.unknown
-            .check_levels_reach(transform.voxel_size().max_element())?;
-        let start = start_parameters(&domain, &file.unknown.start, start_grid.as_ref());
-        let truth_in_domain = truth
+            .check_levels_reach(levels.len(), domain.transform.voxel_size().max_element())?;
+        file.unknown.levels = Some(levels);
+
+        let truth = grids
+            .truth
             .map(|t| in_final_index_space(t, &domain))
             .transpose()?;
-
-        let world_box = domain.world_box();
-        let truth_scene = truth_in_domain.as_ref().map(|grid| {
-            let mut s = scene.clone();
-            s.medium = medium_like(
-                &scene,
-                grid.clone(),
-                domain.transform,
-                domain.bounds(levels),
-            );
-            s
-        });
         let mut targets = TargetRenderer {
-            truth: truth_scene,
+            truth: truth.as_ref().map(|grid| {
+                let mut s = scene.clone();
+                s.medium = medium_like(
+                    &scene,
+                    grid.clone(),
+                    domain.transform,
+                    domain.bounds(domain.levels),
+                );
+                s
+            }),
             spp: file.target_spp,
             seed: file.target_seed.unwrap_or(file.seed),
             progress,
             rendered: 0,
         };
-        let views = targets.views(
-            run_path,
-            "view",
-            &file.view,
-            file.views.orbit.as_ref(),
-            world_box,
-        )?;
-        let holdouts = targets.views(
-            run_path,
-            "holdout",
-            &file.holdout,
-            file.holdouts.orbit.as_ref(),
-            world_box,
-        )?;
-        if file.optimizer.batch as usize > views.len() {
+        let views = targets.views(run_path, training)?;
+        let holdouts = targets.views(run_path, held_out)?;
+        if let Some(batch) = file.optimizer.batch.filter(|&b| b as usize > views.len()) {
             bail!(
-                "optimizer.batch is {} but there are only {} views",
-                file.optimizer.batch,
+                "optimizer.batch is {batch} but there are only {} views",
                 views.len()
             );
         }
-        let o = &file.optimizer;
-        let settings = Settings {
-            adam: o.adam(),
-            lr_decay: o.lr_decay,
-            level_lr: o.level_lr,
-            loss: o.loss,
-            batch: o.batch,
-            spp: o.spp,
-            primal_spp: o.primal_spp.unwrap_or(o.spp),
-            max_depth: scene.settings.max_depth,
-            priors: o.priors(),
-            smooth_gradient: o.smooth_gradient,
-            moments: file.unknown.moments,
-            level_starts: file.unknown.levels.clone(),
-            iterations: o.iterations,
-            eval_spp: file.eval_spp,
-            eval_every: file.eval_every,
-            checkpoint_every: file.checkpoint_every,
-            seed: file.seed,
-        };
+
+        let units = SceneUnits::new(
+            scene.medium.density_scale,
+            domain.longest_edge(),
+            image_power(&views),
+        );
+        file.optimizer.resolve(&units, views.len());
+        let start_file = file.unknown.start.clone().unwrap_or(StartFile::Constant(
+            units.theta(scene_units::START_OPTICAL_DEPTH),
+        ));
+        let start = start_parameters(&domain, &start_file, grids.start.as_ref());
+        file.unknown.start = Some(start_file);
+        let settings = Settings::of(&file, &units, scene.settings.max_depth);
+        let notes = derivation_notes(&units, &settings, footprint);
         let fingerprint = fingerprint(&file, &scene, views.iter().chain(&holdouts));
         // The scene's own grid is not the unknown: drop it, so that the per-iteration scenes
         // cloned from this one carry only the constants.
         scene.medium = medium_like(
             &scene,
             BrickMap::new(Vec::new(), Vec::new()),
-            transform,
+            domain.transform,
             (Vec3::ZERO, Vec3::ZERO),
         );
-        let settings_toml = file.resolved(run_path)?;
         Ok(Problem {
-            settings_toml,
+            settings_toml: file.resolved(run_path, &notes)?,
             grid_name: scene.grid_name.clone(),
             scene,
             views,
             holdouts,
-            truth: truth_in_domain,
+            truth,
             domain,
             start,
             settings,
@@ -337,6 +268,134 @@ impl Problem {
         );
         scene
     }
+}
+
+/// The grids a run file names: the truth and a start VDB.
+struct KnownGrids {
+    truth: Option<vdb::Grid>,
+    start: Option<vdb::Grid>,
+}
+
+impl KnownGrids {
+    fn read(run_path: &Path, file: &RunFile) -> Result<Self> {
+        let read = |key: &str, name: &str, grid: Option<&String>| -> Result<vdb::Grid> {
+            let selector = grid.map_or(GridSelector::Default, |g| GridSelector::Name(g.clone()));
+            let path = RunFile::resolve(run_path, name);
+            let grid = vdb::read_density(&path, &selector, LevelSet::Refuse)
+                .with_context(|| key.to_string())?;
+            if grid.bricks.min_value() < 0.0 {
+                bail!(
+                    "{key}: grid '{}' has negative values (min {}): densities are ≥ 0",
+                    grid.name,
+                    grid.bricks.min_value()
+                );
+            }
+            Ok(grid)
+        };
+        let truth = file.truth.as_ref();
+        Ok(KnownGrids {
+            truth: truth
+                .map(|t| read("truth", t, file.truth_grid.as_ref()))
+                .transpose()?,
+            start: match &file.unknown.start {
+                Some(StartFile::Vdb(name)) => Some(read("unknown.start", name, None)?),
+                _ => None,
+            },
+        })
+    }
+}
+
+/// The unknown's final level: its transform and voxel box, from `unknown.bounds` (the levels
+/// above it are decided later, from the views).
+fn final_domain(file: &RunFile, grids: &KnownGrids) -> Result<Domain> {
+    let (transform, lo, hi) = match &file.unknown.bounds {
+        BoundsFile::Named(name) => {
+            let grid = if name == "truth" {
+                grids.truth.as_ref()
+            } else {
+                grids.start.as_ref()
+            };
+            let grid = grid.context("validated: the grid named by unknown.bounds exists")?;
+            let Some((lo, hi)) = grid.bricks.active_bounds() else {
+                bail!(
+                    "unknown.bounds = \"{name}\": grid '{}' has no active voxels",
+                    grid.name
+                );
+            };
+            (grid.transform, lo, hi)
+        }
+        BoundsFile::Box { min, max } => {
+            let voxel = file.unknown.voxel_size.context("validated")? as f64;
+            let (min, max) = (
+                DVec3::from(min.map(f64::from)),
+                DVec3::from(max.map(f64::from)),
+            );
+            let n = ((max - min) / voxel).ceil();
+            if n.max_element() > i32::MAX as f64 / 2.0 {
+                bail!("unknown.bounds / unknown.voxel_size: {n} voxels per axis is too many");
+            }
+            let transform = IndexTransform::uniform(voxel, min + voxel / 2.0);
+            (transform, IVec3::ZERO, n.as_ivec3() - IVec3::ONE)
+        }
+    };
+    let domain = Domain {
+        transform,
+        lo,
+        hi,
+        levels: 0,
+    };
+    if domain.voxel_count() > MAX_VOXELS {
+        bail!(
+            "unknown.bounds: the unknown has {} voxels at the final level; at most {MAX_VOXELS} (each is stored with Adam's two moments)",
+            domain.voxel_count()
+        );
+    }
+    Ok(domain)
+}
+
+impl Settings {
+    /// From a run file whose `[optimizer]` and levels are resolved.
+    fn of(file: &RunFile, units: &SceneUnits, max_depth: u32) -> Settings {
+        let o = &file.optimizer;
+        Settings {
+            adam: o.adam(units),
+            lr_decay: o.lr_decay,
+            level_lr: o.level_lr,
+            loss: o.loss,
+            batch: o.batch.unwrap_or(1),
+            spp: o.spp,
+            primal_spp: o.primal_spp.unwrap_or(o.spp),
+            max_depth,
+            priors: o.priors(units),
+            smooth_gradient: o.smooth_gradient,
+            moments: file.unknown.moments,
+            level_starts: file.unknown.levels.clone().unwrap_or_default(),
+            iterations: o.iterations,
+            eval_spp: file.eval_spp,
+            eval_every: file.eval_every,
+            checkpoint_every: file.checkpoint_every,
+            seed: file.seed,
+        }
+    }
+}
+
+/// What a run's settings.toml says of how its settings were derived.
+fn derivation_notes(units: &SceneUnits, settings: &Settings, footprint_voxels: f64) -> String {
+    let mut notes = format!(
+        "Derived from the scene (see the README, \"Settings from the scene\"):\n\
+         grid value of optical depth 1 along the unknown box's longest edge: u = {:.6e}\n\
+         the targets' power (the L2 loss of a black image): P = {:.6e}\n\
+         the finest view's pixel at the unknown's centre: {footprint_voxels:.2} final voxels\n\
+         learning rate in grid values per step: lr = {:.6e}\n",
+        units.theta_per_optical_depth, units.image_power, settings.adam.lr
+    );
+    for p in &settings.priors {
+        notes += &format!(
+            "prior {:?} in grid units: weight {:.6e}, scale {:.6e}, total variation's epsilon {:.6e}\n",
+            p.kind, p.weight, p.scale, p.tv_epsilon
+        );
+    }
+    notes
 }
 
 /// A medium with `scene`'s optical constants and majorant settings over `grid`.
@@ -411,104 +470,6 @@ fn in_final_index_space(truth: vdb::Grid, domain: &Domain) -> Result<BrickMap> {
         }
     }
     Ok(b.build())
-}
-
-/// Builds views (cameras + targets), rendering from the truth the targets no image gives.
-struct TargetRenderer {
-    /// The scene with the true grid; each render sets its camera.
-    truth: Option<Scene>,
-    spp: u32,
-    seed: u64,
-    progress: bool,
-    /// Targets rendered so far (each gets its own random streams).
-    rendered: u64,
-}
-
-impl TargetRenderer {
-    fn views(
-        &mut self,
-        run_path: &Path,
-        key: &str,
-        listed: &[ViewFile],
-        orbit: Option<&crate::optimize::run_file::OrbitFile>,
-        world_box: (Vec3, Vec3),
-    ) -> Result<Vec<View>> {
-        let mut cameras: Vec<(String, Camera, Option<&str>)> = Vec::new();
-        for (i, v) in listed.iter().enumerate() {
-            let name = format!("{key}[{i}]");
-            let file = CameraFile {
-                position: v.position,
-                target: v.target,
-                up: v.up,
-                fov_deg: v.fov_deg,
-                width: v.width,
-                height: v.height,
-            };
-            let camera = file
-                .validate()
-                .and_then(|_| file.camera())
-                .with_context(|| name.clone())?;
-            cameras.push((name, camera, v.image.as_deref()));
-        }
-        if let Some(o) = orbit {
-            let name = format!("{key}s.orbit");
-            let centre = (world_box.0 + world_box.1) / 2.0;
-            let orbit_cameras = o.orbit().cameras(centre).with_context(|| name.clone())?;
-            for (i, camera) in orbit_cameras.into_iter().enumerate() {
-                cameras.push((format!("{name} camera {i}"), camera, None));
-            }
-        }
-        let mut views = Vec::with_capacity(cameras.len());
-        for (name, camera, image) in cameras {
-            let p = camera.position;
-            if p.cmpge(world_box.0).all() && p.cmple(world_box.1).all() {
-                bail!(
-                    "{name}: the camera at {p} is inside the unknown's box {:?}..{:?} (move it out, or for an orbit raise `distance`)",
-                    world_box.0,
-                    world_box.1
-                );
-            }
-            let target = match image {
-                Some(file) => {
-                    let path = RunFile::resolve(run_path, file);
-                    let image = images::read_rgb(&path).with_context(|| format!("{name}.image"))?;
-                    if (image.width, image.height) != (camera.width, camera.height) {
-                        bail!(
-                            "{name}.image: '{}' is {}×{} but the view is {}×{}",
-                            path.display(),
-                            image.width,
-                            image.height,
-                            camera.width,
-                            camera.height
-                        );
-                    }
-                    if image.pixels.iter().any(|c| !c.is_finite()) {
-                        bail!("{name}.image: '{}' has non-finite pixels", path.display());
-                    }
-                    image
-                }
-                None => self.render(&camera, &name)?,
-            };
-            views.push(View { camera, target });
-        }
-        Ok(views)
-    }
-
-    fn render(&mut self, camera: &Camera, name: &str) -> Result<RgbImage> {
-        let truth = self
-            .truth
-            .as_mut()
-            .with_context(|| format!("{name}: no image and no truth to render one from"))?;
-        truth.camera = *camera;
-        self.rendered += 1;
-        let options = RenderOptions {
-            spp: self.spp,
-            seed: self.seed ^ TARGET_SEED_SALT ^ self.rendered.wrapping_mul(0x9e37_79b9_7f4a_7c15),
-            max_depth: truth.settings.max_depth,
-            progress: self.progress,
-        };
-        Ok(render(truth, &options).0)
-    }
 }
 
 /// Every run-file value that changes the computation (not the evaluation or checkpoint cadence,

@@ -11,6 +11,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::optimize::optimizer_file::OptimizerFile;
 use crate::optimize::resample::Moments;
+use crate::optimize::scene_units::MAX_LEVELS;
 use crate::optimize::views::Orbit;
 
 /// The most views in a set (`[[view]]`s and the orbit's, or the held-out ones).
@@ -139,11 +140,13 @@ pub struct UnknownFile {
     pub voxel_size: Option<f32>,
     /// The voxel size of the first level, if given: it must be the final one × 2^(levels).
     pub start_voxel_size: Option<f32>,
-    /// A constant, or a VDB whose (trilinear) field is sampled at the first level's voxels.
-    pub start: StartFile,
-    /// Fractions of the budget at which the grid is upsampled ×2 per axis, increasing in (0, 1).
-    #[serde(default)]
-    pub levels: Vec<f32>,
+    /// A constant (grid value), or a VDB whose (trilinear) field is sampled at the first level's
+    /// voxels; default a constant of optical depth `scene_units::START_OPTICAL_DEPTH` along the
+    /// box's longest edge.
+    pub start: Option<StartFile>,
+    /// Fractions of the budget at which the grid is upsampled ×2 per axis, increasing in (0, 1);
+    /// default as many as make the coarsest voxel about a pixel (`scene_units::level_count`).
+    pub levels: Option<Vec<f32>>,
     /// Adam's moments after an upsampling: "reset" or "resample".
     #[serde(default = "default_moments")]
     pub moments: Moments,
@@ -217,7 +220,8 @@ impl RunFile {
 
     /// The file with every key written out and every path absolute, as TOML that `optimize`
     /// reads back: what a run resolved, to reproduce or edit it from anywhere.
-    pub fn resolved(&self, run_path: &Path) -> Result<String> {
+    /// `notes` (lines of text) follow as comments.
+    pub fn resolved(&self, run_path: &Path, notes: &str) -> Result<String> {
         let absolute = |name: &String| -> String {
             let path = Self::resolve(run_path, name);
             std::path::absolute(&path)
@@ -231,14 +235,15 @@ impl RunFile {
         for view in file.view.iter_mut().chain(&mut file.holdout) {
             view.image = view.image.as_ref().map(absolute);
         }
-        if let StartFile::Vdb(name) = &file.unknown.start {
-            file.unknown.start = StartFile::Vdb(absolute(name));
+        if let Some(StartFile::Vdb(name)) = &file.unknown.start {
+            file.unknown.start = Some(StartFile::Vdb(absolute(name)));
         }
         let mut value = toml::Value::try_from(&file).context("writing the resolved run file")?;
         shortest_floats(&mut value);
         let text = toml::to_string(&value).context("writing the resolved run file")?;
+        let notes: String = notes.lines().map(|l| format!("# {l}\n")).collect();
         Ok(format!(
-            "# The run file '{}' as volgrad resolved it: every key, absolute paths.\n\n{text}",
+            "# The run file '{}' as volgrad resolved it: every key, absolute paths.\n\n{text}\n{notes}",
             run_path.display()
         ))
     }
@@ -306,7 +311,7 @@ impl UnknownFile {
                 bail!("unknown.bounds = \"truth\" needs a `truth` grid")
             }
             BoundsFile::Named(name) if name == "start" => {
-                if !matches!(self.start, StartFile::Vdb(_)) {
+                if !matches!(self.start, Some(StartFile::Vdb(_))) {
                     bail!("unknown.bounds = \"start\" needs unknown.start to be a VDB file");
                 }
             }
@@ -329,39 +334,37 @@ impl UnknownFile {
                 }
             }
         }
-        if let StartFile::Constant(c) = self.start {
+        if let Some(StartFile::Constant(c)) = self.start {
             if !(c >= 0.0 && c.is_finite()) {
                 bail!("unknown.start must be a value ≥ 0 or a VDB file (got {c})");
             }
         }
-        for (i, f) in self.levels.iter().enumerate() {
-            let previous = if i == 0 { 0.0 } else { self.levels[i - 1] };
+        let levels = self.levels.as_deref().unwrap_or_default();
+        for (i, f) in levels.iter().enumerate() {
+            let previous = if i == 0 { 0.0 } else { levels[i - 1] };
             if !(*f > previous && *f < 1.0) {
                 bail!(
-                    "unknown.levels must be increasing fractions of the budget in (0, 1) (got {:?})",
-                    self.levels
+                    "unknown.levels must be increasing fractions of the budget in (0, 1) (got {levels:?})"
                 );
             }
         }
-        if self.levels.len() > 6 {
+        if levels.len() > MAX_LEVELS {
             bail!(
-                "unknown.levels: {} upsamplings start at 1/{} of the final resolution per axis; at most 6",
-                self.levels.len(),
-                1u32 << self.levels.len()
+                "unknown.levels: {} upsamplings start at 1/{} of the final resolution per axis; at most {MAX_LEVELS}",
+                levels.len(),
+                1u32 << levels.len()
             );
         }
         Ok(())
     }
 
     /// An error unless `start_voxel_size`, upsampled `levels` times, is `final_voxel_size`.
-    pub fn check_levels_reach(&self, final_voxel_size: f64) -> Result<()> {
+    pub fn check_levels_reach(&self, levels: usize, final_voxel_size: f64) -> Result<()> {
         if let Some(start) = self.start_voxel_size {
-            let reached = start as f64 / f64::from(1u32 << self.levels.len());
+            let reached = start as f64 / f64::from(1u32 << levels);
             if (reached / final_voxel_size - 1.0).abs() > 1e-3 {
                 bail!(
-                    "unknown.levels: {} upsampling(s) from start_voxel_size {start} end at voxel size {reached}, not the final {final_voxel_size} (start_voxel_size must be the final × 2^{})",
-                    self.levels.len(),
-                    self.levels.len()
+                    "unknown.levels: {levels} upsampling(s) from start_voxel_size {start} end at voxel size {reached}, not the final {final_voxel_size} (start_voxel_size must be the final × 2^{levels})"
                 );
             }
         }
@@ -406,7 +409,8 @@ mod tests {
     #[test]
     fn a_good_file_parses_with_defaults() {
         let f = check(GOOD).unwrap();
-        assert_eq!(f.optimizer.batch, 4);
+        assert_eq!(f.optimizer.batch, None);
+        assert_eq!(f.optimizer.prior.len(), 2, "the default priors");
         assert_eq!(f.optimizer.loss, Loss::L2);
         assert_eq!(f.unknown.moments, Moments::Resample);
         assert_eq!(f.eval_spp, 256);
@@ -518,29 +522,34 @@ mod tests {
     }
 
     #[test]
-    fn one_prior_or_several() {
-        let one = format!("{GOOD}\n[optimizer]\nprior = {{ kind = \"tv\", weight = 0.5 }}");
-        let priors = check(&one).unwrap().optimizer.priors();
-        assert_eq!(priors.len(), 1);
-        assert_eq!((priors[0].kind, priors[0].weight), (PriorKind::Tv, 0.5));
-        let two = format!(
+    fn one_prior_or_several_or_none() {
+        let priors = |text: &str| check(text).unwrap().optimizer.prior;
+        let one = priors(&format!(
+            "{GOOD}\n[optimizer]\nprior = {{ kind = \"tv\", weight = 0.5 }}"
+        ));
+        assert_eq!(one.len(), 1);
+        assert_eq!((one[0].kind, one[0].weight), (PriorKind::Tv, 0.5));
+        let two = priors(&format!(
             "{GOOD}\n[optimizer]\nprior = [{{ kind = \"tv\", weight = 0.5 }}, {{ kind = \"log\", weight = 2, scale = 0.01 }}]"
-        );
-        let priors = check(&two).unwrap().optimizer.priors();
-        assert_eq!(priors.len(), 2);
+        ));
+        assert_eq!(two.len(), 2);
         assert_eq!(
-            (priors[1].kind, priors[1].weight, priors[1].scale),
-            (PriorKind::Log, 2.0, 0.01)
+            (two[1].kind, two[1].weight, two[1].scale),
+            (PriorKind::Log, 2.0, Some(0.01))
         );
-        assert!(check(GOOD).unwrap().optimizer.priors().is_empty());
+        assert!(priors(&format!("{GOOD}\n[optimizer]\nprior = []")).is_empty());
     }
 
     #[test]
     fn levels_must_reach_the_final_voxel_size() {
         let mut f = check(GOOD).unwrap();
         f.unknown.start_voxel_size = Some(2.0);
-        f.unknown.check_levels_reach(1.0).unwrap();
-        let err = f.unknown.check_levels_reach(0.5).unwrap_err().to_string();
+        f.unknown.check_levels_reach(1, 1.0).unwrap();
+        let err = f
+            .unknown
+            .check_levels_reach(1, 0.5)
+            .unwrap_err()
+            .to_string();
         assert!(err.contains("unknown.levels"), "{err}");
     }
 }

@@ -47,6 +47,13 @@ impl Camera {
         (self.forward + self.right * sx + self.up * sy).normalize()
     }
 
+    /// The width of one pixel's footprint at the depth of `point` (world units): how finely the
+    /// view samples a medium there.
+    pub fn pixel_footprint(&self, point: Vec3) -> f32 {
+        let depth = (point - self.position).dot(self.forward).abs();
+        depth * 2.0 * self.tan_half.0 / self.width as f32
+    }
+
     /// The same view at another resolution (the horizontal field of view is kept).
     pub fn with_resolution(&self, width: u32, height: u32) -> Camera {
         Camera {

@@ -1,0 +1,163 @@
+//! The units a run's settings are given in, and how they become the grid's own. A user reasons in
+//! optical depth and pixels, not in the values their VDB happens to store (a cloud's reach 1, a
+//! simulation's 100), so the settings that would be grid values are given as optical depths along
+//! the unknown's box and the images' own brightness:
+//!
+//! - u = 1 / (density_scale · E), with E the longest edge of the unknown's box in world units: the
+//!   grid value whose optical depth along that edge is 1. A learning rate, a start and a prior's
+//!   scale given as an optical depth τ are τ·u in grid values, as `gradcheck` picks its ε.
+//! - P = mean of the training targets' squared pixel values: the L2 loss of a black image. A
+//!   prior's weight W is relative to it, so the prior holds the same share of the loss whatever
+//!   the lights' brightness: R(θ) = W·P·mean φ(Δτ) is w·mean φ(Δθ) with w = W·P/u.
+//! - The coarsest level's voxel is at least one pixel's footprint at the medium (finer voxels are
+//!   found by the upsamplings, once the coarse structure is in place).
+//!
+//! The defaults below are the settings tuned on the Disney cloud (`scenes/inverse/cloud.toml`)
+//! expressed in these units, so that they carry over to scenes of other sizes, grid units and
+//! lights.
+
+use glam::Vec3;
+
+use crate::optimize::prior::{Prior, PriorKind};
+use crate::render::camera::Camera;
+
+/// Optical depth along the box's longest edge that one Adam step may change (the learning rate).
+pub const STEP_OPTICAL_DEPTH: f32 = 0.5;
+/// A constant start's optical depth along the box's longest edge: a thin haze everywhere, from
+/// which the gradients carve the volume (from nothing, density can only grow where light already
+/// scatters towards a camera).
+pub const START_OPTICAL_DEPTH: f32 = 2.5;
+/// Where total variation's kink at 0 is rounded off, as an optical depth.
+const TV_EPSILON_OPTICAL_DEPTH: f64 = 0.05;
+/// The default priors: light total variation (sharpens the boundary the pixels blur) and the log
+/// prior with δ = 0.5 (clears faint haze, leaves dense voxels alone), weights relative to P. On
+/// the cloud (u = 0.01948, P = 0.2517) they are its tuned 0.003 and 0.1 (δ 0.01) in grid units.
+pub const DEFAULT_TV_WEIGHT: f32 = 2.3e-4;
+pub const DEFAULT_LOG_WEIGHT: f32 = 7.7e-3;
+pub const DEFAULT_LOG_SCALE: f32 = 0.5;
+/// The most upsamplings a run may do (each ×2 per axis).
+pub const MAX_LEVELS: usize = 6;
+
+#[derive(Debug, Clone, Copy)]
+pub struct SceneUnits {
+    /// u: grid value per unit of optical depth along the box's longest edge.
+    pub theta_per_optical_depth: f64,
+    /// P: the training targets' mean squared pixel value.
+    pub image_power: f64,
+}
+
+impl SceneUnits {
+    pub fn new(density_scale: f32, longest_edge: f64, image_power: f64) -> Self {
+        SceneUnits {
+            theta_per_optical_depth: 1.0 / (f64::from(density_scale) * longest_edge).max(1e-30),
+            image_power,
+        }
+    }
+
+    /// The grid value of an optical depth τ along the box's longest edge.
+    pub fn theta(&self, optical_depth: f32) -> f32 {
+        (f64::from(optical_depth) * self.theta_per_optical_depth) as f32
+    }
+
+    /// A prior given with weight W (relative to P) and, for `log`, δ as an optical depth, in
+    /// grid units: w = W·P/u, δ·u, and total variation's ε·u.
+    pub fn prior(&self, kind: PriorKind, weight: f32, scale: Option<f32>) -> Prior {
+        let u = self.theta_per_optical_depth;
+        Prior {
+            kind,
+            weight: (f64::from(weight) * self.image_power / u) as f32,
+            scale: scale.map_or(0.0, |d| self.theta(d)),
+            tv_epsilon: TV_EPSILON_OPTICAL_DEPTH * u,
+        }
+    }
+}
+
+/// The finest of `cameras`' pixel footprints at `centre`, in world units.
+pub fn footprint(cameras: &[Camera], centre: Vec3) -> f64 {
+    let finest = cameras.iter().map(|c| c.pixel_footprint(centre));
+    f64::from(finest.fold(f32::INFINITY, f32::min))
+}
+
+/// The fewest upsamplings that make the coarsest voxel at least one pixel's footprint, given in
+/// final voxels: ⌈log2(footprint)⌉, in 0..=`MAX_LEVELS`.
+pub fn level_count(footprint_voxels: f64) -> usize {
+    if !(footprint_voxels.is_finite() && footprint_voxels > 1.0) {
+        return 0;
+    }
+    (footprint_voxels.log2().ceil() as usize).min(MAX_LEVELS)
+}
+
+/// When each of `count` levels begins, as fractions of the run: the coarsest gets the first 40 %
+/// (the views pin it down best and its steps are the cheapest), the others begin evenly up to
+/// 95 % (the finest level adds detail finer than a pixel, which the views see least).
+pub fn level_starts(count: usize) -> Vec<f32> {
+    match count {
+        0 => Vec::new(),
+        1 => vec![0.4],
+        n => (0..n)
+            .map(|k| ((40 * (n - 1) + 55 * k) as f64 / (100 * (n - 1)) as f64) as f32)
+            .collect(),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A grid in other units (values ×100, density_scale ÷100) resolves the same settings to
+    /// grid values 100× larger, and so does the same medium in a box half the size at twice
+    /// the density scale: the optical depths stay what they were.
+    #[test]
+    fn settings_follow_the_grid_units_and_the_box() {
+        let cloud = SceneUnits::new(0.1, 500.0, 0.04);
+        let hundred = SceneUnits::new(0.001, 500.0, 0.04);
+        assert!((hundred.theta(0.5) / cloud.theta(0.5) - 100.0).abs() < 1e-3);
+        assert!((cloud.theta(0.5) - 0.01).abs() < 1e-7);
+        let half = SceneUnits::new(0.2, 250.0, 0.04);
+        assert!((half.theta(0.5) - cloud.theta(0.5)).abs() < 1e-9);
+        // The prior's grid weight scales with 1/u and with P.
+        let w = |units: SceneUnits| units.prior(PriorKind::Log, 1.0, Some(0.5));
+        assert!((w(hundred).weight * 100.0 / w(cloud).weight - 1.0).abs() < 1e-4);
+        let brighter = SceneUnits::new(0.1, 500.0, 0.16);
+        assert!((w(brighter).weight / w(cloud).weight - 4.0).abs() < 1e-4);
+        assert!((w(cloud).scale - 0.01).abs() < 1e-7);
+    }
+
+    #[test]
+    fn the_coarsest_voxel_is_about_a_pixel() {
+        // 64 pixels over 2·1000·tan 20° = 728 world units: 11.4 per pixel at the centre.
+        let camera = Camera::new(
+            Vec3::new(0.0, 0.0, 1000.0),
+            Vec3::ZERO,
+            Vec3::Y,
+            40.0,
+            64,
+            64,
+        );
+        assert!((camera.pixel_footprint(Vec3::ZERO) - 11.37).abs() < 0.01);
+        // The Disney cloud's 3.33-unit voxels: 3.4 voxels per pixel, two upsamplings.
+        let count =
+            |cameras: &[Camera], voxel: f64| level_count(footprint(cameras, Vec3::ZERO) / voxel);
+        assert_eq!(count(&[camera], 10.0 / 3.0), 2);
+        assert_eq!(count(&[camera], 11.0), 1);
+        assert_eq!(count(&[camera], 12.0), 0);
+        assert_eq!(count(&[camera], 0.01), MAX_LEVELS);
+        // The finest view decides: 2.84 units per pixel.
+        let near = Camera::new(
+            Vec3::new(0.0, 0.0, 250.0),
+            Vec3::ZERO,
+            Vec3::Y,
+            40.0,
+            64,
+            64,
+        );
+        assert_eq!(count(&[camera, near], 10.0 / 3.0), 0);
+        assert_eq!(count(&[camera, near], 2.0), 1);
+        assert_eq!(level_starts(2), vec![0.4, 0.95]);
+        let three = level_starts(3);
+        assert!(
+            (three[1] - 0.675).abs() < 1e-6 && three[2] == 0.95,
+            "{three:?}"
+        );
+    }
+}

@@ -1,0 +1,167 @@
+//! The views of a run file: its cameras (listed `[[view]]`s and orbits), then the image each
+//! should see, read from its file or rendered from the truth. Cameras come first, so that what
+//! they decide (the levels follow the finest view's pixel footprint) is known before any target
+//! is rendered.
+
+use std::path::Path;
+
+use anyhow::{bail, Context, Result};
+use glam::Vec3;
+
+use crate::io::images::{self, RgbImage};
+use crate::optimize::run_file::{OrbitFile, RunFile, ViewFile};
+use crate::render::camera::Camera;
+use crate::render::image::{render, RenderOptions};
+use crate::render::sampling::TARGET_SEED_SALT;
+use crate::render::scene::{CameraFile, Scene};
+
+/// A camera and the image it should see.
+#[derive(Clone)]
+pub struct View {
+    pub camera: Camera,
+    pub target: RgbImage,
+}
+
+/// A camera of the run file, before its target is known.
+pub struct ViewSpec {
+    /// What errors call it: `view[2]`, `holdouts.orbit camera 3`.
+    pub name: String,
+    pub camera: Camera,
+    /// The target image's file, relative to the run file.
+    pub image: Option<String>,
+}
+
+/// The cameras of the listed views and the orbit of one set (`key` is "view" or "holdout"),
+/// checked to lie outside the unknown's `world_box`.
+pub fn view_specs(
+    key: &str,
+    listed: &[ViewFile],
+    orbit: Option<&OrbitFile>,
+    world_box: (Vec3, Vec3),
+) -> Result<Vec<ViewSpec>> {
+    let mut specs = Vec::new();
+    for (i, v) in listed.iter().enumerate() {
+        let name = format!("{key}[{i}]");
+        let file = CameraFile {
+            position: v.position,
+            target: v.target,
+            up: v.up,
+            fov_deg: v.fov_deg,
+            width: v.width,
+            height: v.height,
+        };
+        let camera = file
+            .validate()
+            .and_then(|_| file.camera())
+            .with_context(|| name.clone())?;
+        specs.push(ViewSpec {
+            name,
+            camera,
+            image: v.image.clone(),
+        });
+    }
+    if let Some(o) = orbit {
+        let name = format!("{key}s.orbit");
+        let centre = (world_box.0 + world_box.1) / 2.0;
+        let cameras = o.orbit().cameras(centre).with_context(|| name.clone())?;
+        for (i, camera) in cameras.into_iter().enumerate() {
+            specs.push(ViewSpec {
+                name: format!("{name} camera {i}"),
+                camera,
+                image: None,
+            });
+        }
+    }
+    for spec in &specs {
+        let p = spec.camera.position;
+        if p.cmpge(world_box.0).all() && p.cmple(world_box.1).all() {
+            bail!(
+                "{}: the camera at {p} is inside the unknown's box {:?}..{:?} (move it out, or for an orbit raise `distance`)",
+                spec.name,
+                world_box.0,
+                world_box.1
+            );
+        }
+    }
+    Ok(specs)
+}
+
+/// Gives views their targets, rendering from the truth the ones no image gives.
+pub struct TargetRenderer {
+    /// The scene with the true grid; each render sets its camera.
+    pub truth: Option<Scene>,
+    pub spp: u32,
+    pub seed: u64,
+    pub progress: bool,
+    /// Targets rendered so far (each gets its own random streams).
+    pub rendered: u64,
+}
+
+impl TargetRenderer {
+    pub fn views(&mut self, run_path: &Path, specs: Vec<ViewSpec>) -> Result<Vec<View>> {
+        let mut views = Vec::with_capacity(specs.len());
+        for ViewSpec {
+            name,
+            camera,
+            image,
+        } in specs
+        {
+            let target = match image {
+                Some(file) => read_target(&RunFile::resolve(run_path, &file), &camera, &name)?,
+                None => self.render(&camera, &name)?,
+            };
+            views.push(View { camera, target });
+        }
+        Ok(views)
+    }
+
+    fn render(&mut self, camera: &Camera, name: &str) -> Result<RgbImage> {
+        let truth = self
+            .truth
+            .as_mut()
+            .with_context(|| format!("{name}: no image and no truth to render one from"))?;
+        truth.camera = *camera;
+        self.rendered += 1;
+        let options = RenderOptions {
+            spp: self.spp,
+            seed: self.seed ^ TARGET_SEED_SALT ^ self.rendered.wrapping_mul(0x9e37_79b9_7f4a_7c15),
+            max_depth: truth.settings.max_depth,
+            progress: self.progress,
+        };
+        Ok(render(truth, &options).0)
+    }
+}
+
+/// A target image from its file: the view's size, finite pixels.
+fn read_target(path: &Path, camera: &Camera, name: &str) -> Result<RgbImage> {
+    let image = images::read_rgb(path).with_context(|| format!("{name}.image"))?;
+    if (image.width, image.height) != (camera.width, camera.height) {
+        bail!(
+            "{name}.image: '{}' is {}×{} but the view is {}×{}",
+            path.display(),
+            image.width,
+            image.height,
+            camera.width,
+            camera.height
+        );
+    }
+    if image.pixels.iter().any(|c| !c.is_finite()) {
+        bail!("{name}.image: '{}' has non-finite pixels", path.display());
+    }
+    Ok(image)
+}
+
+/// The targets' mean squared pixel value per channel: the L2 loss of a black image (P of
+/// `scene_units`).
+pub fn image_power(views: &[View]) -> f64 {
+    let (sum, count) = views.iter().fold((0.0, 0usize), |(s, n), v| {
+        let power: f64 = v
+            .target
+            .pixels
+            .iter()
+            .map(|c| f64::from(c.length_squared()))
+            .sum();
+        (s + power, n + 3 * v.target.pixels.len())
+    });
+    sum / count.max(1) as f64
+}
