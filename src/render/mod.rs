@@ -9,3 +9,4 @@ pub mod path;
 pub mod sampling;
 pub mod scene;
 pub mod scene_check;
+pub mod scene_file;

@@ -6,7 +6,7 @@
 use anyhow::{bail, Result};
 use glam::{DVec3, Vec3};
 
-use crate::render::scene::{CameraFile, LightFile, SceneFile};
+use crate::render::scene_file::{CameraFile, LightFile, SceneFile};
 
 /// Largest |coordinate| of camera.position and camera.target. The renderer traces in f32: beyond
 /// this, squared distances (up to ~1e31) approach f32::MAX (3.4e38) once scaled into index space,

@@ -8,13 +8,13 @@
 //! Only cells whose walk could need refining are examined (a crossing of the cell would cost more
 //! than `SPLIT_DEPTH` tentative collisions), so a medium without hot spots pays a pass over its
 //! majorant cells, not over its voxels.
+//!
+//! The tests cut the walks of whole media, so they sit with `refine`, the module that uses the cuts.
 
 use glam::{IVec3, Vec3};
 
 use crate::volume::brickmap::{floor_ivec3, BrickMap, BRICK_EDGE};
-use crate::volume::majorant::{MajorantGrid, MajorantSegment};
-use crate::volume::medium::{Filter, IndexRay};
-use crate::volume::refine::SPLIT_DEPTH;
+use crate::volume::ray::{Filter, IndexRay, MajorantSegment, SPLIT_DEPTH};
 use crate::volume::sparse_index::KeyMap;
 
 /// A voxel is hot when it exceeds this fraction of its cell's maximum.
@@ -26,6 +26,21 @@ const REST_FRACTION: f32 = 1.0 / 4.0;
 const MAX_REACH_FRACTION: f32 = 0.5;
 /// Cells wider than this many voxels are not examined (their aprons are too large to scan).
 const MAX_CELL_VOXELS: i32 = 8;
+
+/// What finding hot spots needs of the majorant grid whose cells they sit in. A trait, because
+/// that grid holds the hot spots it finds: `majorant` implements it, and this module, below
+/// `majorant`, does not import it.
+pub trait MajorantCells {
+    /// Index-space corner of cell (0, 0, 0) and the inverse cell edges: cell `c` starts at
+    /// `origin + c / inv_cell_size`.
+    fn cell_geometry(&self) -> (Vec3, Vec3);
+    /// Cell edge in voxels, or None for the global mode's single cell.
+    fn cell_voxels(&self) -> Option<i32>;
+    /// The cells of the medium's box (inclusive).
+    fn cell_range(&self) -> (IVec3, IVec3);
+    /// The majorant of cell `c` (0 outside the medium's box and where no data raised it).
+    fn cell_majorant(&self, c: IVec3) -> f32;
+}
 
 /// The hot voxels of one majorant cell.
 #[derive(Debug, Clone, Copy)]
@@ -52,11 +67,12 @@ pub struct HotSpots {
 impl HotSpots {
     /// The hot spots of `grid` in the cells of `majorant` (built from `grid`), for a medium in
     /// which no segment inside a voxel is longer than `voxel_diagonal` world units.
-    pub fn find(grid: &BrickMap, majorant: &MajorantGrid, voxel_diagonal: f32) -> Self {
+    pub fn find(grid: &BrickMap, majorant: &impl MajorantCells, voxel_diagonal: f32) -> Self {
+        let (origin, inv_cell_size) = majorant.cell_geometry();
         let mut spots = HotSpots {
             spots: KeyMap::default(),
-            origin: majorant.origin,
-            inv_cell_size: majorant.inv_cell_size,
+            origin,
+            inv_cell_size,
         };
         let Some(s) = majorant.cell_voxels() else {
             return spots;
@@ -234,90 +250,4 @@ fn hot_spot(grid: &BrickMap, cell: IVec3, s: i32, majorant: f32) -> Option<HotSp
         // The majorant is max × density_scale: the rest scaled alike, rounded up.
         rest: (rest * (majorant / max)).next_up(),
     })
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-    use crate::volume::majorant::{Majorant, Walk};
-    use crate::volume::medium::Medium;
-    use crate::volume::transform::IndexTransform;
-    use glam::DVec3;
-    use rand::{Rng, SeedableRng};
-
-    fn medium(filter: Filter, hot: impl Fn(IVec3) -> Option<f32>) -> Medium {
-        let grid = BrickMap::block(16, |v| hot(v).unwrap_or(1.0 + 0.05 * v.y as f32));
-        let transform = IndexTransform::uniform(0.5, DVec3::ZERO);
-        Medium::new(grid, transform, 2.0, filter, Majorant::grid(4))
-    }
-
-    /// Along random rays through a block with a hot voxel and a hot 2³ cluster, the pieces a hot
-    /// cell's stretch is cut into tile it in order, bound every lookup on them, and beside the
-    /// hot voxels fall to the rest of the cell (both filters).
-    #[test]
-    fn pieces_tile_the_stretch_and_bound_every_lookup() {
-        let hot = |v: IVec3| {
-            let cluster = (v - IVec3::new(3, 12, 5)).cmpge(IVec3::ZERO).all()
-                && (v - IVec3::new(3, 12, 5)).cmplt(IVec3::splat(2)).all();
-            (v == IVec3::splat(8) || cluster).then_some(1e6)
-        };
-        let mut rng = rand::rngs::SmallRng::seed_from_u64(3);
-        for filter in [Filter::Trilinear, Filter::Nearest] {
-            let medium = medium(filter, hot);
-            let spots = &medium.majorant.hot_spots;
-            assert!(spots.len() >= 2, "{filter}: {} hot cells", spots.len());
-            let (mut split, mut beside) = (0, 0);
-            for _ in 0..400 {
-                let aim = [IVec3::splat(8), IVec3::new(4, 13, 6)][rng.gen_range(0..2)].as_vec3();
-                let aim = aim + (Vec3::new(rng.gen(), rng.gen(), rng.gen()) - 0.5) * 5.0;
-                let d = (Vec3::new(rng.gen(), rng.gen(), rng.gen()) - 0.5).normalize();
-                let ray = IndexRay {
-                    o: aim - 20.0 * d,
-                    d: d * 2.0,
-                };
-                let Some((t0, t1)) = medium.intersect(&ray) else {
-                    continue;
-                };
-                let segments: Vec<MajorantSegment> =
-                    match medium.majorant.walk(ray.o, ray.d, t0, t1) {
-                        Walk::Flat(s) => s.collect(),
-                        Walk::Blocks(s) => s.collect(),
-                    };
-                for seg in segments {
-                    let Some(pieces) = spots.split(seg, &ray, filter) else {
-                        continue;
-                    };
-                    split += 1;
-                    assert_eq!((pieces[0].t0, pieces[2].t1), (seg.t0, seg.t1));
-                    assert!(pieces
-                        .windows(2)
-                        .all(|w| w[0].t1 == w[1].t0 && w[0].t0 <= w[0].t1));
-                    // An empty piece is crossed without a lookup.
-                    for p in pieces.into_iter().filter(|p| p.t1 > p.t0) {
-                        beside += (p.sigma_max < 1e-3 * seg.sigma_max) as usize;
-                        for k in 0..=64 {
-                            let t = p.t0 + (p.t1 - p.t0) * k as f32 / 64.0;
-                            let sigma = medium.sigma_t(ray.at(t.min(p.t1)));
-                            assert!(
-                                sigma <= p.sigma_max * (1.0 + 1e-5),
-                                "{filter}: σ {sigma} > σ̄ {} at t {t} in {p:?} of {seg:?}",
-                                p.sigma_max
-                            );
-                        }
-                    }
-                }
-            }
-            assert!(
-                split > 100 && beside > split / 4,
-                "{filter}: {split} split, {beside} beside"
-            );
-        }
-    }
-
-    /// A smooth medium has no hot spots: nothing to cut, nothing kept.
-    #[test]
-    fn a_smooth_medium_has_none() {
-        let medium = medium(Filter::Trilinear, |_| None);
-        assert!(medium.majorant.hot_spots.is_empty());
-    }
 }

@@ -6,7 +6,9 @@
 use glam::{IVec3, Vec3};
 
 use crate::volume::brickmap::floor_ivec3;
-use crate::volume::majorant::{cell_offset, MajorantGrid, MajorantSegment, BLOCK_EDGE, BLOCK_LOG2};
+use crate::volume::majorant::MajorantGrid;
+use crate::volume::majorant_cells::{cell_offset, BLOCK_EDGE, BLOCK_LOG2};
+use crate::volume::ray::MajorantSegment;
 use crate::volume::sparse_index::NODE_LOG2;
 
 impl MajorantGrid {
@@ -284,5 +286,106 @@ impl Iterator for DdaWalk<'_> {
                 }
             }
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::volume::brickmap::BrickMapBuilder;
+    use crate::volume::majorant::Majorant;
+
+    #[test]
+    fn majorant_bounds_every_trilinear_lookup() {
+        // A hot voxel next to a cell boundary must raise the neighbouring cell too (the apron).
+        let mut b = BrickMapBuilder::new();
+        for x in 0..24 {
+            for y in 0..24 {
+                for z in 0..24 {
+                    let hot = (x, y, z) == (7, 8, 15) || (x, y, z) == (16, 3, 3);
+                    b.set(
+                        IVec3::new(x, y, z),
+                        if hot {
+                            9.0
+                        } else {
+                            0.1 * ((x * 7 + y * 3 + z) % 5) as f32
+                        },
+                        true,
+                    );
+                }
+            }
+        }
+        let m = b.build();
+        let bounds = (Vec3::splat(-0.5), Vec3::splat(23.5));
+        let flat = MajorantGrid::build_cells(&m, bounds, 2.0, 8, u64::MAX);
+        let blocks = MajorantGrid::build_cells(&m, bounds, 2.0, 8, 0);
+        assert_eq!((flat.flat.len(), flat.blocks.len()), (27, 0));
+        assert_eq!((blocks.flat.len(), blocks.blocks.len()), (0, 1));
+        let mut state = 12345u64;
+        for k in 0..40000 {
+            let grid = if k % 2 == 0 { &flat } else { &blocks };
+            let mut r = || {
+                state = state
+                    .wrapping_mul(6364136223846793005)
+                    .wrapping_add(1442695040888963407);
+                (state >> 40) as f32 / (1u64 << 24) as f32
+            };
+            let o = Vec3::new(r(), r(), r()) * 24.0 - 0.5;
+            let d = (Vec3::new(r(), r(), r()) - 0.5).normalize();
+            let exit = (0..3)
+                .map(|a| {
+                    if d[a] > 0.0 {
+                        (23.5 - o[a]) / d[a]
+                    } else {
+                        (-0.5 - o[a]) / d[a]
+                    }
+                })
+                .fold(f32::INFINITY, f32::min);
+            let mut covered = 0.0;
+            for seg in grid.walk(o, d, 0.0, exit) {
+                assert!(seg.t1 >= seg.t0);
+                covered += seg.t1 - seg.t0;
+                for k in 0..=4 {
+                    let t = seg.t0 + (seg.t1 - seg.t0) * (k as f32 + 0.5) / 5.0;
+                    let sigma = 2.0 * m.trilinear(o + d * t);
+                    assert!(
+                        sigma <= seg.sigma_max + 1e-5,
+                        "σ {sigma} > majorant {} at {}",
+                        seg.sigma_max,
+                        o + d * t
+                    );
+                }
+            }
+            assert!(
+                (covered - exit).abs() < 1e-3 * exit.max(1.0),
+                "segments cover {covered} of {exit}"
+            );
+        }
+    }
+
+    #[test]
+    fn global_mode_is_one_cell_with_the_grid_maximum() {
+        let mut b = BrickMapBuilder::new();
+        b.set(IVec3::new(3, 4, 5), 7.0, true);
+        b.set(IVec3::new(30, 4, 5), 1.0, true);
+        let m = b.build();
+        let grid = MajorantGrid::build(
+            &m,
+            (Vec3::new(2.5, 3.5, 4.5), Vec3::new(30.5, 4.5, 5.5)),
+            0.5,
+            Majorant::global(),
+        );
+        assert_eq!(grid.cell_count(), 1);
+        let segs: Vec<_> = grid
+            .walk(Vec3::new(2.5, 4.0, 5.0), Vec3::X, 0.0, 28.0)
+            .collect();
+        assert_eq!(
+            segs,
+            vec![MajorantSegment {
+                t0: 0.0,
+                t1: 28.0,
+                sigma_max: 3.5
+            }]
+        );
     }
 }

@@ -8,42 +8,9 @@ use crate::volume::brickmap::BrickMap;
 use crate::volume::majorant::{Majorant, MajorantGrid};
 use crate::volume::transform::IndexTransform;
 
-/// How σt is looked up between voxel centres.
-#[derive(
-    Debug,
-    Clone,
-    Copy,
-    PartialEq,
-    Eq,
-    Default,
-    clap::ValueEnum,
-    serde::Deserialize,
-    serde::Serialize,
-)]
-#[serde(rename_all = "kebab-case")]
-pub enum Filter {
-    /// The value of the voxel containing the point.
-    Nearest,
-    /// OpenVDB's box sampler: interpolation between the eight surrounding voxel centres.
-    #[default]
-    Trilinear,
-}
-
-crate::display_as_value_enum!(Filter);
-
-/// A ray in index space; `t` is a world distance (see `transform`).
-#[derive(Debug, Clone, Copy)]
-pub struct IndexRay {
-    pub o: Vec3,
-    pub d: Vec3,
-}
-
-impl IndexRay {
-    #[inline]
-    pub fn at(&self, t: f32) -> Vec3 {
-        self.o + self.d * t
-    }
-}
+// The layers above (scenes, gradients, tests) name a medium's filter and rays here; they live in
+// `ray`, below every module that walks, so that those need not import the medium.
+pub use crate::volume::ray::{Filter, IndexRay};
 
 #[derive(Clone)]
 pub struct Medium {

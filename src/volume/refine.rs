@@ -26,12 +26,9 @@
 use glam::{IVec3, Vec3};
 
 use crate::volume::brickmap::floor_ivec3;
-use crate::volume::majorant::MajorantSegment;
-use crate::volume::medium::{Filter, IndexRay, Medium};
+use crate::volume::medium::Medium;
+use crate::volume::ray::{Filter, IndexRay, MajorantSegment};
 
-/// Majorant optical depth above which a stretch is worth refining (a walk through it takes about
-/// this many tentative collisions).
-pub const SPLIT_DEPTH: f32 = 16.0;
 /// Above this majorant optical depth a stretch is halved even where the last halving did not
 /// tighten its bound.
 const KEEP_SPLITTING_DEPTH: f32 = 16.0;
@@ -248,7 +245,8 @@ impl<I: Iterator<Item = MajorantSegment>> Iterator for Refine<'_, I> {
 mod tests {
     use super::*;
     use crate::volume::brickmap::BrickMap;
-    use crate::volume::majorant::{Majorant, Walk};
+    use crate::volume::majorant::Majorant;
+    use crate::volume::majorant_walk::Walk;
     use crate::volume::transform::IndexTransform;
     use glam::DVec3;
     use rand::{Rng, SeedableRng};
@@ -368,5 +366,94 @@ mod tests {
         assert!(refined.iter().all(|s| s.sigma_max == 2.0));
         assert!(refined.windows(2).all(|w| w[0].t1 == w[1].t0));
         assert_eq!((refined[0].t0, refined.last().unwrap().t1), (t0, t1));
+    }
+}
+
+/// The cuts at hot spots (`volume::hot_spots`), on the walks of whole media: they need the
+/// modules above `hot_spots` that build the grid, the medium and the walk.
+#[cfg(test)]
+mod hot_spot_tests {
+    use super::*;
+    use crate::volume::brickmap::BrickMap;
+    use crate::volume::majorant::Majorant;
+    use crate::volume::majorant_walk::Walk;
+    use crate::volume::transform::IndexTransform;
+    use glam::DVec3;
+    use rand::{Rng, SeedableRng};
+
+    fn medium(filter: Filter, hot: impl Fn(IVec3) -> Option<f32>) -> Medium {
+        let grid = BrickMap::block(16, |v| hot(v).unwrap_or(1.0 + 0.05 * v.y as f32));
+        let transform = IndexTransform::uniform(0.5, DVec3::ZERO);
+        Medium::new(grid, transform, 2.0, filter, Majorant::grid(4))
+    }
+
+    /// Along random rays through a block with a hot voxel and a hot 2³ cluster, the pieces a hot
+    /// cell's stretch is cut into tile it in order, bound every lookup on them, and beside the
+    /// hot voxels fall to the rest of the cell (both filters).
+    #[test]
+    fn pieces_tile_the_stretch_and_bound_every_lookup() {
+        let hot = |v: IVec3| {
+            let cluster = (v - IVec3::new(3, 12, 5)).cmpge(IVec3::ZERO).all()
+                && (v - IVec3::new(3, 12, 5)).cmplt(IVec3::splat(2)).all();
+            (v == IVec3::splat(8) || cluster).then_some(1e6)
+        };
+        let mut rng = rand::rngs::SmallRng::seed_from_u64(3);
+        for filter in [Filter::Trilinear, Filter::Nearest] {
+            let medium = medium(filter, hot);
+            let spots = &medium.majorant.hot_spots;
+            assert!(spots.len() >= 2, "{filter}: {} hot cells", spots.len());
+            let (mut split, mut beside) = (0, 0);
+            for _ in 0..400 {
+                let aim = [IVec3::splat(8), IVec3::new(4, 13, 6)][rng.gen_range(0..2)].as_vec3();
+                let aim = aim + (Vec3::new(rng.gen(), rng.gen(), rng.gen()) - 0.5) * 5.0;
+                let d = (Vec3::new(rng.gen(), rng.gen(), rng.gen()) - 0.5).normalize();
+                let ray = IndexRay {
+                    o: aim - 20.0 * d,
+                    d: d * 2.0,
+                };
+                let Some((t0, t1)) = medium.intersect(&ray) else {
+                    continue;
+                };
+                let segments: Vec<MajorantSegment> =
+                    match medium.majorant.walk(ray.o, ray.d, t0, t1) {
+                        Walk::Flat(s) => s.collect(),
+                        Walk::Blocks(s) => s.collect(),
+                    };
+                for seg in segments {
+                    let Some(pieces) = spots.split(seg, &ray, filter) else {
+                        continue;
+                    };
+                    split += 1;
+                    assert_eq!((pieces[0].t0, pieces[2].t1), (seg.t0, seg.t1));
+                    assert!(pieces
+                        .windows(2)
+                        .all(|w| w[0].t1 == w[1].t0 && w[0].t0 <= w[0].t1));
+                    // An empty piece is crossed without a lookup.
+                    for p in pieces.into_iter().filter(|p| p.t1 > p.t0) {
+                        beside += (p.sigma_max < 1e-3 * seg.sigma_max) as usize;
+                        for k in 0..=64 {
+                            let t = p.t0 + (p.t1 - p.t0) * k as f32 / 64.0;
+                            let sigma = medium.sigma_t(ray.at(t.min(p.t1)));
+                            assert!(
+                                sigma <= p.sigma_max * (1.0 + 1e-5),
+                                "{filter}: σ {sigma} > σ̄ {} at t {t} in {p:?} of {seg:?}",
+                                p.sigma_max
+                            );
+                        }
+                    }
+                }
+            }
+            assert!(
+                split > 100 && beside > split / 4,
+                "{filter}: {split} split, {beside} beside"
+            );
+        }
+    }
+
+    /// A smooth medium has no hot spots: nothing to cut, nothing kept.
+    #[test]
+    fn a_smooth_medium_has_none() {
+        let medium = medium(Filter::Trilinear, |_| None);
+        assert!(medium.majorant.hot_spots.is_empty());
     }
 }

@@ -7,9 +7,10 @@
 
 use rand::Rng;
 
-use crate::volume::majorant::{MajorantSegment, Walk};
-use crate::volume::medium::{IndexRay, Medium};
-use crate::volume::refine::{Refine, SPLIT_DEPTH};
+use crate::volume::majorant_walk::Walk;
+use crate::volume::medium::Medium;
+use crate::volume::ray::{IndexRay, MajorantSegment, SPLIT_DEPTH};
+use crate::volume::refine::Refine;
 
 /// Counters kept per thread and summed once at the end.
 #[derive(Debug, Default, Clone, Copy)]
