@@ -7,7 +7,7 @@ mod common;
 
 use std::path::{Path, PathBuf};
 
-use common::{assert_clean_error, ok, stderr, volgrad_in};
+use common::{assert_clean_error, ok, stderr, stdout, volgrad_in};
 use volgrad::io::vdb::{read_grid, GridSelector};
 
 const SCENE: &str = r#"
@@ -434,6 +434,127 @@ fn the_seed_leaves_the_targets_as_they_are() {
     )
     .unwrap();
     assert_ne!(targets(Some(1)), one, "target_seed changes the targets");
+}
+
+/// Views under their own lights: training views split over two suns (two orbits), held-out views
+/// under one of them and under a third sun no training view had. The targets are rendered under
+/// each view's lights, the third sun's held-out views count as relit, and the log and the summary
+/// report their PSNR apart.
+#[test]
+fn views_under_their_own_lights_and_relit_held_out_views() {
+    use volgrad::optimize::problem::Problem;
+    let sun = |d: &str| {
+        format!("light = [{{ type = \"directional\", direction = [{d}], irradiance = 4.0 }}]")
+    };
+    let orbit = |set: &str, count: u32, elevation: &str, offset: u32, light: &str| {
+        format!(
+            "[[{set}.orbit]]\ncount = {count}\nelevation_deg = [{elevation}]\ndistance = 12\nfov_deg = 40\nwidth = 24\nheight = 24\nazimuth_offset_deg = {offset}\n{light}\n"
+        )
+    };
+    let run = format!(
+        "scene = \"scene.toml\"\ntruth = \"ball.vdb\"\ntarget_spp = 64\neval_spp = 32\neval_every = 2\n\
+         {}{}{}{}\n[unknown]\nbounds = \"truth\"\nstart = 0.2\n[optimizer]\nspp = 1\niterations = 4\n",
+        orbit("views", 3, "-30, 70", 0, &sun("-0.5, -1.0, -0.3")),
+        orbit("views", 3, "-30, 70", 60, &sun("0.5, -1.0, 0.3")),
+        orbit("holdouts", 1, "20, 20", 30, &sun("-0.5, -1.0, -0.3")),
+        orbit("holdouts", 1, "20, 20", 30, &sun("0.0, 1.0, 0.0")),
+    );
+    let dir = fixture(&run);
+    let problem = Problem::load(&dir.path().join("run.toml"), None, false).unwrap();
+    let sets: Vec<usize> = problem.views.iter().map(|v| v.light_set).collect();
+    assert_eq!(sets, vec![1, 1, 1, 2, 2, 2]);
+    let relit: Vec<bool> = problem.holdouts.iter().map(|v| v.relit).collect();
+    assert_eq!(relit, vec![false, true]);
+    // The same camera under two suns: the targets differ.
+    let (a, b) = (&problem.holdouts[0].target, &problem.holdouts[1].target);
+    let difference: f32 = a
+        .pixels
+        .iter()
+        .zip(&b.pixels)
+        .map(|(x, y)| (*x - *y).abs().max_element())
+        .sum();
+    assert!(difference > 1.0, "{difference}");
+
+    let out = ok(volgrad_in(
+        dir.path(),
+        &["optimize", "run.toml", "--out", "o", "-q"],
+    ));
+    assert!(stdout(&out).contains("relit"), "{}", stdout(&out));
+    let rows = log(&dir.path().join("o"));
+    let relit = evaluated(&rows, "relit_psnr");
+    assert!(
+        relit.len() >= 2 && relit.iter().all(|p| p.is_finite()),
+        "{relit:?}"
+    );
+    // settings.toml keeps the lights, and reads back.
+    let settings = std::fs::read_to_string(dir.path().join("o/settings.toml")).unwrap();
+    assert_eq!(settings.matches("[[views.orbit]]").count(), 2, "{settings}");
+    ok(volgrad_in(
+        dir.path(),
+        &[
+            "optimize",
+            "o/settings.toml",
+            "--out",
+            "again",
+            "--iterations",
+            "1",
+            "-q",
+        ],
+    ));
+}
+
+/// A `transforms.json` (NeRF / instant-ngp: camera-to-world rows, the camera looking down −z)
+/// written from an orbit's cameras gives those cameras back: the same positions and rays. A frame
+/// whose `file_path` has no extension finds its `.exr`, which becomes its target as written.
+#[test]
+fn a_transforms_file_gives_back_the_orbit_it_was_written_from() {
+    use volgrad::optimize::problem::Problem;
+    use volgrad::optimize::transforms::camera_to_world;
+    let dir = fixture(&run_file("0.2", ""));
+    let d = dir.path();
+    let orbit_problem = Problem::load(&d.join("run.toml"), None, false).unwrap();
+    let centre = {
+        let (lo, hi) = orbit_problem.domain.world_box();
+        (lo + hi) / 2.0
+    };
+    let frames: Vec<String> = orbit_problem
+        .views
+        .iter()
+        .enumerate()
+        .map(|(i, v)| {
+            let m = camera_to_world(v.camera.position, centre, glam::Vec3::Y);
+            let image = if i == 0 {
+                "\"file_path\": \"./first\", "
+            } else {
+                ""
+            };
+            format!("{{ {image}\"transform_matrix\": {m:?} }}")
+        })
+        .collect();
+    let json = format!(
+        "{{ \"camera_angle_x\": {}, \"w\": 24, \"h\": 24, \"frames\": [{}] }}",
+        40f32.to_radians(),
+        frames.join(", ")
+    );
+    std::fs::write(d.join("transforms.json"), json).unwrap();
+    let first = &orbit_problem.views[0].target;
+    volgrad::io::images::write_exr(&d.join("first.exr"), first, false).unwrap();
+    let run = run_file("0.2", "").replace(
+        "[views.orbit]\ncount = 6\nelevation_deg = [-30, 70]\ndistance = 12\nfov_deg = 40\nwidth = 24\nheight = 24\n",
+        "[views]\ntransforms = \"transforms.json\"\n",
+    );
+    assert!(run.contains("transforms.json"), "{run}");
+    std::fs::write(d.join("run.toml"), run).unwrap();
+    let json_problem = Problem::load(&d.join("run.toml"), None, false).unwrap();
+    assert_eq!(json_problem.views.len(), orbit_problem.views.len());
+    for (a, b) in orbit_problem.views.iter().zip(&json_problem.views) {
+        assert!((a.camera.position - b.camera.position).length() < 1e-5);
+        for (x, y) in [(0.5, 0.5), (23.5, 0.5), (12.0, 12.0), (3.5, 20.5)] {
+            let (da, db) = (a.camera.direction(x, y), b.camera.direction(x, y));
+            assert!((da - db).length() < 1e-5, "pixel ({x}, {y}): {da} vs {db}");
+        }
+    }
+    assert_eq!(json_problem.views[0].target.pixels, first.pixels);
 }
 
 /// Ctrl-C stops the run after the current iteration with a checkpoint and says how to resume.

@@ -113,12 +113,12 @@ fn blobs_far_apart_render_and_differentiate_in_little_memory() {
     );
 }
 
-#[test]
-fn two_voxels_a_million_apart_load_render_and_stay_small() {
-    let dir = tempfile::tempdir().unwrap();
+/// A fog volume of unit voxels at `voxels` (value 1, voxel size 1, index = world) as a .vdb.
+fn write_voxels(path: &std::path::Path, voxels: &[IVec3]) {
     let mut b = BrickMapBuilder::new();
-    b.set(IVec3::ZERO, 1.0, true);
-    b.set(IVec3::new(1_000_000, 0, 0), 1.0, true);
+    for &v in voxels {
+        b.set(v, 1.0, true);
+    }
     let grid = Grid {
         transform: IndexTransform::uniform(1.0, DVec3::ZERO),
         bricks: b.build(),
@@ -128,8 +128,14 @@ fn two_voxels_a_million_apart_load_render_and_stay_small() {
         background: 0.0,
         metadata: Vec::new(),
     };
+    vdb::write_grids(path, &[&grid], false, false).unwrap();
+}
+
+#[test]
+fn two_voxels_a_million_apart_load_render_and_stay_small() {
+    let dir = tempfile::tempdir().unwrap();
     let vdb_path = dir.path().join("apart.vdb");
-    vdb::write_grids(&vdb_path, &[&grid], false, false).unwrap();
+    write_voxels(&vdb_path, &[IVec3::ZERO, IVec3::new(1_000_000, 0, 0)]);
 
     let o = ok(volgrad(&["info", vdb_path.to_str().unwrap()]));
     assert!(stdout(&o).contains("brick map"), "{}", stdout(&o));
@@ -331,20 +337,8 @@ fn walks_skip_empty_nodes_but_never_data() {
 fn the_gradient_of_a_diagonal_sparse_grid_fits_in_little_memory() {
     use std::os::unix::process::CommandExt;
     let dir = tempfile::tempdir().unwrap();
-    let mut b = BrickMapBuilder::new();
-    for k in [0, 30_000, 60_000] {
-        b.set(IVec3::splat(k), 1.0, true);
-    }
-    let grid = Grid {
-        transform: IndexTransform::uniform(1.0, DVec3::ZERO),
-        bricks: b.build(),
-        name: "density".into(),
-        grid_class: "fog volume".into(),
-        saved_as_half: false,
-        background: 0.0,
-        metadata: Vec::new(),
-    };
-    vdb::write_grids(&dir.path().join("diagonal.vdb"), &[&grid], false, false).unwrap();
+    let voxels = [0, 30_000, 60_000].map(IVec3::splat);
+    write_voxels(&dir.path().join("diagonal.vdb"), &voxels);
     // Looking down the diagonal from beyond its first corner: every ray crosses the empty box.
     std::fs::write(
         dir.path().join("diagonal.toml"),

@@ -122,11 +122,13 @@ pub fn run(args: &Args) -> Result<()> {
     }
     let e = &outcome.evaluation;
     println!(
-        "{} iterations in {:.1} s (+ {:.1} s evaluating): held-out PSNR {:.2} dB, relative RMSE {:.4}{}",
+        "{} iterations in {:.1} s (+ {:.1} s evaluating): held-out PSNR {:.2} dB{}, relative RMSE {:.4}{}",
         p.iteration,
         p.optimisation_seconds,
         p.evaluation_seconds,
         e.psnr,
+        e.relit_psnr
+            .map_or(String::new(), |r| format!(" (relit {r:.2} dB)")),
         e.relative_rmse,
         match (e.volume_rmse, e.haze) {
             (Some(rmse), Some(haze)) => format!(", volume RMSE {rmse:.4}, haze {haze:.3}"),

@@ -4,8 +4,9 @@
 //! that `--resume` continues exactly where the run stopped.
 //!
 //! The state file is little-endian binary: the magic line, the run's fingerprint, the stop rule
-//! (`Stop::to_text`), the counters and the global scale's (m, v), the log text, then the bricks in key order (origin as 3 × i32, then
-//! θ, m, v as 512 × f32 each, then the brick's log-scale (m, v) as 2 × f32).
+//! (`Stop::to_text`), the counters and the global scale's (m, v), the log text, then the bricks in
+//! key order (origin as 3 × i32, then θ, m, v as 512 × f32 each, the brick's log-scale (m, v) as
+//! 2 × f32 and its idle steps as u32).
 
 use std::io::{BufReader, Read, Write};
 use std::path::{Path, PathBuf};
@@ -22,7 +23,7 @@ use crate::optimize::schedule::Stop;
 use crate::volume::brickmap::BRICK_VOXELS;
 use crate::volume::transform::IndexTransform;
 
-const MAGIC: &[u8] = b"volgrad optimizer state 4\n";
+const MAGIC: &[u8] = b"volgrad optimizer state 5\n";
 
 /// Where a run is, apart from θ and Adam's moments.
 #[derive(Debug, Clone, Default, PartialEq)]
@@ -95,7 +96,7 @@ pub fn write_state(
         write_text(w, &position.log)?;
         let bricks = parameters.sorted_bricks();
         w.write_all(&(bricks.len() as u64).to_le_bytes())?;
-        for (key, theta, m, v, scale) in bricks {
+        for (key, theta, m, v, scale, idle) in bricks {
             for c in key.to_array() {
                 w.write_all(&c.to_le_bytes())?;
             }
@@ -105,6 +106,7 @@ pub fn write_state(
                 }
             }
             write_moments(w, scale)?;
+            w.write_all(&idle.to_le_bytes())?;
         }
         Ok(())
     })
@@ -168,7 +170,7 @@ pub fn read_state(path: &Path, fingerprint: &str) -> Result<(Position, Parameter
         let evaluation_seconds = f64::from_le_bytes(read_array(&mut r)?);
         let log = read_text(&mut r, size)?;
         let count = u64::from_le_bytes(read_array(&mut r)?);
-        let brick_bytes = (12 + 3 * 4 * BRICK_VOXELS + 8) as u64;
+        let brick_bytes = (12 + 3 * 4 * BRICK_VOXELS + 8 + 4) as u64;
         if count.saturating_mul(brick_bytes) > size {
             bail!("{count} bricks do not fit in {size} bytes");
         }
@@ -189,7 +191,8 @@ pub fn read_state(path: &Path, fingerprint: &str) -> Result<(Position, Parameter
             }
             let [theta, m, v] = arrays;
             let scale = read_moments(&mut r, "a brick's scale")?;
-            p.insert_brick(IVec3::from_array(key), theta, m, v, scale);
+            let idle = u32::from_le_bytes(read_array(&mut r)?);
+            p.insert_brick(IVec3::from_array(key), theta, m, v, scale, idle);
         }
         p.set_steps(steps, scale);
         let position = Position {
@@ -289,7 +292,7 @@ mod tests {
         let bits = |p: &Parameters| -> Vec<u32> {
             p.sorted_bricks()
                 .into_iter()
-                .flat_map(|(k, t, m, v, scale)| {
+                .flat_map(|(k, t, m, v, scale, _)| {
                     let scale = [scale.m, scale.v];
                     k.to_array()
                         .map(|c| c as u32)

@@ -50,6 +50,8 @@ pub fn relative_rmse(image: &RgbImage, target: &RgbImage) -> f64 {
 pub struct Evaluation {
     /// Averages over the held-out views.
     pub psnr: f64,
+    /// The average over the held-out views under lights no training view had (none: `None`).
+    pub relit_psnr: Option<f64>,
     pub relative_rmse: f64,
     /// RMS difference to the truth over the final level's voxels (grid-value units).
     pub volume_rmse: Option<f64>,
@@ -62,8 +64,9 @@ pub struct Evaluation {
 pub fn evaluate(problem: &Problem, scene: &Scene, level: usize) -> Evaluation {
     let mut scene = scene.clone();
     let mut e = Evaluation::default();
+    let (mut lit, mut relit) = (0, Vec::new());
     for view in &problem.holdouts {
-        scene.camera = view.camera;
+        problem.look_through(&mut scene, &mut lit, view);
         let options = RenderOptions {
             spp: problem.settings.eval_spp,
             seed: problem.settings.seed ^ EVALUATION_SEED_SALT,
@@ -71,13 +74,18 @@ pub fn evaluate(problem: &Problem, scene: &Scene, level: usize) -> Evaluation {
             progress: false,
         };
         let image = render(&scene, &options).0;
-        e.psnr += psnr(&image, &view.target);
+        let view_psnr = psnr(&image, &view.target);
+        e.psnr += view_psnr;
+        if view.relit {
+            relit.push(view_psnr);
+        }
         e.relative_rmse += relative_rmse(&image, &view.target);
         e.renders.push(image);
     }
     let n = problem.holdouts.len().max(1) as f64;
     e.psnr /= n;
     e.relative_rmse /= n;
+    e.relit_psnr = (!relit.is_empty()).then(|| relit.iter().sum::<f64>() / relit.len() as f64);
     if let Some(truth) = &problem.truth {
         let (rmse, haze) = volume_error(problem, truth, &scene, level);
         e.volume_rmse = Some(rmse);

@@ -20,6 +20,8 @@ pub struct LogRow {
     /// Training loss of this iteration (batch mean, prior included).
     pub loss: f64,
     pub psnr: Option<f64>,
+    /// Over the relit held-out views only (`Evaluation::relit_psnr`).
+    pub relit_psnr: Option<f64>,
     pub relative_rmse: Option<f64>,
     pub volume_rmse: Option<f64>,
     /// Mean density in the truth's empty voxels over the mean in its occupied ones.
@@ -29,7 +31,7 @@ pub struct LogRow {
     pub state_bytes: u64,
 }
 
-const COLUMNS: [&str; 12] = [
+const COLUMNS: [&str; 13] = [
     "iteration",
     "level",
     "fraction",
@@ -37,6 +39,7 @@ const COLUMNS: [&str; 12] = [
     "evaluation_seconds",
     "loss",
     "heldout_psnr",
+    "relit_psnr",
     "heldout_rel_rmse",
     "volume_rmse",
     "haze",
@@ -52,12 +55,13 @@ impl LogRow {
     /// Fills the evaluation columns.
     pub fn record(&mut self, e: &Evaluation) {
         self.psnr = Some(e.psnr);
+        self.relit_psnr = e.relit_psnr;
         self.relative_rmse = Some(e.relative_rmse);
         self.volume_rmse = e.volume_rmse;
         self.haze = e.haze;
     }
 
-    fn cells(&self) -> [String; 12] {
+    fn cells(&self) -> [String; 13] {
         [
             self.iteration.to_string(),
             self.level.to_string(),
@@ -67,6 +71,7 @@ impl LogRow {
             format!("{}", self.evaluation_seconds),
             format!("{}", self.loss),
             optional(self.psnr),
+            optional(self.relit_psnr),
             optional(self.relative_rmse),
             optional(self.volume_rmse),
             optional(self.haze),
@@ -119,11 +124,12 @@ impl LogRow {
             evaluation_seconds: cells[4].parse()?,
             loss: cells[5].parse()?,
             psnr: opt(6)?,
-            relative_rmse: opt(7)?,
-            volume_rmse: opt(8)?,
-            haze: opt(9)?,
-            active_voxels: cells[10].parse()?,
-            state_bytes: cells[11].parse()?,
+            relit_psnr: opt(7)?,
+            relative_rmse: opt(8)?,
+            volume_rmse: opt(9)?,
+            haze: opt(10)?,
+            active_voxels: cells[11].parse()?,
+            state_bytes: cells[12].parse()?,
         })
     }
 }
@@ -149,6 +155,7 @@ mod tests {
                 seconds: 1.0,
                 loss: 1e-3,
                 psnr: Some(31.5),
+                relit_psnr: Some(29.25),
                 relative_rmse: Some(0.1),
                 volume_rmse: Some(0.02),
                 haze: Some(0.01),

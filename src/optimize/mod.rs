@@ -21,4 +21,5 @@ pub mod schedule;
 pub mod smoothing;
 pub mod study;
 pub mod targets;
+pub mod transforms;
 pub mod views;

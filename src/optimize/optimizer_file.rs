@@ -108,16 +108,20 @@ pub struct PriorFile {
     pub scale: Option<f32>,
 }
 
-/// A table or an array of tables, each read as a `PriorFile` (its errors, e.g. an unknown kind,
-/// kept as they are: an untagged enum would replace them with "did not match any variant").
-fn one_or_many<'de, D: serde::Deserializer<'de>>(d: D) -> Result<Vec<PriorFile>, D::Error> {
+/// A table or an array of tables, each read as a `T` (its errors, e.g. an unknown kind, kept as
+/// they are: an untagged enum would replace them with "did not match any variant").
+pub(super) fn one_or_many<'de, D, T>(d: D) -> Result<Vec<T>, D::Error>
+where
+    D: serde::Deserializer<'de>,
+    T: serde::de::DeserializeOwned,
+{
     let items = match toml::Value::deserialize(d)? {
         toml::Value::Array(items) => items,
         one => vec![one],
     };
     items
         .into_iter()
-        .map(|item| PriorFile::deserialize(item).map_err(serde::de::Error::custom))
+        .map(|item| T::deserialize(item).map_err(serde::de::Error::custom))
         .collect()
 }
 

@@ -23,6 +23,8 @@ pub(super) struct ParameterBrick {
     pub(super) v: [f32; BRICK_VOXELS],
     /// The moments of the brick's log-scale (`Adam::fit_brick_scales`).
     pub(super) scale: ScalarMoments,
+    /// Steps since the images' gradient last reached the brick (`descent`'s keep rule).
+    pub(super) idle: u32,
 }
 
 impl ParameterBrick {
@@ -32,6 +34,7 @@ impl ParameterBrick {
             m: [0.0; BRICK_VOXELS],
             v: [0.0; BRICK_VOXELS],
             scale: ScalarMoments::default(),
+            idle: 0,
         })
     }
 
@@ -42,14 +45,15 @@ impl ParameterBrick {
     }
 }
 
-/// A brick's key (voxel >> 3) with its θ, m and v and its log-scale's moments, as a checkpoint
-/// stores them.
+/// A brick's key (voxel >> 3) with its θ, m and v, its log-scale's moments and its idle steps, as
+/// a checkpoint stores them.
 pub type BrickState<'a> = (
     IVec3,
     &'a [f32; BRICK_VOXELS],
     &'a [f32; BRICK_VOXELS],
     &'a [f32; BRICK_VOXELS],
     ScalarMoments,
+    u32,
 );
 
 /// The voxel within its brick at `leaf_offset` i.
@@ -159,9 +163,9 @@ impl Parameters {
     }
 
     /// Drops the bricks whose θ is all 0 and for which `keep` is false.
-    pub(super) fn drop_empty(&mut self, keep: impl Fn(IVec3) -> bool) {
+    pub(super) fn drop_empty(&mut self, keep: impl Fn(&ParameterBrick) -> bool) {
         self.bricks
-            .retain(|key, b| keep(*key) || b.theta.iter().any(|&x| x > 0.0));
+            .retain(|_, b| keep(b) || b.theta.iter().any(|&x| x > 0.0));
     }
 
     /// Every stored voxel as (voxel, θ, m, v).
@@ -231,7 +235,7 @@ impl Parameters {
             .into_iter()
             .map(|key| {
                 let b = &self.bricks[&key];
-                (key, &b.theta, &b.m, &b.v, b.scale)
+                (key, &b.theta, &b.m, &b.v, b.scale, b.idle)
             })
             .collect()
     }
@@ -244,6 +248,7 @@ impl Parameters {
         m: [f32; BRICK_VOXELS],
         v: [f32; BRICK_VOXELS],
         scale: ScalarMoments,
+        idle: u32,
     ) {
         self.bricks.insert(
             key,
@@ -252,6 +257,7 @@ impl Parameters {
                 m,
                 v,
                 scale,
+                idle,
             }),
         );
     }

@@ -16,8 +16,9 @@ use crate::optimize::prior::Prior;
 use crate::optimize::resample::Moments;
 use crate::optimize::run_file::{BoundsFile, RunFile, StartFile};
 use crate::optimize::scene_units::{self, SceneUnits};
-use crate::optimize::targets::{image_power, view_specs, TargetRenderer};
+use crate::optimize::targets::{image_power, view_specs, LightSets, TargetRenderer};
 use crate::render::camera::Camera;
+use crate::render::lights::Lights;
 use crate::render::scene::Scene;
 use crate::volume::brickmap::{floor_ivec3, BrickMap};
 use crate::volume::medium::Medium;
@@ -146,6 +147,8 @@ pub struct Problem {
     pub scene: Scene,
     pub views: Vec<View>,
     pub holdouts: Vec<View>,
+    /// The lights of the views (`View::light_set`); set 0 is the scene's.
+    pub light_sets: Vec<Lights>,
     /// The true grid, in the final level's index space.
     pub truth: Option<BrickMap>,
     pub domain: Domain,
@@ -174,9 +177,14 @@ impl Problem {
         let grids = KnownGrids::read(run_path, &file)?;
         let mut domain = final_domain(&file, &grids)?;
         let world_box = domain.world_box();
-        let (o, h) = (&file.views.orbit, &file.holdouts.orbit);
-        let training = view_specs("view", &file.view, o.as_ref(), world_box)?;
-        let held_out = view_specs("holdout", &file.holdout, h.as_ref(), world_box)?;
+        let training = view_specs(run_path, "view", &file.view, &file.views, world_box)?;
+        let held_out = view_specs(
+            run_path,
+            "holdout",
+            &file.holdout,
+            &file.holdouts,
+            world_box,
+        )?;
 
         let cameras: Vec<Camera> = training.iter().map(|v| v.camera).collect();
         let centre = (world_box.0 + world_box.1) / 2.0;
@@ -212,8 +220,12 @@ impl Problem {
             progress,
             rendered: 0,
         };
-        let views = targets.views(run_path, training)?;
-        let holdouts = targets.views(run_path, held_out)?;
+        let mut light_sets = LightSets::new(scene.lights.clone());
+        let views = targets.views(run_path, training, &mut light_sets)?;
+        let mut holdouts = targets.views(run_path, held_out, &mut light_sets)?;
+        for holdout in &mut holdouts {
+            holdout.relit = !views.iter().any(|v| v.light_set == holdout.light_set);
+        }
         if let Some(batch) = file.optimizer.batch.filter(|&b| b as usize > views.len()) {
             bail!(
                 "optimizer.batch is {batch} but there are only {} views",
@@ -249,12 +261,23 @@ impl Problem {
             scene,
             views,
             holdouts,
+            light_sets: light_sets.lights,
             truth,
             domain,
             start,
             settings,
             fingerprint,
         })
+    }
+
+    /// Points `scene` (lit by set `*lit`; `scene_at` gives set 0) at `view`: its camera, and its
+    /// lights, cloned only when they change.
+    pub fn look_through(&self, scene: &mut Scene, lit: &mut usize, view: &View) {
+        scene.camera = view.camera;
+        if *lit != view.light_set {
+            scene.lights = self.light_sets[view.light_set].clone();
+            *lit = view.light_set;
+        }
     }
 
     /// The scene with `theta` (at level `level`) as its medium.

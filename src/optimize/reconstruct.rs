@@ -331,9 +331,10 @@ fn step(
     let mut loss = 0.0;
     let views = batch(problem.views.len(), s.batch, s.seed, iteration);
     let weight = 1.0 / views.len() as f64;
+    let mut lit = 0;
     for (slot, &v) in views.iter().enumerate() {
         let view = &problem.views[v];
-        scene.camera = view.camera;
+        problem.look_through(scene, &mut lit, view);
         let seed = pixel_rng(s.seed, iteration, slot as u64).next_u64();
         let options = GradOptions::new(estimator, s.spp, seed, s.max_depth);
         let primal = GradOptions {

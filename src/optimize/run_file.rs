@@ -9,10 +9,12 @@ use std::path::{Path, PathBuf};
 use anyhow::{bail, Context, Result};
 use serde::{Deserialize, Serialize};
 
-use crate::optimize::optimizer_file::OptimizerFile;
+use crate::optimize::optimizer_file::{one_or_many, OptimizerFile};
 use crate::optimize::resample::Moments;
 use crate::optimize::scene_units::MAX_LEVELS;
 use crate::optimize::views::Orbit;
+use crate::render::scene_check::check_lights;
+use crate::render::scene_file::LightFile;
 
 /// The most views in a set (`[[view]]`s and the orbit's, or the held-out ones).
 pub const MAX_VIEWS: u64 = 10_000;
@@ -92,12 +94,26 @@ pub struct ViewFile {
     /// The target image (linear; any format OpenImageIO reads). Without it the view's target is
     /// rendered from `truth`.
     pub image: Option<String>,
+    /// The lights this view was taken under, as a scene file's `[[light]]`s (default: the
+    /// scene's).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub light: Vec<LightFile>,
 }
 
 #[derive(Debug, Clone, Default, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct ViewSetFile {
-    pub orbit: Option<OrbitFile>,
+    /// One orbit (`[views.orbit]`) or several (`[[views.orbit]]`), e.g. each under its own
+    /// lights.
+    #[serde(default, deserialize_with = "one_or_many")]
+    pub orbit: Vec<OrbitFile>,
+    /// A `transforms.json` (NeRF / instant-ngp convention, `transforms`), relative to the run
+    /// file: its frames' cameras, and their images as targets.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub transforms: Option<String>,
+    /// The lights of the transforms file's views (default: the scene's).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub light: Vec<LightFile>,
 }
 
 /// Cameras on a Fibonacci spiral around the unknown's box, targets rendered from `truth`.
@@ -113,6 +129,9 @@ pub struct OrbitFile {
     /// Turns the whole spiral about +y, e.g. to put held-out views between the training views.
     #[serde(default)]
     pub azimuth_offset_deg: f32,
+    /// The lights of these views, as a scene file's `[[light]]`s (default: the scene's).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub light: Vec<LightFile>,
 }
 
 impl OrbitFile {
@@ -186,7 +205,7 @@ impl RunFile {
     /// allocated or rendered.
     fn check_sizes(&self) -> Result<()> {
         let mut pixels = 0u64;
-        for (key, listed, orbit) in [
+        for (key, listed, orbits) in [
             ("view", &self.view, &self.views.orbit),
             ("holdout", &self.holdout, &self.holdouts.orbit),
         ] {
@@ -194,19 +213,14 @@ impl RunFile {
                 .iter()
                 .map(|v| u64::from(v.width) * u64::from(v.height));
             pixels += listed_pixels.sum::<u64>();
-            if let Some(o) = orbit {
-                if u64::from(o.count) > MAX_VIEWS {
-                    bail!(
-                        "{key}s.orbit.count is {}: at most {MAX_VIEWS} views per set (each is a target image held in memory, rendered before the first iteration when it comes from a truth)",
-                        o.count
-                    );
-                }
+            let mut count = listed.len() as u64;
+            for o in orbits {
+                count += u64::from(o.count);
                 pixels += u64::from(o.count) * u64::from(o.width) * u64::from(o.height);
             }
-            if listed.len() as u64 > MAX_VIEWS {
+            if count > MAX_VIEWS {
                 bail!(
-                    "{} [[{key}]] entries: at most {MAX_VIEWS} views per set",
-                    listed.len()
+                    "{key}s: {count} views (listed and on orbits): at most {MAX_VIEWS} per set (each is a target image held in memory, rendered before the first iteration when it comes from a truth)"
                 );
             }
         }
@@ -214,6 +228,23 @@ impl RunFile {
             bail!(
                 "the views and held-out views have {pixels} pixels in all: at most 2^28 = {MAX_TARGET_PIXELS} (3 GiB of target images); use fewer or smaller views"
             );
+        }
+        Ok(())
+    }
+
+    /// Every view's and orbit's own lights, as a scene file's are checked.
+    fn check_view_lights(&self) -> Result<()> {
+        for (key, listed, orbits) in [
+            ("view", &self.view, &self.views),
+            ("holdout", &self.holdout, &self.holdouts),
+        ] {
+            for (i, v) in listed.iter().enumerate() {
+                check_lights(&v.light).with_context(|| format!("{key}[{i}]"))?;
+            }
+            for (i, o) in orbits.orbit.iter().enumerate() {
+                check_lights(&o.light).with_context(|| format!("{key}s.orbit[{i}]"))?;
+            }
+            check_lights(&orbits.light).with_context(|| format!("{key}s.light"))?;
         }
         Ok(())
     }
@@ -234,6 +265,14 @@ impl RunFile {
         file.truth = file.truth.as_ref().map(absolute);
         for view in file.view.iter_mut().chain(&mut file.holdout) {
             view.image = view.image.as_ref().map(absolute);
+            absolute_envmaps(&mut view.light, &absolute);
+        }
+        for orbit in file.views.orbit.iter_mut().chain(&mut file.holdouts.orbit) {
+            absolute_envmaps(&mut orbit.light, &absolute);
+        }
+        for set in [&mut file.views, &mut file.holdouts] {
+            set.transforms = set.transforms.as_ref().map(absolute);
+            absolute_envmaps(&mut set.light, &absolute);
         }
         if let Some(StartFile::Vdb(name)) = &file.unknown.start {
             file.unknown.start = Some(StartFile::Vdb(absolute(name)));
@@ -255,10 +294,13 @@ impl RunFile {
 
     /// The checks that need no file: numbers in range, keys that go together.
     pub fn validate(&self) -> Result<()> {
-        if self.view.is_empty() && self.views.orbit.is_none() {
+        if self.view.is_empty() && self.views.orbit.is_empty() && self.views.transforms.is_none() {
             bail!("no views: give [[view]] entries or a [views.orbit]");
         }
-        if self.holdout.is_empty() && self.holdouts.orbit.is_none() {
+        if self.holdout.is_empty()
+            && self.holdouts.orbit.is_empty()
+            && self.holdouts.transforms.is_none()
+        {
             bail!("no held-out views: give [[holdout]] entries or a [holdouts.orbit] (quality is measured on views the gradients never see)");
         }
         for (key, spp) in [("target_spp", self.target_spp), ("eval_spp", self.eval_spp)] {
@@ -279,14 +321,24 @@ impl RunFile {
             .iter()
             .chain(&self.holdout)
             .any(|v| v.image.is_none())
-            || self.views.orbit.is_some()
-            || self.holdouts.orbit.is_some();
+            || !self.views.orbit.is_empty()
+            || !self.holdouts.orbit.is_empty();
         if needs_truth && self.truth.is_none() {
             bail!("truth: views without an image ([views.orbit], [holdouts.orbit], or a [[view]] without `image`) are rendered from a true grid; give `truth = \"file.vdb\"` or an image per view");
         }
         self.check_sizes()?;
+        self.check_view_lights()?;
         self.unknown.validate(self.truth.is_some())?;
         self.optimizer.validate()
+    }
+}
+
+/// An environment map's file named relative to the run file, made absolute.
+fn absolute_envmaps(lights: &mut [LightFile], absolute: &impl Fn(&String) -> String) {
+    for light in lights {
+        if let LightFile::Envmap { file, .. } = light {
+            *file = absolute(file);
+        }
     }
 }
 
@@ -476,8 +528,22 @@ mod tests {
             (GOOD.replace("[[holdout]]", "[[view]]"), "no held-out views"),
             (format!("target_spp = 0\n{GOOD}"), "target_spp"),
             (
+                GOOD.replace(
+                    "        [[holdout]]",
+                    "        light = [{ type = \"directional\", direction = [0, 0, 0], irradiance = 1 }]\n        [[holdout]]",
+                ),
+                "views.orbit[0]: light[0].direction",
+            ),
+            (
+                GOOD.replace(
+                    "        [[holdout]]",
+                    "        light = [{ type = \"sun\" }]\n        [[holdout]]",
+                ),
+                "unknown variant",
+            ),
+            (
                 GOOD.replace("count = 4", "count = 4294967295"),
-                "views.orbit.count is 4294967295: at most 10000",
+                "4294967295 views (listed and on orbits): at most 10000",
             ),
             (
                 GOOD.replace("count = 4", "count = 9000").replace(

@@ -193,6 +193,7 @@ pub fn summary(runs: &[StudyRun]) -> String {
         ("iterations".into(), Align::Right),
         ("s / iteration".into(), Align::Right),
         ("final PSNR (dB)".into(), Align::Right),
+        ("relit PSNR (dB)".into(), Align::Right),
         ("volume RMSE".into(), Align::Right),
         ("haze".into(), Align::Right),
     ];
@@ -216,6 +217,7 @@ pub fn summary(runs: &[StudyRun]) -> String {
             iterations.to_string(),
             number(per_iteration, 3),
             number(last.and_then(|r| r.psnr), 2),
+            number(last.and_then(|r| r.relit_psnr), 2),
             number(last.and_then(|r| r.volume_rmse), 4),
             number(last.and_then(|r| r.haze), 3),
         ];

@@ -3,42 +3,79 @@
 //! they decide (the levels follow the finest view's pixel footprint) is known before any target
 //! is rendered.
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context, Result};
 use glam::Vec3;
 
 use crate::io::images::{self, RgbImage};
-use crate::optimize::run_file::{OrbitFile, RunFile, ViewFile};
+use crate::optimize::run_file::{RunFile, ViewFile, ViewSetFile, MAX_VIEWS};
+use crate::optimize::transforms;
 use crate::render::camera::Camera;
 use crate::render::image::{render, RenderOptions};
+use crate::render::lights::Lights;
 use crate::render::sampling::TARGET_SEED_SALT;
-use crate::render::scene::{CameraFile, Scene};
+use crate::render::scene::{load_lights, CameraFile, Scene};
+use crate::render::scene_file::LightFile;
 
-/// A camera and the image it should see.
+/// A camera, the lights it saw the medium under and the image it should see.
 #[derive(Clone)]
 pub struct View {
     pub camera: Camera,
+    /// Its lights: an index into the run's `LightSets` (0: the scene's).
+    pub light_set: usize,
+    /// A held-out view under lights no training view had: it measures the volume relit.
+    pub relit: bool,
     pub target: RgbImage,
 }
 
 /// A camera of the run file, before its target is known.
 pub struct ViewSpec {
-    /// What errors call it: `view[2]`, `holdouts.orbit camera 3`.
+    /// What errors call it: `view[2]`, `holdouts.orbit[0] camera 3`.
     pub name: String,
     pub camera: Camera,
-    /// The target image's file, relative to the run file.
-    pub image: Option<String>,
+    /// Its own lights (empty: the scene's).
+    pub light: Vec<LightFile>,
+    /// The target image's file.
+    pub image: Option<PathBuf>,
 }
 
-/// The cameras of the listed views and the orbit of one set (`key` is "view" or "holdout"),
-/// checked to lie outside the unknown's `world_box`.
+/// The distinct sets of lights a run's views were taken under; set 0 is the scene's own.
+pub struct LightSets {
+    files: Vec<Vec<LightFile>>,
+    pub lights: Vec<Lights>,
+}
+
+impl LightSets {
+    pub fn new(scene_lights: Lights) -> Self {
+        LightSets {
+            files: vec![Vec::new()],
+            lights: vec![scene_lights],
+        }
+    }
+
+    /// The index of a view's lights (checked by the run file), loaded the first time they are
+    /// seen; an environment map's file is relative to the run file's folder `dir`.
+    fn index(&mut self, files: &[LightFile], dir: &Path) -> Result<usize> {
+        if let Some(i) = self.files.iter().position(|f| f == files) {
+            return Ok(i);
+        }
+        self.lights.push(load_lights(files, dir)?);
+        self.files.push(files.to_vec());
+        Ok(self.lights.len() - 1)
+    }
+}
+
+/// The cameras of one set's listed views, orbits and transforms file (`key` is "view" or
+/// "holdout"), checked to lie outside the unknown's `world_box`.
 pub fn view_specs(
+    run_path: &Path,
     key: &str,
     listed: &[ViewFile],
-    orbit: Option<&OrbitFile>,
+    set: &ViewSetFile,
     world_box: (Vec3, Vec3),
 ) -> Result<Vec<ViewSpec>> {
+    let orbits = &set.orbit;
     let mut specs = Vec::new();
     for (i, v) in listed.iter().enumerate() {
         let name = format!("{key}[{i}]");
@@ -57,17 +94,42 @@ pub fn view_specs(
         specs.push(ViewSpec {
             name,
             camera,
-            image: v.image.clone(),
+            light: v.light.clone(),
+            image: v.image.as_ref().map(|i| RunFile::resolve(run_path, i)),
         });
     }
-    if let Some(o) = orbit {
-        let name = format!("{key}s.orbit");
+    if let Some(file) = &set.transforms {
+        let path = RunFile::resolve(run_path, file);
+        let views = transforms::read(&path).with_context(|| format!("{key}s.transforms"))?;
+        if views.len() as u64 > MAX_VIEWS {
+            bail!(
+                "{key}s.transforms: '{}' has {} frames; at most {MAX_VIEWS} views per set",
+                path.display(),
+                views.len()
+            );
+        }
+        for (i, v) in views.into_iter().enumerate() {
+            specs.push(ViewSpec {
+                name: format!("{key}s.transforms frame {i}"),
+                camera: v.camera,
+                light: set.light.clone(),
+                image: v.image,
+            });
+        }
+    }
+    for (k, o) in orbits.iter().enumerate() {
+        let name = if orbits.len() == 1 {
+            format!("{key}s.orbit")
+        } else {
+            format!("{key}s.orbit[{k}]")
+        };
         let centre = (world_box.0 + world_box.1) / 2.0;
         let cameras = o.orbit().cameras(centre).with_context(|| name.clone())?;
         for (i, camera) in cameras.into_iter().enumerate() {
             specs.push(ViewSpec {
                 name: format!("{name} camera {i}"),
                 camera,
+                light: o.light.clone(),
                 image: None,
             });
         }
@@ -98,29 +160,44 @@ pub struct TargetRenderer {
 }
 
 impl TargetRenderer {
-    pub fn views(&mut self, run_path: &Path, specs: Vec<ViewSpec>) -> Result<Vec<View>> {
+    /// The views of `specs`, their lights indexed in `sets` (`relit` still false).
+    pub fn views(
+        &mut self,
+        run_path: &Path,
+        specs: Vec<ViewSpec>,
+        sets: &mut LightSets,
+    ) -> Result<Vec<View>> {
+        let dir = run_path.parent().unwrap_or(Path::new("."));
         let mut views = Vec::with_capacity(specs.len());
         for ViewSpec {
             name,
             camera,
+            light,
             image,
         } in specs
         {
+            let light_set = sets.index(&light, dir).with_context(|| name.clone())?;
             let target = match image {
-                Some(file) => read_target(&RunFile::resolve(run_path, &file), &camera, &name)?,
-                None => self.render(&camera, &name)?,
+                Some(file) => read_target(&file, &camera, &name)?,
+                None => self.render(&camera, &sets.lights[light_set], &name)?,
             };
-            views.push(View { camera, target });
+            views.push(View {
+                camera,
+                light_set,
+                relit: false,
+                target,
+            });
         }
         Ok(views)
     }
 
-    fn render(&mut self, camera: &Camera, name: &str) -> Result<RgbImage> {
+    fn render(&mut self, camera: &Camera, lights: &Lights, name: &str) -> Result<RgbImage> {
         let truth = self
             .truth
             .as_mut()
             .with_context(|| format!("{name}: no image and no truth to render one from"))?;
         truth.camera = *camera;
+        truth.lights = lights.clone();
         self.rendered += 1;
         let options = RenderOptions {
             spp: self.spp,

@@ -126,7 +126,9 @@ impl Scene {
     }
 }
 
-fn load_lights(files: &[LightFile], dir: &Path) -> Result<Lights> {
+/// The renderer's lights from a checked list of scene-file lights (`scene_check::check_lights`);
+/// an environment map's file is relative to `dir`.
+pub fn load_lights(files: &[LightFile], dir: &Path) -> Result<Lights> {
     let mut lights = Lights::default();
     let mut environment = Environment::default();
     for (i, light) in files.iter().enumerate() {

@@ -74,28 +74,7 @@ impl SceneFile {
         if m.phase_g.is_nan() || m.phase_g.abs() >= 1.0 {
             bail!("medium.phase_g must satisfy |g| < 1 (got {})", m.phase_g);
         }
-        let mut envmaps = 0;
-        for (i, light) in self.light.iter().enumerate() {
-            match light {
-                LightFile::Constant { radiance } => {
-                    light_value(&format!("light[{i}].radiance"), radiance.rgb())?
-                }
-                LightFile::Envmap { scale, .. } => {
-                    envmaps += 1;
-                    light_value(&format!("light[{i}].scale"), Vec3::splat(*scale))?;
-                }
-                LightFile::Directional {
-                    direction,
-                    irradiance,
-                } => {
-                    unit(&format!("light[{i}].direction"), *direction)?;
-                    light_value(&format!("light[{i}].irradiance"), irradiance.rgb())?;
-                }
-            }
-        }
-        if envmaps > 1 {
-            bail!("at most one light of type \"envmap\" is supported (found {envmaps})");
-        }
+        check_lights(&self.light)?;
         let r = &self.render;
         if r.spp == 0 {
             bail!("render.spp must be at least 1");
@@ -155,6 +134,34 @@ fn coordinates(key: &str, v: [f32; 3]) -> Result<()> {
         bail!(
             "{key} is too far from the origin to trace in f32 (got {v:?}; each coordinate must be within ±{MAX_COORDINATE:e})"
         );
+    }
+    Ok(())
+}
+
+/// A list of lights as a scene file's `[[light]]`s: values in range, directions non-zero, at
+/// most one environment map. Errors name `light[i]`.
+pub fn check_lights(lights: &[LightFile]) -> Result<()> {
+    let mut envmaps = 0;
+    for (i, light) in lights.iter().enumerate() {
+        match light {
+            LightFile::Constant { radiance } => {
+                light_value(&format!("light[{i}].radiance"), radiance.rgb())?
+            }
+            LightFile::Envmap { scale, .. } => {
+                envmaps += 1;
+                light_value(&format!("light[{i}].scale"), Vec3::splat(*scale))?;
+            }
+            LightFile::Directional {
+                direction,
+                irradiance,
+            } => {
+                unit(&format!("light[{i}].direction"), *direction)?;
+                light_value(&format!("light[{i}].irradiance"), irradiance.rgb())?;
+            }
+        }
+    }
+    if envmaps > 1 {
+        bail!("at most one light of type \"envmap\" is supported (found {envmaps})");
     }
     Ok(())
 }

@@ -6,14 +6,14 @@ use std::path::Path;
 
 use anyhow::{Context, Result};
 use glam::Vec3;
-use serde::Deserialize;
+use serde::{Deserialize, Serialize};
 
 use crate::io::vdb::LevelSet;
 use crate::volume::majorant::{Majorant, MajorantMode};
 use crate::volume::medium::Filter;
 
 /// A grey value or an RGB triple.
-#[derive(Debug, Clone, Copy, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Deserialize, Serialize)]
 #[serde(untagged)]
 pub enum Spectrum {
     Grey(f32),
@@ -85,7 +85,7 @@ fn white() -> Spectrum {
     Spectrum::Grey(1.0)
 }
 
-#[derive(Debug, Clone, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Deserialize, Serialize)]
 #[serde(tag = "type", rename_all = "lowercase", deny_unknown_fields)]
 pub enum LightFile {
     Constant {
