@@ -18,6 +18,7 @@ pub mod resample;
 pub mod run_file;
 pub mod scene_units;
 pub mod schedule;
+pub mod settings_toml;
 pub mod smoothing;
 pub mod study;
 pub mod targets;

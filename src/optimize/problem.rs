@@ -16,6 +16,7 @@ use crate::optimize::prior::Prior;
 use crate::optimize::resample::Moments;
 use crate::optimize::run_file::{BoundsFile, RunFile, StartFile};
 use crate::optimize::scene_units::{self, SceneUnits};
+use crate::optimize::settings_toml;
 use crate::optimize::targets::{image_power, view_specs, LightSets, TargetRenderer};
 use crate::render::camera::Camera;
 use crate::render::lights::Lights;
@@ -256,7 +257,7 @@ impl Problem {
             (Vec3::ZERO, Vec3::ZERO),
         );
         Ok(Problem {
-            settings_toml: file.resolved(run_path, &notes)?,
+            settings_toml: settings_toml::resolved(&file, run_path, &notes)?,
             grid_name: scene.grid_name.clone(),
             scene,
             views,

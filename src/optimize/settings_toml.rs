@@ -1,0 +1,70 @@
+//! `OUT/settings.toml`: a run file as a run resolved it, every key written out and every path
+//! absolute, so that the run can be reproduced (or edited) from anywhere.
+
+use std::path::Path;
+
+use anyhow::{Context, Result};
+
+use crate::optimize::run_file::{RunFile, StartFile};
+use crate::render::scene_file::LightFile;
+
+/// The file with every key written out and every path absolute, as TOML that `optimize`
+/// reads back: what a run resolved, to reproduce or edit it from anywhere.
+/// `notes` (lines of text) follow as comments.
+pub fn resolved(run_file: &RunFile, run_path: &Path, notes: &str) -> Result<String> {
+    let absolute = |name: &String| -> String {
+        let path = RunFile::resolve(run_path, name);
+        std::path::absolute(&path)
+            .unwrap_or(path)
+            .to_string_lossy()
+            .into_owned()
+    };
+    let mut file = run_file.clone();
+    file.scene = absolute(&file.scene);
+    file.truth = file.truth.as_ref().map(absolute);
+    for view in file.view.iter_mut().chain(&mut file.holdout) {
+        view.image = view.image.as_ref().map(absolute);
+        absolute_envmaps(&mut view.light, &absolute);
+    }
+    for orbit in file.views.orbit.iter_mut().chain(&mut file.holdouts.orbit) {
+        absolute_envmaps(&mut orbit.light, &absolute);
+    }
+    for set in [&mut file.views, &mut file.holdouts] {
+        set.transforms = set.transforms.as_ref().map(absolute);
+        absolute_envmaps(&mut set.light, &absolute);
+    }
+    if let Some(StartFile::Vdb(name)) = &file.unknown.start {
+        file.unknown.start = Some(StartFile::Vdb(absolute(name)));
+    }
+    let mut value = toml::Value::try_from(&file).context("writing the resolved run file")?;
+    shortest_floats(&mut value);
+    let text = toml::to_string(&value).context("writing the resolved run file")?;
+    let notes: String = notes.lines().map(|l| format!("# {l}\n")).collect();
+    Ok(format!(
+        "# The run file '{}' as volgrad resolved it: every key, absolute paths.\n\n{text}\n{notes}",
+        run_path.display()
+    ))
+}
+
+/// An environment map's file named relative to the run file, made absolute.
+fn absolute_envmaps(lights: &mut [LightFile], absolute: &impl Fn(&String) -> String) {
+    for light in lights {
+        if let LightFile::Envmap { file, .. } = light {
+            *file = absolute(file);
+        }
+    }
+}
+
+/// Every number of a run file is an f32, which TOML writes through f64 (0.1 as
+/// 0.10000000149011612): each is rewritten as the shortest decimal that reads back as the same f32.
+fn shortest_floats(value: &mut toml::Value) {
+    match value {
+        toml::Value::Float(x) => {
+            let shortest = (*x as f32).to_string();
+            *x = shortest.parse().unwrap_or(*x);
+        }
+        toml::Value::Array(items) => items.iter_mut().for_each(shortest_floats),
+        toml::Value::Table(table) => table.iter_mut().for_each(|(_, v)| shortest_floats(v)),
+        _ => {}
+    }
+}
