@@ -737,7 +737,32 @@ fn bad_run_files_name_the_key() {
             ),
             vec!["view[0].image", "24×24"],
         ),
+        // A vacuum scene: the images do not depend on the grid, and the settings derived from the
+        // optical depth would be infinite.
+        (
+            good.replace("scene = \"scene.toml\"", "scene = \"vacuum.toml\""),
+            vec!["density_scale", "0"],
+        ),
+        (
+            good.replace(
+                "[unknown]",
+                "[views]\ntransforms = \"missing.json\"\n[unknown]",
+            ),
+            vec!["views.transforms", "missing.json"],
+        ),
+        (
+            good.replace(
+                "[views.orbit]\n",
+                "[views.orbit]\nlight = [{ type = \"constant\", radiance = -1 }]\n",
+            ),
+            vec!["views.orbit[0]", "light[0].radiance"],
+        ),
     ];
+    std::fs::write(
+        d.join("vacuum.toml"),
+        SCENE.replace("density_scale = 0.6", "density_scale = 0.0"),
+    )
+    .unwrap();
     for (i, (text, needles)) in cases.iter().enumerate() {
         let name = format!("bad{i}.toml");
         std::fs::write(d.join(&name), text).unwrap();

@@ -175,6 +175,12 @@ impl Problem {
         file.target_seed = Some(file.target_seed.unwrap_or(file.seed));
         file.seed = seed.unwrap_or(file.seed);
         let mut scene = Scene::load(&RunFile::resolve(run_path, &file.scene)).context("scene")?;
+        if scene.medium.density_scale <= 0.0 {
+            bail!(
+                "scene: medium.density_scale is {}: a vacuum's images do not depend on the grid, so it cannot be reconstructed from them",
+                scene.medium.density_scale
+            );
+        }
         let grids = KnownGrids::read(run_path, &file)?;
         let mut domain = final_domain(&file, &grids)?;
         let world_box = domain.world_box();
