@@ -8,6 +8,14 @@
 //!    the gradient is smoothed (`smoothing`: a preconditioner);
 //! 4. one Adam step with θ ≥ 0 kept by projection; bricks that stay at 0 are dropped.
 //!
+//! One rule sets what changes from level to level: a voxel of the next level is 1/8 of its
+//! parent, so the image's derivative with respect to it is about 1/8 of the parent's while its
+//! Monte Carlo noise falls only by √8. Hence Adam's moments are scaled by 1/8 and 1/64 at an
+//! upsampling (`resample`), the brick scales' moments likewise, the priors are means over the
+//! level's voxels (`prior`), and the gradient is smoothed once more per level (`smoothing`). The
+//! learning rate's factor per level (`level_lr`) is measured, not derived: Adam normalises the
+//! gradient's scale away (README, "One rule per level").
+//!
 //! Every random number is a function of (seed, iteration, view slot, pixel, sample) and every
 //! reduction runs in a fixed order, so a run's result depends on its settings only, not on the
 //! thread count; a run resumed from a checkpoint continues bit for bit. Evaluation and checkpoints
