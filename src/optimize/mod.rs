@@ -11,7 +11,6 @@ pub mod evaluate;
 pub mod log;
 pub mod optimizer_file;
 pub mod parameters;
-pub mod primal_cv;
 pub mod prior;
 pub mod problem;
 pub mod reconstruct;

@@ -45,9 +45,6 @@ pub struct OptimizerFile {
     /// gradient one.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub primal_spp: Option<u32>,
-    /// The adjoint image from a running estimate of each view's image, carried from visit to
-    /// visit by recursive control variates (`primal_cv`; two primal renders per visit).
-    pub primal_cv: bool,
     /// Iterations when the command line gives neither --iterations nor --budget.
     pub iterations: u32,
     /// One prior (`prior = { kind = …, weight = … }`) or several, summed (`prior = [{ … }, { … }]`);
@@ -84,7 +81,6 @@ impl Default for OptimizerFile {
             batch: None,
             spp: 8,
             primal_spp: None,
-            primal_cv: false,
             iterations: 100,
             prior: vec![
                 prior(PriorKind::Tv, scene_units::DEFAULT_TV_WEIGHT, None),

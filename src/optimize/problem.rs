@@ -129,8 +129,6 @@ pub struct Settings {
     pub spp: u32,
     /// Samples per pixel of the primal render that gives the adjoint image.
     pub primal_spp: u32,
-    /// The adjoint image from a running estimate per view (`primal_cv`).
-    pub primal_cv: bool,
     pub max_depth: u32,
     pub priors: Vec<Prior>,
     /// Gradient smoothing at the finer levels (`smoothing::smooth`).
@@ -397,7 +395,6 @@ impl Settings {
             batch: o.batch.unwrap_or(1),
             spp: o.spp,
             primal_spp: o.primal_spp.unwrap_or(o.spp),
-            primal_cv: o.primal_cv,
             max_depth,
             priors: o.priors(units),
             smooth_gradient: o.smooth_gradient,

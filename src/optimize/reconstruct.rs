@@ -31,7 +31,7 @@ use rand::RngCore;
 
 use crate::gradient::adjoint::Estimator;
 use crate::gradient::grid::GradientGrid;
-use crate::gradient::objective::{adjoint_image, check_target, AdjointImage};
+use crate::gradient::objective::adjoint_image;
 use crate::gradient::passes::{gradient, GradOptions};
 use crate::io::chart::{self, Chart, Scale, Series};
 use crate::io::fingerprint::Fingerprint;
@@ -43,14 +43,10 @@ use crate::optimize::checkpoint::{self, Position};
 use crate::optimize::evaluate::{evaluate, write_holdout_picture, Evaluation};
 use crate::optimize::log::LogRow;
 use crate::optimize::parameters::Parameters;
-use crate::io::images::RgbImage;
-use crate::optimize::primal_cv::PrimalEstimates;
-use crate::optimize::problem::{Problem, Settings};
+use crate::optimize::problem::Problem;
 use crate::optimize::resample::upsample;
 use crate::optimize::schedule::Stop;
 use crate::optimize::smoothing::smooth;
-use crate::optimize::targets::View;
-use crate::render::image::{render, RenderOptions};
 use crate::render::sampling::pixel_rng;
 use crate::render::scene::Scene;
 
@@ -105,8 +101,6 @@ struct Run<'a> {
     parameters: Parameters,
     log: Vec<LogRow>,
     evaluation: Evaluation,
-    /// The training views' running image estimates, with `primal_cv`.
-    estimates: Option<PrimalEstimates>,
     bar: indicatif::ProgressBar,
     interrupted: bool,
 }
@@ -143,8 +137,6 @@ impl<'a> Run<'a> {
             position,
             parameters,
             evaluation: Evaluation::default(),
-            estimates: (problem.settings.primal_cv)
-                .then(|| PrimalEstimates::new(problem.settings.seed, problem.views.len())),
             interrupted: false,
         };
         if run.position.iteration == 0 {
@@ -208,7 +200,6 @@ impl<'a> Run<'a> {
             iteration,
             level,
             &adam,
-            self.estimates.as_mut(),
         )?;
         self.position.iteration += 1;
         self.position.optimisation_seconds += started.elapsed().as_secs_f64();
@@ -342,7 +333,6 @@ fn step(
     iteration: u64,
     level: usize,
     adam: &Adam,
-    mut estimates: Option<&mut PrimalEstimates>,
 ) -> Result<f64> {
     let s = &problem.settings;
     let mut total = GradientGrid::<f64>::for_medium(&scene.medium);
@@ -359,10 +349,7 @@ fn step(
             spp: s.primal_spp,
             ..options
         };
-        let adjoint = match estimates.as_deref_mut() {
-            Some(estimates) => adjoint_with_control_variate(scene, s, estimates, v, view)?,
-            None => adjoint_image(scene, s.loss, Some(&view.target), &primal)?,
-        };
+        let adjoint = adjoint_image(scene, s.loss, Some(&view.target), &primal)?;
         loss += weight * adjoint.loss.unwrap_or(0.0);
         let run = gradient(scene, &adjoint.delta, &options);
         total.merge(&run.gradient, weight);
@@ -373,39 +360,6 @@ fn step(
     let level_voxels = problem.domain.voxel_count_at(level);
     loss += parameters.descend(adam, &gradient, &s.priors, level_voxels);
     Ok(loss)
-}
-
-/// The adjoint image of view `v` from its running estimate (`primal_cv`): this visit's primal
-/// render joins the estimate, and the render for the next visit is made before θ moves.
-fn adjoint_with_control_variate(
-    scene: &Scene,
-    s: &Settings,
-    estimates: &mut PrimalEstimates,
-    v: usize,
-    view: &View,
-) -> Result<AdjointImage> {
-    check_target(&view.target, scene)?;
-    let render_with = |seed| {
-        let options = RenderOptions {
-            spp: s.primal_spp,
-            seed,
-            max_depth: s.max_depth,
-            progress: false,
-        };
-        render(scene, &options).0
-    };
-    let current = render_with(estimates.visit_seed(v, false));
-    let (w, h) = (current.width, current.height);
-    let image = RgbImage {
-        width: w,
-        height: h,
-        pixels: estimates.update(v, current.pixels).to_vec(),
-    };
-    estimates.remember(v, render_with(estimates.visit_seed(v, true)).pixels);
-    Ok(AdjointImage {
-        delta: s.loss.adjoint(&image, Some(&view.target)),
-        loss: Some(s.loss.evaluate(&image, Some(&view.target))),
-    })
 }
 
 /// The views of iteration `iteration`: consecutive slots of a sequence of epochs, each epoch a
