@@ -83,7 +83,7 @@ fn main() {
     let mut rows = Vec::new();
     for (i, &e) in estimators.iter().enumerate() {
         let runs: Vec<GradientGrid<f32>> = (0..seeds)
-            .map(|s| gradient(&scene, &adjoint, &options(e, 1000 + s)).gradient)
+            .map(|s| gradient(&scene, &adjoint, &options(e, 1000 + s)).values())
             .collect();
         let mut mean = GradientGrid::<f64>::for_medium(&scene.medium);
         let mut square = mean.empty_like();

@@ -5,7 +5,10 @@
 set -euo pipefail
 
 # fonts-dejavu-core: the labels of the PNG charts of `volgrad compare` (src/io/chart.rs).
-packages=(libopenvdb-dev libopenimageio-dev libboost-dev libtbb-dev g++ libopenvdb-tools fonts-dejavu-core)
+# libopenmpi-dev, openmpi-bin, libclang-dev: running across ranks (the `mpi` feature, on by
+# default; rsmpi's build generates its bindings with libclang), and mpirun for the tests.
+packages=(libopenvdb-dev libopenimageio-dev libboost-dev libtbb-dev g++ libopenvdb-tools fonts-dejavu-core
+  libopenmpi-dev openmpi-bin libclang-dev)
 missing=()
 for p in "${packages[@]}"; do
   dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")

@@ -9,6 +9,7 @@
 // (`expect`). Tests (here and in tests/) may unwrap.
 #![cfg_attr(not(test), deny(clippy::unwrap_used))]
 
+pub mod cluster;
 pub mod compare;
 pub mod gradient;
 pub mod io;

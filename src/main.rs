@@ -10,6 +10,7 @@ mod cli;
 use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
+use volgrad::cluster::{AgreedError, Cluster};
 
 #[derive(Parser)]
 #[command(
@@ -46,20 +47,37 @@ enum Command {
 
 fn main() -> ExitCode {
     restore_sigpipe();
-    let result = match Cli::parse().command {
+    let command = Cli::parse().command;
+    // Under mpirun or srun, every rank runs this; `render`, `grad` and `optimize` share the work.
+    let (cluster, _session) = match Cluster::from_launcher() {
+        Ok(c) => c,
+        Err(e) => {
+            eprintln!("error: {e:#}");
+            return ExitCode::FAILURE;
+        }
+    };
+    let result = match command {
         Command::Info(args) => cli::info::run(&args),
-        Command::Render(args) => cli::render::run(&args),
+        Command::Render(args) => cli::render::run(&args, &cluster),
         Command::MakeGrid(args) => cli::make_grid::run(&args),
-        Command::Grad(args) => cli::grad::run(&args),
+        Command::Grad(args) => cli::grad::run(&args, &cluster),
         Command::Gradcheck(args) => cli::gradcheck::run(&args),
         Command::Compare(args) => cli::compare::run(&args),
         Command::Merge(args) => cli::merge::run(&args),
-        Command::Optimize(args) => cli::optimize::run(&args),
+        Command::Optimize(args) => cli::optimize::run(&args, &cluster),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
+        Err(e) if cluster.size() > 1 && e.downcast_ref::<AgreedError>().is_none() => {
+            // Only this rank met it: the others may wait for it in a collective.
+            eprintln!("error (rank {}): {e:#}", cluster.rank());
+            cluster.abort();
+            ExitCode::FAILURE
+        }
         Err(e) => {
-            eprintln!("error: {e:#}");
+            if cluster.is_root() {
+                eprintln!("error: {e:#}");
+            }
             ExitCode::FAILURE
         }
     }

@@ -37,7 +37,7 @@ fn runs(scene: &Scene, estimator: Estimator, spp: u32, repeats: u64) -> Vec<Grad
         None,
     );
     (0..repeats)
-        .map(|r| gradient(scene, &adjoint, &options(scene, estimator, spp, 100 + r)).gradient)
+        .map(|r| gradient(scene, &adjoint, &options(scene, estimator, spp, 100 + r)).values())
         .collect()
 }
 
@@ -146,7 +146,7 @@ fn per_segment_suffixes_agree_with_per_path_ones_and_with_fd() {
                 let mut o = options(&scene, Estimator::Joint, 32, 300 + r);
                 o.adjoint.suffix = suffix;
                 o.adjoint.suffix_paths = suffix_paths;
-                gradient(&scene, &adjoint, &o).gradient
+                gradient(&scene, &adjoint, &o).values()
             })
             .collect()
     };

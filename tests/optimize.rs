@@ -8,6 +8,7 @@ mod common;
 use std::path::{Path, PathBuf};
 
 use common::{assert_clean_error, ok, stderr, stdout, volgrad_in};
+use volgrad::cluster::Cluster;
 use volgrad::io::vdb::{read_grid, GridSelector};
 
 const SCENE: &str = r#"
@@ -422,7 +423,7 @@ fn the_seed_leaves_the_targets_as_they_are() {
     let dir = fixture(&run_file("0.2", ""));
     let run = dir.path().join("run.toml");
     let targets = |seed: Option<u64>| -> Vec<Vec<glam::Vec3>> {
-        let problem = Problem::load(&run, seed, false).unwrap();
+        let problem = Problem::load(&run, seed, false, &Cluster::single()).unwrap();
         let views = problem.views.iter().chain(&problem.holdouts);
         views.map(|v| v.target.pixels.clone()).collect()
     };
@@ -460,7 +461,13 @@ fn views_under_their_own_lights_and_relit_held_out_views() {
         orbit("holdouts", 1, "20, 20", 30, &sun("0.0, 1.0, 0.0")),
     );
     let dir = fixture(&run);
-    let problem = Problem::load(&dir.path().join("run.toml"), None, false).unwrap();
+    let problem = Problem::load(
+        &dir.path().join("run.toml"),
+        None,
+        false,
+        &Cluster::single(),
+    )
+    .unwrap();
     let sets: Vec<usize> = problem.views.iter().map(|v| v.light_set).collect();
     assert_eq!(sets, vec![1, 1, 1, 2, 2, 2]);
     let relit: Vec<bool> = problem.holdouts.iter().map(|v| v.relit).collect();
@@ -512,7 +519,8 @@ fn a_transforms_file_gives_back_the_orbit_it_was_written_from() {
     use volgrad::optimize::transforms::camera_to_world;
     let dir = fixture(&run_file("0.2", ""));
     let d = dir.path();
-    let orbit_problem = Problem::load(&d.join("run.toml"), None, false).unwrap();
+    let orbit_problem =
+        Problem::load(&d.join("run.toml"), None, false, &Cluster::single()).unwrap();
     let centre = {
         let (lo, hi) = orbit_problem.domain.world_box();
         (lo + hi) / 2.0
@@ -545,7 +553,7 @@ fn a_transforms_file_gives_back_the_orbit_it_was_written_from() {
     );
     assert!(run.contains("transforms.json"), "{run}");
     std::fs::write(d.join("run.toml"), run).unwrap();
-    let json_problem = Problem::load(&d.join("run.toml"), None, false).unwrap();
+    let json_problem = Problem::load(&d.join("run.toml"), None, false, &Cluster::single()).unwrap();
     assert_eq!(json_problem.views.len(), orbit_problem.views.len());
     for (a, b) in orbit_problem.views.iter().zip(&json_problem.views) {
         assert!((a.camera.position - b.camera.position).length() < 1e-5);

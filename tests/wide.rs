@@ -93,7 +93,7 @@ fn blobs_far_apart_render_and_differentiate_in_little_memory() {
         &adjoint,
         &GradOptions::new(Estimator::Joint, 8, 5, 8),
     );
-    let g = &run.gradient;
+    let g = &run.values();
     assert!(g.voxels().all(|(_, v)| v.is_finite()));
     println!("two blobs: {} gradient blocks", g.block_count());
     let near = g.sum_in_box(IVec3::splat(-1), IVec3::splat(6));

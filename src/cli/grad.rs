@@ -10,11 +10,13 @@ use glam::IVec3;
 
 use super::values::{self, FdDirection, IndexBox};
 use super::{report_non_finite, set_threads, AdjointArgs, Domain, FdArgs};
+use volgrad::cluster::passes::{adjoint_shared, gradient_shared};
+use volgrad::cluster::Cluster;
 use volgrad::gradient::adjoint::Estimator;
 use volgrad::gradient::fd;
 use volgrad::gradient::loss::Loss;
-use volgrad::gradient::objective::{adjoint_image, check_target, render_target};
-use volgrad::gradient::passes::{derivative_image, gradient, GradientRun};
+use volgrad::gradient::objective::{check_target, render_target};
+use volgrad::gradient::passes::{derivative_image, GradientRun};
 use volgrad::io::fingerprint::image as image_fingerprint;
 use volgrad::io::gradient_files::{self, Provenance};
 use volgrad::io::images::{self, RgbImage};
@@ -153,7 +155,9 @@ fn load_target(args: &Args, scene: &Scene) -> Result<Option<RgbImage>> {
     Ok(target)
 }
 
-pub fn run(args: &Args) -> Result<()> {
+/// Under mpirun every rank traces its share of the pixels, the gradients are summed, and rank 0
+/// writes the files; finite differences and `--image-of` run as one process only.
+pub fn run(args: &Args, cluster: &Cluster) -> Result<()> {
     set_threads(args.adjoint.sampling.threads)?;
     let vdb_out = args.output.clone().unwrap_or_else(|| {
         PathBuf::from(format!(
@@ -161,15 +165,25 @@ pub fn run(args: &Args) -> Result<()> {
             args.scene.file_stem().unwrap_or_default().to_string_lossy()
         ))
     });
+    if cluster.size() > 1
+        && (args.estimator == Method::FiniteDifferences || args.image_of.is_some())
+    {
+        bail!("grad --estimator fd and --image-of run as one process: start them without mpirun");
+    }
     if args.estimator != Method::FiniteDifferences {
         if vdb_out.extension().and_then(|e| e.to_str()) != Some("vdb") {
             bail!("--output must end in .vdb (got '{}')", vdb_out.display());
         }
-        for path in outputs(&vdb_out, args.image_of.is_some()) {
-            refuse_overwrite(&path, args.force)?;
-        }
+        let outputs = outputs(&vdb_out, args.image_of.is_some());
+        cluster.agree(match cluster.is_root() {
+            true => (outputs.iter()).try_for_each(|path| refuse_overwrite(path, args.force)),
+            false => Ok(()),
+        })?;
     }
-    let scene = Scene::load(&args.scene)?;
+    let (scene, target) = cluster.agree(Scene::load(&args.scene).and_then(|scene| {
+        let target = load_target(args, &scene)?;
+        Ok((scene, target))
+    }))?;
     let image_box = match &args.image_of {
         Some(spec) => Some(resolve_box(
             values::index_box(spec, "--image-of")?,
@@ -178,98 +192,107 @@ pub fn run(args: &Args) -> Result<()> {
         )?),
         None => None,
     };
-    let target = load_target(args, &scene)?;
     let estimator = match args.estimator {
         Method::Estimator(e) => e,
         Method::FiniteDifferences => return finite_differences(args, &scene, target.as_ref()),
     };
-    let options = args.adjoint.options(&scene, estimator)?;
-    let adjoint = adjoint_image(&scene, args.loss, target.as_ref(), &options)?;
-    if let Some(loss) = adjoint.loss {
+    let mut options = args.adjoint.options(&scene, estimator)?;
+    options.progress &= cluster.is_root();
+    let adjoint = adjoint_shared(cluster, &scene, args.loss, target.as_ref(), &options)?;
+    if let (Some(loss), true) = (adjoint.loss, cluster.is_root()) {
         eprintln!("loss ({}) = {loss:.6e}", args.loss);
     }
-    let run = gradient(&scene, &adjoint.delta, &options);
-    report_non_finite(&run.stats);
-    let provenance = Provenance {
-        estimator: estimator.to_string(),
-        spp: options.spp as u64,
-        seed: options.seed.to_string(),
-        loss: args.loss.to_string(),
-        scene: args.scene.display().to_string(),
-        scene_fingerprint: fingerprint::scene(&scene),
-        target_fingerprint: match (&target, args.loss.needs_target()) {
-            (Some(t), true) => image_fingerprint(t),
-            _ => "none".into(),
-        },
-        domain: args.adjoint.domain.to_string(),
-        max_depth: options.adjoint.max_depth,
-        suffix: options.adjoint.suffix.to_string(),
-    };
-    // The derivative image needs the medium; the export does not, so the medium goes first (on
-    // the ×64 cloud it is a third of what a render holds).
-    let derivative = image_box.map(|(lo, hi)| (lo, hi, derivative_image(&scene, lo, hi, &options)));
-    let (medium_grid, transform) = (scene.grid_name.clone(), scene.medium.transform);
-    drop(scene);
-    // What the report needs of the gradient, then the gradient itself goes, and the exported grid
-    // goes as soon as its values are in the bridge's arrays: a large gradient is held twice at a
-    // time, not four times.
-    let GradientRun {
-        gradient, stats, ..
-    } = run;
-    let (gradient_sum, gradient_blocks, gradient_bytes) = (
-        gradient.sum(),
-        gradient.block_count(),
-        gradient.memory_bytes(),
-    );
-    let bricks = gradient.to_brickmap();
-    drop(gradient);
-    let grid = gradient_files::gradient_grid(bricks, &medium_grid, transform, &provenance);
-    let png = vdb_out.with_extension("png");
-    let scale = gradient_files::write_projection_png(&png, &grid)?;
-    let (grid_name, voxels) = (grid.name.clone(), grid.bricks.active_voxel_count());
-    vdb::write_grid_consumed(&vdb_out, grid, false, args.force)?;
-    let picture = match scale {
-        Some(scale) => format!(
-            "and {} (sum along index z; full colour at ±{scale:.3e})",
-            png.display()
-        ),
-        None => "(no picture: no voxel has gradient)".into(),
-    };
-    eprintln!(
-        "wrote {} (grid {grid_name}, {voxels} voxels with gradient, ⟨g, 1⟩ = {gradient_sum:.6e}) {picture}",
-        vdb_out.display(),
-    );
-    if let Some((lo, hi, (image, stats))) = derivative {
-        report_non_finite(&stats);
-        let paths = outputs(&vdb_out, true);
-        let (exr, png) = (&paths[2], &paths[3]);
-        images::write_exr(exr, &image, false)?;
-        let luminance: Vec<f32> = image.pixels.iter().map(|&c| luminance(c)).collect();
-        let scale = colormap::write_signed_png(png, image.width, image.height, &luminance)?;
+    let run = gradient_shared(cluster, &scene, &adjoint.delta, &options);
+    // Rank 0 writes; every rank learns whether it could.
+    let write = move || -> Result<()> {
+        report_non_finite(&run.stats);
+        let provenance = Provenance {
+            estimator: estimator.to_string(),
+            spp: options.spp as u64,
+            seed: options.seed.to_string(),
+            loss: args.loss.to_string(),
+            scene: args.scene.display().to_string(),
+            scene_fingerprint: fingerprint::scene(&scene),
+            target_fingerprint: match (&target, args.loss.needs_target()) {
+                (Some(t), true) => image_fingerprint(t),
+                _ => "none".into(),
+            },
+            domain: args.adjoint.domain.to_string(),
+            max_depth: options.adjoint.max_depth,
+            suffix: options.adjoint.suffix.to_string(),
+        };
+        // The derivative image needs the medium; the export does not, so the medium goes first (on
+        // the ×64 cloud it is a third of what a render holds).
+        let derivative =
+            image_box.map(|(lo, hi)| (lo, hi, derivative_image(&scene, lo, hi, &options)));
+        let (medium_grid, transform) = (scene.grid_name.clone(), scene.medium.transform);
+        drop(scene);
+        // What the report needs of the gradient, then the gradient itself goes, and the exported grid
+        // goes as soon as its values are in the bridge's arrays: a large gradient is held twice at a
+        // time, not four times.
+        let GradientRun {
+            gradient,
+            quantum,
+            stats,
+            ..
+        } = run;
+        let gradient = gradient.converted::<f32>(quantum);
+        let (gradient_sum, gradient_blocks, gradient_bytes) = (
+            gradient.sum(),
+            gradient.block_count(),
+            gradient.memory_bytes(),
+        );
+        let bricks = gradient.to_brickmap();
+        drop(gradient);
+        let grid = gradient_files::gradient_grid(bricks, &medium_grid, transform, &provenance);
+        let png = vdb_out.with_extension("png");
+        let scale = gradient_files::write_projection_png(&png, &grid)?;
+        let (grid_name, voxels) = (grid.name.clone(), grid.bricks.active_voxel_count());
+        vdb::write_grid_consumed(&vdb_out, grid, false, args.force)?;
+        let picture = match scale {
+            Some(scale) => format!(
+                "and {} (sum along index z; full colour at ±{scale:.3e})",
+                png.display()
+            ),
+            None => "(no picture: no voxel has gradient)".into(),
+        };
         eprintln!(
-            "wrote {} and {} (d pixel / d ε for the box {lo}..{hi}; full colour at ±{scale:.3e})",
-            exr.display(),
-            png.display()
+            "wrote {} (grid {grid_name}, {voxels} voxels with gradient, ⟨g, 1⟩ = {gradient_sum:.6e}) {picture}",
+            vdb_out.display(),
         );
-    }
-    if args.stats {
-        let secs = stats.wall.as_secs_f64();
-        println!("estimator            {estimator}");
-        println!("wall time            {secs:.3} s");
-        println!(
-            "ms per spp           {:.2}",
-            1e3 * secs / options.spp as f64
-        );
-        println!("paths/s              {:.0}", stats.paths_per_second());
-        println!("lookups per path     {:.2}", stats.lookups_per_path());
-        println!(
-            "gradient grid        {gradient_blocks} blocks of 4³, {}",
-            super::bytes(gradient_bytes)
-        );
-        println!("non-finite samples   {} (dropped)", stats.non_finite);
-        super::print_peak_memory();
-    }
-    Ok(())
+        if let Some((lo, hi, (image, stats))) = derivative {
+            report_non_finite(&stats);
+            let paths = outputs(&vdb_out, true);
+            let (exr, png) = (&paths[2], &paths[3]);
+            images::write_exr(exr, &image, false)?;
+            let luminance: Vec<f32> = image.pixels.iter().map(|&c| luminance(c)).collect();
+            let scale = colormap::write_signed_png(png, image.width, image.height, &luminance)?;
+            eprintln!(
+                "wrote {} and {} (d pixel / d ε for the box {lo}..{hi}; full colour at ±{scale:.3e})",
+                exr.display(),
+                png.display()
+            );
+        }
+        if args.stats {
+            let secs = stats.wall.as_secs_f64();
+            println!("estimator            {estimator}");
+            println!("wall time            {secs:.3} s");
+            println!(
+                "ms per spp           {:.2}",
+                1e3 * secs / options.spp as f64
+            );
+            println!("paths/s              {:.0}", stats.paths_per_second());
+            println!("lookups per path     {:.2}", stats.lookups_per_path());
+            println!(
+                "gradient grid        {gradient_blocks} blocks of 4³, {}",
+                super::bytes(gradient_bytes)
+            );
+            println!("non-finite samples   {} (dropped)", stats.non_finite);
+            super::print_peak_memory();
+        }
+        Ok(())
+    };
+    cluster.agree(if cluster.is_root() { write() } else { Ok(()) })
 }
 
 /// The finite-difference directions `--fd` names, each with a label.

@@ -107,6 +107,7 @@ impl AdjointArgs {
             seed: s.seed(scene),
             active_only: self.domain == Domain::Active,
             progress: !s.quiet,
+            quantum: None,
         })
     }
 }

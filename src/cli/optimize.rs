@@ -9,6 +9,7 @@ use std::time::Duration;
 use anyhow::{bail, Context, Result};
 
 use super::{set_threads, values};
+use volgrad::cluster::Cluster;
 use volgrad::gradient::adjoint::Estimator;
 use volgrad::optimize::checkpoint;
 use volgrad::optimize::problem::Problem;
@@ -61,7 +62,7 @@ pub struct Args {
 /// Set by Ctrl-C; the loop stops after the current iteration and writes a checkpoint.
 static INTERRUPTED: AtomicBool = AtomicBool::new(false);
 
-pub fn run(args: &Args) -> Result<()> {
+pub fn run(args: &Args, cluster: &Cluster) -> Result<()> {
     set_threads(args.threads)?;
     if args.iterations == Some(0) || args.budget == Some(Duration::ZERO) {
         bail!("--iterations and --budget must be above 0");
@@ -71,7 +72,7 @@ pub fn run(args: &Args) -> Result<()> {
             bail!("--estimators needs at least one estimator");
         }
     }
-    let resume = args.resume.as_deref().map(checkpoint::latest).transpose()?;
+    let resume = cluster.agree(args.resume.as_deref().map(checkpoint::latest).transpose())?;
     let out = match (&args.out, &args.resume) {
         (Some(out), _) => out.clone(),
         (None, Some(dir)) => dir.clone(),
@@ -81,16 +82,19 @@ pub fn run(args: &Args) -> Result<()> {
         .resume
         .as_ref()
         .is_some_and(|dir| same_folder(dir, &out));
-    if !args.force && !resuming_in_place {
-        refuse_non_empty(&out)?;
+    if !args.force && !resuming_in_place && cluster.is_root() {
+        cluster.agree(refuse_non_empty(&out))?;
+    } else {
+        cluster.agree(Ok(()))?;
     }
     let stop = match (args.iterations, args.budget, &args.schedule_from) {
         (Some(n), ..) => Some(Stop::Iterations(n)),
         (_, Some(b), _) => Some(Stop::Budget(b)),
-        (.., Some(log)) => Some(Stop::replay_log(log)?),
+        (.., Some(log)) => Some(cluster.agree(Stop::replay_log(log))?),
         (None, None, None) => None,
     };
-    let problem = Problem::load(&args.run, args.seed, !args.quiet)?;
+    let progress = !args.quiet && cluster.is_root();
+    let problem = cluster.agree(Problem::load(&args.run, args.seed, progress, cluster))?;
     ctrlc::set_handler(|| INTERRUPTED.store(true, Ordering::SeqCst))
         .context("cannot install the Ctrl-C handler")?;
     let options = RunOptions {
@@ -98,11 +102,15 @@ pub fn run(args: &Args) -> Result<()> {
         stop,
         out: out.clone(),
         resume,
-        progress: !args.quiet,
+        progress,
         interrupt: Some(&INTERRUPTED),
+        cluster,
     };
     if let Some(estimators) = &args.estimators {
         let runs = study::equal_time(&problem, estimators, &options)?;
+        if !cluster.is_root() {
+            return Ok(());
+        }
         print!("{}", study::summary(&runs));
         println!(
             "wrote inverse.png/.svg, inverse.csv, renders.png and summary.md in '{}'",
@@ -119,6 +127,9 @@ pub fn run(args: &Args) -> Result<()> {
             args.run.display(),
             out.display()
         );
+    }
+    if !cluster.is_root() {
+        return Ok(());
     }
     let e = &outcome.evaluation;
     println!(

@@ -5,9 +5,11 @@ use std::path::{Path, PathBuf};
 use anyhow::{bail, Result};
 
 use super::{bytes, report_non_finite, set_threads, SamplingArgs};
+use volgrad::cluster::images::render_shared;
+use volgrad::cluster::Cluster;
 use volgrad::io::images;
 use volgrad::io::output::refuse_overwrite;
-use volgrad::render::image::{render, RenderOptions, RenderStats};
+use volgrad::render::image::{RenderOptions, RenderStats};
 use volgrad::render::scene::Scene;
 use volgrad::volume::brickmap::BRICK_VOXELS;
 use volgrad::volume::majorant::{Majorant, MajorantMode};
@@ -58,7 +60,8 @@ fn load_scene(
     Ok(scene)
 }
 
-pub fn run(args: &Args) -> Result<()> {
+/// Under mpirun every rank renders its share of the pixels; rank 0 writes the image.
+pub fn run(args: &Args, cluster: &Cluster) -> Result<()> {
     let sampling = &args.sampling;
     set_threads(sampling.threads)?;
     let exr = args.output.clone().unwrap_or_else(|| {
@@ -71,21 +74,30 @@ pub fn run(args: &Args) -> Result<()> {
         );
     }
     let png = exr.with_extension("png");
-    refuse_overwrite(&exr, args.force)?;
-    refuse_overwrite(&png, args.force)?;
+    let root = cluster.is_root();
+    cluster.agree(if root {
+        refuse_overwrite(&exr, args.force).and_then(|_| refuse_overwrite(&png, args.force))
+    } else {
+        Ok(())
+    })?;
     let loading = std::time::Instant::now();
-    let scene = load_scene(&args.scene, args.majorant, args.majorant_cell)?;
+    let scene = cluster.agree(load_scene(&args.scene, args.majorant, args.majorant_cell))?;
     let load_seconds = loading.elapsed().as_secs_f64();
     let options = RenderOptions {
         spp: sampling.spp(&scene)?,
         seed: sampling.seed(&scene),
         max_depth: sampling.max_depth(&scene),
-        progress: !sampling.quiet,
+        progress: !sampling.quiet && root,
     };
-    let (image, stats) = render(&scene, &options);
+    let (image, stats) = render_shared(cluster, &scene, &options);
+    if !root {
+        return cluster.agree(Ok(()));
+    }
     report_non_finite(&stats);
-    images::write_exr(&exr, &image, args.half)?;
-    images::write_png(&png, &image, scene.settings.exposure)?;
+    cluster.agree(
+        images::write_exr(&exr, &image, args.half)
+            .and_then(|_| images::write_png(&png, &image, scene.settings.exposure)),
+    )?;
     eprintln!("wrote {} and {}", exr.display(), png.display());
     if args.stats {
         print_stats(&scene, &stats, load_seconds);

@@ -181,7 +181,7 @@ pub fn gradient_sweeps(
                 &GradOptions::new(estimator, spp, seed, o.max_depth),
             );
             let seconds = run.stats.wall.as_secs_f64();
-            score(&name, spp, seconds, &run.gradient, r, &scene.medium.grid)
+            score(&name, spp, seconds, &run.values(), r, &scene.medium.grid)
         }));
         bar.finish_and_clear();
     }

@@ -59,7 +59,7 @@ pub fn build_reference(scene: &Scene, o: &ReferenceOptions) -> Reference {
             &adjoint,
             &GradOptions::new(estimator, o.spp, seed, o.max_depth),
         )
-        .gradient;
+        .values();
         sum.merge(&g, 1.0);
         for (v, x) in g.voxels() {
             if x != 0.0 {

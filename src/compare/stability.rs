@@ -275,7 +275,7 @@ pub fn stability(
                     &adjoint,
                     &GradOptions::new(estimator, o.spp, seed, o.max_depth),
                 )
-                .gradient;
+                .values();
                 non_finite += g.voxels().filter(|(_, x)| !x.is_finite()).count();
                 checks
                     .iter()

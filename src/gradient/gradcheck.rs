@@ -98,7 +98,7 @@ pub fn gradcheck(scene: &Scene, options: &GradcheckOptions) -> anyhow::Result<Ve
             ..options.grad
         };
         bar.inc(1);
-        gradient(scene, &adjoint, &o).gradient
+        gradient(scene, &adjoint, &o).values()
     });
     let domain = fd::box_voxels(grid, lo, hi, options.grad.active_only);
     let mut checks = Vec::new();

@@ -10,10 +10,11 @@
 //! chunks of 256 (64 KiB of f32), so that a block costs its values and 12 bytes of origin, without a
 //! heap allocation of its own.
 //!
-//! The value type is a parameter: a pass accumulates in f32 (half the memory and memory traffic)
-//! and runs are reduced into f64 grids, where sums over many runs keep their precision.
+//! The value type is a parameter: a pass accumulates whole quanta (`Quanta`, integers, so that its
+//! sum does not depend on the order samples arrive in: threads or processes), results are f32 or
+//! f64, and runs are reduced into f64 grids, where sums over many runs keep their precision.
 
-use std::ops::{AddAssign, Mul};
+use std::ops::AddAssign;
 
 use glam::IVec3;
 
@@ -24,7 +25,7 @@ use crate::volume::sparse_index::{KeyMap, SparseIndex};
 /// Voxels per block edge (log2), per block, and blocks per storage chunk.
 const BLOCK_LOG2: i32 = 2;
 const BLOCK_MASK: i32 = (1 << BLOCK_LOG2) - 1;
-const BLOCK_VOXELS: usize = 1 << (3 * BLOCK_LOG2);
+pub const BLOCK_VOXELS: usize = 1 << (3 * BLOCK_LOG2);
 const CHUNK_BLOCKS: usize = 256;
 
 /// Offset of voxel `local` (0..4 per axis) in its block, x-major like the leaves.
@@ -43,10 +44,8 @@ fn offset_voxel(o: usize) -> IVec3 {
     )
 }
 
-/// A value a gradient grid accumulates: f32 for a pass's splats, f64 for results.
-pub trait Accumulator:
-    Copy + Default + AddAssign + Mul<Output = Self> + Send + Sync + 'static
-{
+/// A value a gradient grid accumulates: quanta for a pass's splats, f32 or f64 for results.
+pub trait Accumulator: Copy + Default + AddAssign + Send + Sync + 'static {
     fn from_f32(v: f32) -> Self;
     fn from_f64(v: f64) -> Self;
     fn to_f64(self) -> f64;
@@ -73,6 +72,34 @@ impl Accumulator for f64 {
     }
     fn to_f64(self) -> f64 {
         self
+    }
+}
+
+/// A gradient in whole quanta of its pass (`GradientRun::quantum`). Integer sums are exact, hence
+/// associative: the pass's result is the same whatever order its samples are added in, on any
+/// number of threads or processes, where a floating-point sum would change in its last bits. A
+/// sum beyond ±2⁶³ quanta saturates (the quantum leaves 2²⁹ times the largest sample's headroom).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct Quanta(pub i64);
+
+impl AddAssign for Quanta {
+    #[inline]
+    fn add_assign(&mut self, other: Quanta) {
+        self.0 = self.0.saturating_add(other.0);
+    }
+}
+
+impl Accumulator for Quanta {
+    /// Rounded to the nearest quantum (`as` saturates, and maps NaN to 0).
+    #[inline]
+    fn from_f32(v: f32) -> Self {
+        Quanta(v.round() as i64)
+    }
+    fn from_f64(v: f64) -> Self {
+        Quanta(v.round() as i64)
+    }
+    fn to_f64(self) -> f64 {
+        self.0 as f64
     }
 }
 
@@ -187,7 +214,7 @@ impl<T: Accumulator> GradientGrid<T> {
     /// Adds `weights[k] · value` to corner k of the trilinear cell at `base`, resolving the block
     /// once when the cell does not straddle blocks.
     #[inline]
-    pub fn add_cell(&mut self, base: IVec3, weights: &[f32; 8], value: T) {
+    pub fn add_cell(&mut self, base: IVec3, weights: &[f32; 8], value: f32) {
         let local = base & BLOCK_MASK;
         if local.cmplt(IVec3::splat(BLOCK_MASK)).all() {
             let Some(values) = self.block_mut(base) else {
@@ -195,12 +222,12 @@ impl<T: Accumulator> GradientGrid<T> {
             };
             let o = block_offset(local);
             for (k, &w) in weights.iter().enumerate() {
-                values[o + block_offset(corner(k))] += T::from_f32(w) * value;
+                values[o + block_offset(corner(k))] += T::from_f32(w * value);
             }
         } else {
             for (k, &w) in weights.iter().enumerate() {
                 if w > 0.0 {
-                    self.add(base + corner(k), T::from_f32(w) * value);
+                    self.add(base + corner(k), T::from_f32(w * value));
                 }
             }
         }
@@ -238,6 +265,47 @@ impl<T: Accumulator> GradientGrid<T> {
             for (m, v) in mine.iter_mut().zip(theirs.iter()) {
                 *m = T::from_f64(m.to_f64() + weight * v.to_f64());
             }
+        }
+    }
+
+    /// `factor · self` with values of type `U` (quanta to values: `factor` = the quantum).
+    pub fn converted<U: Accumulator>(&self, factor: f64) -> GradientGrid<U> {
+        GradientGrid {
+            block_lo: self.block_lo,
+            block_hi: self.block_hi,
+            slots: self.slots.clone(),
+            origins: self.origins.clone(),
+            chunks: self
+                .chunks
+                .iter()
+                .map(|chunk| {
+                    Box::new(chunk.map(|values| values.map(|v| U::from_f64(factor * v.to_f64()))))
+                })
+                .collect(),
+        }
+    }
+
+    /// Every stored block: its first voxel and its values.
+    pub fn blocks(&self) -> impl Iterator<Item = (IVec3, &[T; BLOCK_VOXELS])> + '_ {
+        (self.origins.iter().enumerate()).map(|(i, &origin)| (origin, self.values(i)))
+    }
+
+    /// Adds `values` to the block whose first voxel is `origin`, created if need be; `false`
+    /// (nothing added) for a block outside the extent.
+    pub fn add_block(&mut self, origin: IVec3, values: &[T; BLOCK_VOXELS]) -> bool {
+        let Some(mine) = self.block_mut(origin) else {
+            return false;
+        };
+        for (m, &v) in mine.iter_mut().zip(values) {
+            *m += v;
+        }
+        true
+    }
+
+    /// `self += other` (same extent) value by value: exact for quanta.
+    pub fn add_grid(&mut self, other: &GradientGrid<T>) {
+        for (origin, values) in other.blocks() {
+            self.add_block(origin, values);
         }
     }
 

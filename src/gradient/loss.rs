@@ -33,22 +33,9 @@ impl Loss {
     /// The loss of `image` against `target` (ignored by `Mean`).
     pub fn evaluate(self, image: &RgbImage, target: Option<&RgbImage>) -> f64 {
         let n = (image.pixels.len() * 3) as f64;
-        let per_pixel = |i: usize, c: Vec3| -> f64 {
-            let t = target.map_or(Vec3::ZERO, |t| t.pixels[i]);
-            let d = c - t;
-            let v = match self {
-                Loss::L2 => d * d,
-                Loss::L1 => d.abs(),
-                Loss::RelativeL2 => d * d / (t * t + RELATIVE_EPSILON),
-                Loss::Mean => c,
-            };
-            (v.x + v.y + v.z) as f64
-        };
-        image
-            .pixels
-            .iter()
-            .enumerate()
-            .map(|(i, &c)| per_pixel(i, c))
+        let target_of = |i: usize| target.map_or(Vec3::ZERO, |t| t.pixels[i]);
+        (image.pixels.iter().enumerate())
+            .map(|(i, &c)| self.pixel_value(c, target_of(i)))
             .sum::<f64>()
             / n
     }
@@ -56,22 +43,34 @@ impl Loss {
     /// ∂loss/∂pixel for every pixel.
     pub fn adjoint(self, image: &RgbImage, target: Option<&RgbImage>) -> Vec<Vec3> {
         let n = (image.pixels.len() * 3) as f32;
-        image
-            .pixels
-            .iter()
-            .enumerate()
-            .map(|(i, &c)| {
-                let t = target.map_or(Vec3::ZERO, |t| t.pixels[i]);
-                let d = c - t;
-                let g = match self {
-                    Loss::L2 => 2.0 * d,
-                    Loss::L1 => d.map(|x| if x == 0.0 { 0.0 } else { x.signum() }),
-                    Loss::RelativeL2 => 2.0 * d / (t * t + RELATIVE_EPSILON),
-                    Loss::Mean => Vec3::ONE,
-                };
-                g / n
-            })
+        let target_of = |i: usize| target.map_or(Vec3::ZERO, |t| t.pixels[i]);
+        (image.pixels.iter().enumerate())
+            .map(|(i, &c)| self.pixel_adjoint(c, target_of(i)) / n)
             .collect()
+    }
+
+    /// One pixel's term of the loss, summed over channels, before the mean: `evaluate` is the
+    /// sum of these over 3 × the pixel count.
+    pub fn pixel_value(self, c: Vec3, t: Vec3) -> f64 {
+        let d = c - t;
+        let v = match self {
+            Loss::L2 => d * d,
+            Loss::L1 => d.abs(),
+            Loss::RelativeL2 => d * d / (t * t + RELATIVE_EPSILON),
+            Loss::Mean => c,
+        };
+        (v.x + v.y + v.z) as f64
+    }
+
+    /// ∂`pixel_value`/∂c.
+    pub fn pixel_adjoint(self, c: Vec3, t: Vec3) -> Vec3 {
+        let d = c - t;
+        match self {
+            Loss::L2 => 2.0 * d,
+            Loss::L1 => d.map(|x| if x == 0.0 { 0.0 } else { x.signum() }),
+            Loss::RelativeL2 => 2.0 * d / (t * t + RELATIVE_EPSILON),
+            Loss::Mean => Vec3::ONE,
+        }
     }
 }
 

@@ -13,9 +13,10 @@ use rayon::prelude::*;
 use crate::gradient::adjoint::{
     AdjointOptions, Estimator, GradientSink, Replay, Scratch, Suffix, DEFAULT_SUFFIX_PATHS,
 };
-use crate::gradient::grid::GradientGrid;
+use crate::gradient::grid::{Accumulator, GradientGrid, Quanta};
 use crate::io::images::RgbImage;
 use crate::render::image::RenderStats;
+use crate::render::pixel_set::PixelSet;
 use crate::render::sampling::{sample_rng, Pass};
 use crate::render::scene::Scene;
 use crate::volume::brickmap::{corner, BrickMap};
@@ -29,6 +30,9 @@ pub struct GradOptions {
     /// Keep only the grid's active voxels (`--domain active`).
     pub active_only: bool,
     pub progress: bool,
+    /// The gradient's quantum (`GradientRun::quantum`); `None`: `quantum_for` this pass's δ.
+    /// Passes whose grids are added together as quanta share one.
+    pub quantum: Option<f64>,
 }
 
 impl GradOptions {
@@ -46,15 +50,43 @@ impl GradOptions {
             seed,
             active_only: false,
             progress: false,
+            quantum: None,
         }
     }
 }
 
+/// The quantum of a gradient pass with adjoint images `deltas` at `spp`: the power of two just
+/// above the largest |δ| / spp, over 2³². A sample δ/spp · d_pixel is then at most 2³²·|d_pixel|
+/// quanta, and a voxel's sum has 2²⁹ such samples' headroom before i64 saturates; samples below
+/// 2⁻³³ of the largest weight round to 0 (an f32 sum keeps 2⁻²⁴ of its total).
+pub fn quantum_for<'a>(deltas: impl IntoIterator<Item = &'a [Vec3]>, spp: u32) -> f64 {
+    let largest = deltas
+        .into_iter()
+        .flatten()
+        .map(|d| d.abs().max_element())
+        .fold(0.0f32, f32::max) as f64
+        / spp.max(1) as f64;
+    if largest > 0.0 && largest.is_finite() {
+        2f64.powi(largest.log2().ceil() as i32 - 32)
+    } else {
+        1.0
+    }
+}
+
 pub struct GradientRun {
-    pub gradient: GradientGrid<f32>,
+    /// The gradient in quanta: `quantum` × these values is ∂loss/∂voxel.
+    pub gradient: GradientGrid<Quanta>,
+    pub quantum: f64,
     /// The radiance of the adjoint pass's own paths (a by-product, same spp).
     pub image: RgbImage,
     pub stats: RenderStats,
+}
+
+impl GradientRun {
+    /// ∂loss/∂voxel as f32 values.
+    pub fn values(&self) -> GradientGrid<f32> {
+        self.gradient.converted(self.quantum)
+    }
 }
 
 /// One gradient sample as a pass records it: `value` spread over the corners of a trilinear cell
@@ -65,12 +97,13 @@ struct Splat {
     value: f32,
 }
 
-/// Records a unit's gradient samples in order (see `over_pixels`), weighted by the pixel's δ / spp.
+/// Records a unit's gradient samples in order (see `over_pixels`), weighted by the pixel's
+/// δ / (spp · quantum).
 /// A unit keeps its samples (about 50 bytes each), not a grid: a grid per unit or per thread would
 /// cost the domain's memory each (hundreds of MiB for a cloud of 30 million voxels).
 struct SplatSink<'a> {
     splats: &'a mut Vec<Splat>,
-    /// δ / spp for the current pixel.
+    /// δ / (spp · quantum) for the current pixel.
     weight: Vec3,
     /// Non-finite samples dropped.
     dropped: u64,
@@ -109,7 +142,7 @@ impl GradientSink for SplatSink<'_> {
 }
 
 /// Adds a unit's samples to the pass's gradient, keeping only active voxels with `active`.
-fn apply(grid: &mut GradientGrid<f32>, splats: &[Splat], active: Option<&BrickMap>) {
+fn apply(grid: &mut GradientGrid<Quanta>, splats: &[Splat], active: Option<&BrickMap>) {
     for s in splats {
         match active {
             None => grid.add_cell(s.base, &s.weights, s.value),
@@ -117,7 +150,7 @@ fn apply(grid: &mut GradientGrid<f32>, splats: &[Splat], active: Option<&BrickMa
                 for (k, &w) in s.weights.iter().enumerate() {
                     let voxel = s.base + corner(k);
                     if w > 0.0 && map.is_active(voxel) {
-                        grid.add(voxel, w * s.value);
+                        grid.add(voxel, Quanta::from_f32(w * s.value));
                     }
                 }
             }
@@ -186,25 +219,25 @@ struct InOrder<T, C> {
 /// order. Returns the pass's stats (paths, wall time, tracking counters, non-finite samples
 /// dropped).
 ///
-/// Units depend on the image and spp only and are consumed in order whatever the thread count, so
-/// a pass's floating-point result depends on its seed only (an optimisation resumed on another
-/// machine continues bit for bit). Units are started in order and consumed as soon as their
-/// predecessors are, so only about one accumulator per thread is alive at a time.
+/// Units are consumed in order whatever the thread count (a derivative image's pixels land in
+/// place either way; a gradient's quanta add up the same in any order). Units are started in
+/// order and consumed as soon as their predecessors are, so only about one accumulator per thread
+/// is alive at a time. `progress`: the progress bar's label, if one is shown.
 fn over_pixels<T: Send>(
     scene: &Scene,
+    set: &PixelSet,
     spp: u32,
-    progress: bool,
-    what: &str,
+    progress: Option<&str>,
     init: impl Fn() -> T + Sync + Send,
     per_pixel: impl Fn(&mut T, u32, u32, &mut Worker) + Sync + Send,
     consume: impl FnMut(T) + Send,
 ) -> RenderStats {
     let start = Instant::now();
-    let (w, h) = (scene.camera.width, scene.camera.height);
-    let pixels = w as u64 * h as u64;
+    let w = scene.camera.width;
+    let pixels = set.len();
     let unit_pixels = unit_pixels(pixels, spp);
     let units = pixels.div_ceil(unit_pixels);
-    let bar = crate::io::progress::bar(progress, pixels, what);
+    let bar = crate::io::progress::bar(progress.is_some(), pixels, progress.unwrap_or_default());
     let next_unit = AtomicU64::new(0);
     let in_order = Mutex::new(InOrder {
         next: 0,
@@ -225,12 +258,8 @@ fn over_pixels<T: Send>(
                 let first = unit * unit_pixels;
                 let last = (first + unit_pixels).min(pixels);
                 for i in first..last {
-                    per_pixel(
-                        &mut acc,
-                        (i % w as u64) as u32,
-                        (i / w as u64) as u32,
-                        &mut worker,
-                    );
+                    let p = set.pixel(i);
+                    per_pixel(&mut acc, p % w, p / w, &mut worker);
                 }
                 bar.inc(last - first);
                 let mut guard = in_order.lock().expect("no unit panicked");
@@ -246,7 +275,7 @@ fn over_pixels<T: Send>(
         .collect();
     bar.finish_and_clear();
     let mut stats = RenderStats {
-        paths: w as u64 * h as u64 * spp as u64,
+        paths: pixels * spp as u64,
         ..Default::default()
     };
     for worker in workers {
@@ -294,24 +323,41 @@ impl GradientPass<'_> {
 
 /// The gradient of a loss whose adjoint image is `adjoint` (∂loss/∂pixel), per voxel.
 pub fn gradient(scene: &Scene, adjoint: &[Vec3], options: &GradOptions) -> GradientRun {
+    let pixels = scene.camera.width * scene.camera.height;
+    gradient_of(scene, adjoint, options, &PixelSet::All(pixels))
+}
+
+/// `gradient` from the pixels of `set` only (a rank's share, a pixel batch); the image holds
+/// those pixels, 0 elsewhere.
+pub fn gradient_of(
+    scene: &Scene,
+    adjoint: &[Vec3],
+    options: &GradOptions,
+    set: &PixelSet,
+) -> GradientRun {
     let camera = &scene.camera;
     let w = camera.width;
     let mut gradient = GradientGrid::for_medium(&scene.medium);
     let mut image = RgbImage::new(camera.width, camera.height);
     let active = options.active_only.then_some(&scene.medium.grid);
     let spp = options.spp;
+    let quantum = options
+        .quantum
+        .unwrap_or_else(|| quantum_for([adjoint], spp));
+    // In f64: for a tiny δ, 1/quantum exceeds f32's range though δ/quantum does not.
+    let per_quantum = 1.0 / (spp as f64 * quantum);
     let pass = GradientPass { scene, options };
     let stats = over_pixels(
         scene,
+        set,
         spp,
-        options.progress,
-        "gradient",
+        options.progress.then_some("gradient"),
         || (Vec::<Splat>::new(), Vec::<(u32, Vec3)>::new()),
         |(splats, pixels), x, y, worker| {
             let index = y * w + x;
             let mut sink = SplatSink {
                 splats,
-                weight: adjoint[index as usize] / spp as f32,
+                weight: (adjoint[index as usize].as_dvec3() * per_quantum).as_vec3(),
                 dropped: 0,
             };
             let mut sum = Vec3::ZERO;
@@ -333,6 +379,7 @@ pub fn gradient(scene: &Scene, adjoint: &[Vec3], options: &GradOptions) -> Gradi
     );
     GradientRun {
         gradient,
+        quantum,
         image,
         stats,
     }
@@ -352,9 +399,9 @@ pub fn derivative_image(
     let mut image = RgbImage::new(camera.width, camera.height);
     let stats = over_pixels(
         scene,
+        &PixelSet::All(camera.width * camera.height),
         spp,
-        options.progress,
-        "d pixel",
+        options.progress.then_some("d pixel"),
         Vec::<(u32, Vec3)>::new,
         |pixels, x, y, worker| {
             let mut sink = BoxSink {

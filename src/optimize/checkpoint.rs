@@ -23,7 +23,7 @@ use crate::optimize::schedule::Stop;
 use crate::volume::brickmap::BRICK_VOXELS;
 use crate::volume::transform::IndexTransform;
 
-const MAGIC: &[u8] = b"volgrad optimizer state 5\n";
+const MAGIC: &[u8] = b"volgrad optimizer state 6\n";
 
 /// Where a run is, apart from θ and Adam's moments.
 #[derive(Debug, Clone, Default, PartialEq)]

@@ -8,9 +8,11 @@ use anyhow::Result;
 use glam::IVec3;
 use rayon::prelude::*;
 
+use crate::cluster::images::render_shared;
+use crate::cluster::Cluster;
 use crate::io::images::{self, RgbImage};
 use crate::optimize::problem::{Problem, View};
-use crate::render::image::{render, RenderOptions};
+use crate::render::image::RenderOptions;
 use crate::render::scene::Scene;
 
 /// Seeds the held-out renders apart from training and targets; the same for every evaluation, so
@@ -60,8 +62,9 @@ pub struct Evaluation {
     pub renders: Vec<RgbImage>,
 }
 
-/// Evaluates `scene` (the unknown at level `level`) on the held-out views and against the truth.
-pub fn evaluate(problem: &Problem, scene: &Scene, level: usize) -> Evaluation {
+/// Evaluates `scene` (the unknown at level `level`) on the held-out views and against the truth;
+/// every rank renders its share of each view's pixels, and all get the same evaluation.
+pub fn evaluate(problem: &Problem, scene: &Scene, level: usize, cluster: &Cluster) -> Evaluation {
     let mut scene = scene.clone();
     let mut e = Evaluation::default();
     let (mut lit, mut relit) = (0, Vec::new());
@@ -73,7 +76,7 @@ pub fn evaluate(problem: &Problem, scene: &Scene, level: usize) -> Evaluation {
             max_depth: problem.settings.max_depth,
             progress: false,
         };
-        let image = render(&scene, &options).0;
+        let image = render_shared(cluster, &scene, &options).0;
         let view_psnr = psnr(&image, &view.target);
         e.psnr += view_psnr;
         if view.relit {

@@ -29,9 +29,13 @@ pub struct LogRow {
     pub active_voxels: u64,
     /// Memory of θ and Adam's moments.
     pub state_bytes: u64,
+    /// What this iteration's gradient sum over the ranks sent from each rank (0 in one
+    /// process), and its seconds, included in `seconds`.
+    pub reduce_bytes: u64,
+    pub reduce_seconds: f64,
 }
 
-const COLUMNS: [&str; 13] = [
+const COLUMNS: [&str; 15] = [
     "iteration",
     "level",
     "fraction",
@@ -45,6 +49,8 @@ const COLUMNS: [&str; 13] = [
     "haze",
     "active_voxels",
     "state_bytes",
+    "reduce_bytes",
+    "reduce_seconds",
 ];
 
 fn optional(v: Option<f64>) -> String {
@@ -61,7 +67,7 @@ impl LogRow {
         self.haze = e.haze;
     }
 
-    fn cells(&self) -> [String; 13] {
+    fn cells(&self) -> [String; 15] {
         [
             self.iteration.to_string(),
             self.level.to_string(),
@@ -77,6 +83,8 @@ impl LogRow {
             optional(self.haze),
             self.active_voxels.to_string(),
             self.state_bytes.to_string(),
+            self.reduce_bytes.to_string(),
+            format!("{}", self.reduce_seconds),
         ]
     }
 
@@ -130,6 +138,8 @@ impl LogRow {
             haze: opt(10)?,
             active_voxels: cells[11].parse()?,
             state_bytes: cells[12].parse()?,
+            reduce_bytes: cells[13].parse()?,
+            reduce_seconds: cells[14].parse()?,
         })
     }
 }
@@ -160,6 +170,8 @@ mod tests {
                 volume_rmse: Some(0.02),
                 haze: Some(0.01),
                 state_bytes: 4096,
+                reduce_bytes: 123456,
+                reduce_seconds: 0.25,
                 ..Default::default()
             },
         ];

@@ -8,6 +8,7 @@ pub mod brick_gradient;
 pub mod checkpoint;
 pub mod descent;
 pub mod evaluate;
+pub mod iteration;
 pub mod log;
 pub mod optimizer_file;
 pub mod parameters;

@@ -37,6 +37,11 @@ pub struct OptimizerFile {
     /// when there are fewer).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub batch: Option<u32>,
+    /// Pixels per iteration instead of whole views: drawn across every training view (a uniform
+    /// view, then a uniform pixel of it), so that the cost of an iteration does not follow the
+    /// views' size or number, and ranks split pixels, not views.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub batch_pixels: Option<u32>,
     /// Samples per pixel of each view's gradient pass.
     pub spp: u32,
     /// Samples per pixel of the primal render whose residual against the target is the adjoint
@@ -79,6 +84,7 @@ impl Default for OptimizerFile {
             level_lr: 0.5,
             loss: Loss::L2,
             batch: None,
+            batch_pixels: None,
             spp: 8,
             primal_spp: None,
             iterations: 100,
@@ -97,6 +103,9 @@ impl Default for OptimizerFile {
         }
     }
 }
+
+/// The most pixels one iteration may draw (2²⁴: 512 times the sample-matching paper's 32,768).
+pub const MAX_BATCH_PIXELS: u32 = 1 << 24;
 
 #[derive(Debug, Clone, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
@@ -170,8 +179,17 @@ impl OptimizerFile {
         if self.loss == Loss::Mean {
             bail!("optimizer.loss must compare against the targets: l2, l1 or relative-l2");
         }
+        if self.batch.is_some() && self.batch_pixels.is_some() {
+            bail!("optimizer.batch (views) and optimizer.batch_pixels (pixels) exclude each other: give one");
+        }
+        if let Some(n) = self.batch_pixels.filter(|&n| n > MAX_BATCH_PIXELS) {
+            bail!(
+                "optimizer.batch_pixels is {n}, more than {MAX_BATCH_PIXELS} pixels per iteration"
+            );
+        }
         for (key, n) in [
             ("batch", self.batch.unwrap_or(1)),
+            ("batch_pixels", self.batch_pixels.unwrap_or(1)),
             ("spp", self.spp),
             ("primal_spp", self.primal_spp.unwrap_or(self.spp)),
             ("iterations", self.iterations),
@@ -201,10 +219,13 @@ impl OptimizerFile {
     }
 
     /// Fills in what the scene decides: the learning rate (from `step_optical_depth`), the batch
-    /// (8, or the number of views) and `primal_spp` (2 × spp).
+    /// (8, or the number of views, unless pixel batches are asked for) and `primal_spp`
+    /// (2 × spp).
     pub fn resolve(&mut self, units: &SceneUnits, views: usize) {
         self.lr = Some(self.lr.unwrap_or(units.theta(self.step_optical_depth)));
-        self.batch = Some(self.batch.unwrap_or(8.min(views as u32)));
+        if self.batch_pixels.is_none() {
+            self.batch = Some(self.batch.unwrap_or(8.min(views as u32)));
+        }
         self.primal_spp = Some(self.primal_spp.unwrap_or(2 * self.spp));
     }
 

@@ -7,6 +7,7 @@ use std::path::Path;
 use anyhow::{bail, Context, Result};
 use glam::{DAffine3, DQuat, DVec3, IVec3, Vec3};
 
+use crate::cluster::Cluster;
 use crate::gradient::loss::Loss;
 use crate::io::fingerprint::Fingerprint;
 use crate::io::vdb::{self, GridSelector, LevelSet};
@@ -17,7 +18,9 @@ use crate::optimize::resample::Moments;
 use crate::optimize::run_file::{BoundsFile, RunFile, StartFile};
 use crate::optimize::scene_units::{self, SceneUnits};
 use crate::optimize::settings_toml;
-use crate::optimize::targets::{image_power, view_specs, LightSets, TargetRenderer};
+use crate::optimize::targets::{
+    image_power, read_views, view_specs, LightSets, ReadView, TargetRenderer,
+};
 use crate::render::camera::Camera;
 use crate::render::lights::Lights;
 use crate::render::scene::Scene;
@@ -125,6 +128,8 @@ pub struct Settings {
     pub level_lr: f32,
     pub loss: Loss,
     pub batch: u32,
+    /// Pixels per iteration drawn across the training views; 0: `batch` whole views.
+    pub batch_pixels: u32,
     /// Samples per pixel of the gradient pass.
     pub spp: u32,
     /// Samples per pixel of the primal render that gives the adjoint image.
@@ -170,30 +175,25 @@ impl Problem {
     /// the targets a truth gives. `seed` overrides the run file's for the optimisation only: the
     /// targets are the run file's data, rendered from its own seed, so that runs of several seeds
     /// fit the same images.
-    pub fn load(run_path: &Path, seed: Option<u64>, progress: bool) -> Result<Problem> {
-        let mut file = RunFile::read(run_path)?;
-        file.target_seed = Some(file.target_seed.unwrap_or(file.seed));
-        file.seed = seed.unwrap_or(file.seed);
-        let mut scene = Scene::load(&RunFile::resolve(run_path, &file.scene)).context("scene")?;
-        if scene.medium.density_scale <= 0.0 {
-            bail!(
-                "scene: medium.density_scale is {}: a vacuum's images do not depend on the grid, so it cannot be reconstructed from them",
-                scene.medium.density_scale
-            );
-        }
-        let grids = KnownGrids::read(run_path, &file)?;
-        let mut domain = final_domain(&file, &grids)?;
+    /// Reads the run file and what it names (every rank reads for itself, then the ranks agree),
+    /// renders the targets no image gives (all ranks together), and resolves the settings.
+    pub fn load(
+        run_path: &Path,
+        seed: Option<u64>,
+        progress: bool,
+        cluster: &Cluster,
+    ) -> Result<Problem> {
+        let Inputs {
+            mut file,
+            mut scene,
+            grids,
+            mut domain,
+            training,
+            held_out,
+            light_sets,
+        } = cluster.agree(Inputs::read(run_path, seed))?;
         let world_box = domain.world_box();
-        let training = view_specs(run_path, "view", &file.view, &file.views, world_box)?;
-        let held_out = view_specs(
-            run_path,
-            "holdout",
-            &file.holdout,
-            &file.holdouts,
-            world_box,
-        )?;
-
-        let cameras: Vec<Camera> = training.iter().map(|v| v.camera).collect();
+        let cameras: Vec<Camera> = training.iter().map(|v| v.camera()).collect();
         let centre = (world_box.0 + world_box.1) / 2.0;
         let voxel = domain.transform.voxel_size().min_element();
         let footprint = scene_units::footprint(&cameras, centre) / voxel;
@@ -226,10 +226,10 @@ impl Problem {
             seed: file.target_seed.unwrap_or(file.seed),
             progress,
             rendered: 0,
+            cluster,
         };
-        let mut light_sets = LightSets::new(scene.lights.clone());
-        let views = targets.views(run_path, training, &mut light_sets)?;
-        let mut holdouts = targets.views(run_path, held_out, &mut light_sets)?;
+        let views = targets.complete(training, &light_sets)?;
+        let mut holdouts = targets.complete(held_out, &light_sets)?;
         for holdout in &mut holdouts {
             holdout.relit = !views.iter().any(|v| v.light_set == holdout.light_set);
         }
@@ -297,6 +297,55 @@ impl Problem {
             self.domain.bounds(level),
         );
         scene
+    }
+}
+
+/// What a run file names, read: what one rank may fail to read while another does not.
+struct Inputs {
+    file: RunFile,
+    scene: Scene,
+    grids: KnownGrids,
+    domain: Domain,
+    training: Vec<ReadView>,
+    held_out: Vec<ReadView>,
+    light_sets: LightSets,
+}
+
+impl Inputs {
+    fn read(run_path: &Path, seed: Option<u64>) -> Result<Inputs> {
+        let mut file = RunFile::read(run_path)?;
+        file.target_seed = Some(file.target_seed.unwrap_or(file.seed));
+        file.seed = seed.unwrap_or(file.seed);
+        let scene = Scene::load(&RunFile::resolve(run_path, &file.scene)).context("scene")?;
+        if scene.medium.density_scale <= 0.0 {
+            bail!(
+                "scene: medium.density_scale is {}: a vacuum's images do not depend on the grid, so it cannot be reconstructed from them",
+                scene.medium.density_scale
+            );
+        }
+        let grids = KnownGrids::read(run_path, &file)?;
+        let domain = final_domain(&file, &grids)?;
+        let world_box = domain.world_box();
+        let training = view_specs(run_path, "view", &file.view, &file.views, world_box)?;
+        let held_out = view_specs(
+            run_path,
+            "holdout",
+            &file.holdout,
+            &file.holdouts,
+            world_box,
+        )?;
+        let mut light_sets = LightSets::new(scene.lights.clone());
+        let training = read_views(run_path, training, &mut light_sets)?;
+        let held_out = read_views(run_path, held_out, &mut light_sets)?;
+        Ok(Inputs {
+            file,
+            scene,
+            grids,
+            domain,
+            training,
+            held_out,
+            light_sets,
+        })
     }
 }
 
@@ -393,6 +442,7 @@ impl Settings {
             level_lr: o.level_lr,
             loss: o.loss,
             batch: o.batch.unwrap_or(1),
+            batch_pixels: o.batch_pixels.unwrap_or(0),
             spp: o.spp,
             primal_spp: o.primal_spp.unwrap_or(o.spp),
             max_depth,

@@ -26,13 +26,10 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
 
 use anyhow::{Context, Result};
-use rand::seq::SliceRandom;
-use rand::RngCore;
 
+use crate::cluster::sparse_sum::Traffic;
+use crate::cluster::Cluster;
 use crate::gradient::adjoint::Estimator;
-use crate::gradient::grid::GradientGrid;
-use crate::gradient::objective::adjoint_image;
-use crate::gradient::passes::{gradient, GradOptions};
 use crate::io::chart::{self, Chart, Scale, Series};
 use crate::io::fingerprint::Fingerprint;
 use crate::io::output::write_bytes_whole;
@@ -41,13 +38,13 @@ use crate::optimize::adam::Adam;
 use crate::optimize::brick_gradient::BrickGradient;
 use crate::optimize::checkpoint::{self, Position};
 use crate::optimize::evaluate::{evaluate, write_holdout_picture, Evaluation};
+use crate::optimize::iteration::images_gradient;
 use crate::optimize::log::LogRow;
 use crate::optimize::parameters::Parameters;
 use crate::optimize::problem::Problem;
 use crate::optimize::resample::upsample;
 use crate::optimize::schedule::Stop;
 use crate::optimize::smoothing::smooth;
-use crate::render::sampling::pixel_rng;
 use crate::render::scene::Scene;
 
 pub struct RunOptions<'a> {
@@ -61,6 +58,9 @@ pub struct RunOptions<'a> {
     pub progress: bool,
     /// Set (by Ctrl-C) to stop after the current iteration, with a checkpoint.
     pub interrupt: Option<&'a AtomicBool>,
+    /// The ranks sharing the run (`Cluster::single()` for one process). Every rank runs the
+    /// same loop; rank 0 writes the files and shows the progress bar.
+    pub cluster: &'a Cluster,
 }
 
 pub struct Outcome {
@@ -109,30 +109,34 @@ impl<'a> Run<'a> {
     /// A fresh run at the start (evaluated, so that charts show what the optimisation gained), or
     /// the checkpoint `options.resume` names.
     fn start(problem: &'a Problem, options: &'a RunOptions<'a>) -> Result<Self> {
+        let cluster = options.cluster;
         let fingerprint = run_fingerprint(problem, options.estimator);
-        let (mut position, parameters) = match &options.resume {
-            Some(state) => checkpoint::read_state(state, &fingerprint)?,
-            None => (Position::default(), problem.start.clone()),
+        let resumed = match &options.resume {
+            Some(state) => checkpoint::read_state(state, &fingerprint),
+            None => Ok((Position::default(), problem.start.clone())),
         };
+        let (mut position, parameters) = cluster.agree(resumed)?;
         let stop = options
             .stop
             .clone()
             .or_else(|| position.stop.clone())
             .unwrap_or(Stop::Iterations(problem.settings.iterations.into()));
         position.stop = Some(stop.clone());
-        std::fs::create_dir_all(&options.out).with_context(|| {
-            format!(
-                "cannot create the output directory '{}'",
-                options.out.display()
-            )
-        })?;
-        write_bytes_whole(&options.out.join("settings.toml"), &problem.settings_toml)?;
+        cluster.agree(on_root(cluster, || {
+            std::fs::create_dir_all(&options.out).with_context(|| {
+                format!(
+                    "cannot create the output directory '{}'",
+                    options.out.display()
+                )
+            })?;
+            write_bytes_whole(&options.out.join("settings.toml"), &problem.settings_toml)
+        }))?;
         let mut run = Run {
             problem,
             options,
             fingerprint,
             log: LogRow::parse_all(&position.log)?,
-            bar: progress_bar(options.progress, &stop),
+            bar: progress_bar(options.progress && cluster.is_root(), &stop),
             stop,
             position,
             parameters,
@@ -158,7 +162,7 @@ impl<'a> Run<'a> {
     fn evaluate(&self) -> Evaluation {
         let level = self.position.level as usize;
         let scene = self.problem.scene_at(self.parameters.to_brickmap(), level);
-        evaluate(self.problem, &scene, level)
+        evaluate(self.problem, &scene, level, self.options.cluster)
     }
 
     /// This iteration's row of the log, before any evaluation.
@@ -192,8 +196,10 @@ impl<'a> Run<'a> {
         let mut scene = problem.scene_at(self.parameters.to_brickmap(), level);
         let iteration = self.position.iteration;
         let estimator = self.options.estimator;
-        let loss = step(
+        let cluster = self.options.cluster;
+        let (loss, traffic) = step(
             problem,
+            cluster,
             &mut scene,
             &mut self.parameters,
             estimator,
@@ -202,13 +208,19 @@ impl<'a> Run<'a> {
             &adam,
         )?;
         self.position.iteration += 1;
-        self.position.optimisation_seconds += started.elapsed().as_secs_f64();
-        self.interrupted = self
-            .options
-            .interrupt
-            .is_some_and(|flag| flag.load(Ordering::SeqCst));
+        // The ranks agree on the time (the budget's fraction) and on an interruption: mpirun
+        // forwards Ctrl-C to every rank, but they may see it in different iterations.
+        let interrupted = (self.options.interrupt).is_some_and(|flag| flag.load(Ordering::SeqCst));
+        let agreed = cluster.max_each([
+            started.elapsed().as_secs_f64(),
+            f64::from(u8::from(interrupted)),
+        ]);
+        self.position.optimisation_seconds += agreed[0];
+        self.interrupted = agreed[1] > 0.0;
         let done = self.interrupted || self.fraction() >= 1.0;
         let mut row = self.row(loss, fraction);
+        row.reduce_bytes = traffic.bytes_sent;
+        row.reduce_seconds = traffic.seconds;
         let it = self.position.iteration;
         // A checkpoint comes with an evaluation: its VDB carries the held-out PSNR and its
         // picture shows the held-out renders.
@@ -218,7 +230,7 @@ impl<'a> Run<'a> {
             self.evaluation = self.evaluate();
             row.record(&self.evaluation);
             if checkpoint_now {
-                self.write_checkpoint(&row)?;
+                cluster.agree(on_root(cluster, || self.write_checkpoint(&row)))?;
             }
             self.position.evaluation_seconds += started.elapsed().as_secs_f64();
             row.evaluation_seconds = self.position.evaluation_seconds;
@@ -233,7 +245,10 @@ impl<'a> Run<'a> {
         self.bar
             .set_position(self.stop.bar_position(p.iteration, p.optimisation_seconds));
         if evaluated {
-            write_bytes_whole(&self.options.out.join("log.csv"), LogRow::csv(&self.log))?;
+            let log = self.options.out.join("log.csv");
+            cluster.agree(on_root(cluster, || {
+                write_bytes_whole(&log, LogRow::csv(&self.log))
+            }))?;
         }
         Ok(())
     }
@@ -311,8 +326,13 @@ impl<'a> Run<'a> {
         // time quadratic in the run's length.
         self.position.log = LogRow::csv_rows(&self.log);
         if !self.interrupted {
-            self.write_grid(&self.options.out.join("final.vdb"))?;
-            write_progress_chart(&self.options.out, &self.log)?;
+            let out = &self.options.out;
+            self.options
+                .cluster
+                .agree(on_root(self.options.cluster, || {
+                    self.write_grid(&out.join("final.vdb"))?;
+                    write_progress_chart(out, &self.log)
+                }))?;
         }
         Ok(Outcome {
             position: self.position,
@@ -323,57 +343,36 @@ impl<'a> Run<'a> {
     }
 }
 
-/// One iteration's gradient and Adam step; returns the training loss (batch mean, prior
-/// included).
+/// One iteration's gradient (`iteration`) and Adam step; returns the training loss (batch mean,
+/// prior included) and what the gradient's sum over the ranks moved.
+#[allow(clippy::too_many_arguments)]
 fn step(
     problem: &Problem,
+    cluster: &Cluster,
     scene: &mut Scene,
     parameters: &mut Parameters,
     estimator: Estimator,
     iteration: u64,
     level: usize,
     adam: &Adam,
-) -> Result<f64> {
+) -> Result<(f64, Traffic)> {
     let s = &problem.settings;
-    let mut total = GradientGrid::<f64>::for_medium(&scene.medium);
-    let mut loss = 0.0;
-    let views = batch(problem.views.len(), s.batch, s.seed, iteration);
-    let weight = 1.0 / views.len() as f64;
-    let mut lit = 0;
-    for (slot, &v) in views.iter().enumerate() {
-        let view = &problem.views[v];
-        problem.look_through(scene, &mut lit, view);
-        let seed = pixel_rng(s.seed, iteration, slot as u64).next_u64();
-        let options = GradOptions::new(estimator, s.spp, seed, s.max_depth);
-        let primal = GradOptions {
-            spp: s.primal_spp,
-            ..options
-        };
-        let adjoint = adjoint_image(scene, s.loss, Some(&view.target), &primal)?;
-        loss += weight * adjoint.loss.unwrap_or(0.0);
-        let run = gradient(scene, &adjoint.delta, &options);
-        total.merge(&run.gradient, weight);
-    }
+    let images = images_gradient(problem, cluster, scene, estimator, iteration)?;
     let passes = if s.smooth_gradient { level as u32 } else { 0 };
     let (lo, hi) = problem.domain.voxel_box(level);
-    let gradient = smooth(BrickGradient::from_voxels(total.voxels()), passes, lo, hi);
+    let gradient = smooth(BrickGradient::from_voxels(images.voxels), passes, lo, hi);
     let level_voxels = problem.domain.voxel_count_at(level);
-    loss += parameters.descend(adam, &gradient, &s.priors, level_voxels);
-    Ok(loss)
+    let loss = images.loss + parameters.descend(adam, &gradient, &s.priors, level_voxels);
+    Ok((loss, images.traffic))
 }
 
-/// The views of iteration `iteration`: consecutive slots of a sequence of epochs, each epoch a
-/// fresh permutation of all views, so every view is used once per epoch.
-pub fn batch(views: usize, size: u32, seed: u64, iteration: u64) -> Vec<usize> {
-    let n = views as u64;
-    (0..u64::from(size))
-        .map(|k| {
-            let slot = iteration * u64::from(size) + k;
-            let mut order: Vec<usize> = (0..views).collect();
-            order.shuffle(&mut pixel_rng(seed, slot / n, u64::MAX));
-            order[(slot % n) as usize]
-        })
-        .collect()
+/// `write()` on rank 0; `Ok` on the others (whose result comes from `Cluster::agree`).
+fn on_root(cluster: &Cluster, write: impl FnOnce() -> Result<()>) -> Result<()> {
+    if cluster.is_root() {
+        write()
+    } else {
+        Ok(())
+    }
 }
 
 /// progress.png/.svg: held-out PSNR (top) and training loss (bottom) against optimisation time.
@@ -426,23 +425,4 @@ fn progress_bar(progress: bool, stop: &Stop) -> indicatif::ProgressBar {
         bar.set_message("starting");
     }
     bar
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn batches_use_every_view_once_per_epoch() {
-        let (views, size) = (6, 4);
-        let slots: Vec<usize> = (0..3).flat_map(|i| batch(views, size, 7, i)).collect();
-        // 12 slots = two epochs of 6 views.
-        for epoch in slots.chunks(views) {
-            let mut sorted = epoch.to_vec();
-            sorted.sort();
-            assert_eq!(sorted, (0..views).collect::<Vec<_>>());
-        }
-        assert_ne!(slots[..6], slots[6..], "each epoch is reshuffled");
-        assert_eq!(batch(views, size, 7, 1), batch(views, size, 7, 1));
-    }
 }

@@ -88,6 +88,7 @@ pub fn equal_time(
             resume: None,
             progress: options.progress,
             interrupt: options.interrupt,
+            cluster: options.cluster,
         };
         let outcome = reconstruct(problem, &run_options)?;
         if outcome.interrupted {

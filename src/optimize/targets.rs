@@ -8,11 +8,13 @@ use std::path::{Path, PathBuf};
 use anyhow::{bail, Context, Result};
 use glam::Vec3;
 
+use crate::cluster::images::render_shared;
+use crate::cluster::Cluster;
 use crate::io::images::{self, RgbImage};
 use crate::optimize::run_file::{RunFile, ViewFile, ViewSetFile, MAX_VIEWS};
 use crate::optimize::transforms;
 use crate::render::camera::Camera;
-use crate::render::image::{render, RenderOptions};
+use crate::render::image::RenderOptions;
 use crate::render::lights::Lights;
 use crate::render::sampling::TARGET_SEED_SALT;
 use crate::render::scene::{load_lights, CameraFile, Scene};
@@ -148,8 +150,54 @@ pub fn view_specs(
     Ok(specs)
 }
 
-/// Gives views their targets, rendering from the truth the ones no image gives.
-pub struct TargetRenderer {
+/// A view of the run file with its lights resolved and its target image read, if it has one.
+pub struct ReadView {
+    name: String,
+    camera: Camera,
+    light_set: usize,
+    target: Option<RgbImage>,
+}
+
+impl ReadView {
+    pub fn camera(&self) -> Camera {
+        self.camera
+    }
+}
+
+/// The views of `specs` with their lights indexed in `sets` and their image files read: all that
+/// can fail on one rank and not another (a file one node cannot read), done before any rank
+/// renders with the others.
+pub fn read_views(
+    run_path: &Path,
+    specs: Vec<ViewSpec>,
+    sets: &mut LightSets,
+) -> Result<Vec<ReadView>> {
+    let dir = run_path.parent().unwrap_or(Path::new("."));
+    let mut views = Vec::with_capacity(specs.len());
+    for ViewSpec {
+        name,
+        camera,
+        light,
+        image,
+    } in specs
+    {
+        let light_set = sets.index(&light, dir).with_context(|| name.clone())?;
+        let target = image
+            .map(|file| read_target(&file, &camera, &name))
+            .transpose()?;
+        views.push(ReadView {
+            name,
+            camera,
+            light_set,
+            target,
+        });
+    }
+    Ok(views)
+}
+
+/// Gives views their targets, rendering from the truth the ones no image gives (every rank its
+/// share of the pixels).
+pub struct TargetRenderer<'a> {
     /// The scene with the true grid; each render sets its camera.
     pub truth: Option<Scene>,
     pub spp: u32,
@@ -157,38 +205,26 @@ pub struct TargetRenderer {
     pub progress: bool,
     /// Targets rendered so far (each gets its own random streams).
     pub rendered: u64,
+    pub cluster: &'a Cluster,
 }
 
-impl TargetRenderer {
-    /// The views of `specs`, their lights indexed in `sets` (`relit` still false).
-    pub fn views(
-        &mut self,
-        run_path: &Path,
-        specs: Vec<ViewSpec>,
-        sets: &mut LightSets,
-    ) -> Result<Vec<View>> {
-        let dir = run_path.parent().unwrap_or(Path::new("."));
-        let mut views = Vec::with_capacity(specs.len());
-        for ViewSpec {
-            name,
-            camera,
-            light,
-            image,
-        } in specs
-        {
-            let light_set = sets.index(&light, dir).with_context(|| name.clone())?;
-            let target = match image {
-                Some(file) => read_target(&file, &camera, &name)?,
-                None => self.render(&camera, &sets.lights[light_set], &name)?,
-            };
-            views.push(View {
-                camera,
-                light_set,
-                relit: false,
-                target,
-            });
-        }
-        Ok(views)
+impl TargetRenderer<'_> {
+    /// The views of `read` with their targets (`relit` still false).
+    pub fn complete(&mut self, read: Vec<ReadView>, sets: &LightSets) -> Result<Vec<View>> {
+        read.into_iter()
+            .map(|v| {
+                let target = match v.target {
+                    Some(image) => image,
+                    None => self.render(&v.camera, &sets.lights[v.light_set], &v.name)?,
+                };
+                Ok(View {
+                    camera: v.camera,
+                    light_set: v.light_set,
+                    relit: false,
+                    target,
+                })
+            })
+            .collect()
     }
 
     fn render(&mut self, camera: &Camera, lights: &Lights, name: &str) -> Result<RgbImage> {
@@ -205,7 +241,7 @@ impl TargetRenderer {
             max_depth: truth.settings.max_depth,
             progress: self.progress,
         };
-        Ok(render(truth, &options).0)
+        Ok(render_shared(self.cluster, truth, &options).0)
     }
 }
 

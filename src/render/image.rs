@@ -8,11 +8,14 @@ use rayon::prelude::*;
 
 use crate::io::images::RgbImage;
 use crate::render::path::trace_path;
+use crate::render::pixel_set::PixelSet;
 use crate::render::sampling::{sample_rng, Pass};
 use crate::render::scene::Scene;
 use crate::volume::tracking::TrackingStats;
 
 const TILE: u32 = 16;
+/// Pixels of a `render_pixels` set traced as one task.
+const CHUNK_PIXELS: u64 = 256;
 
 #[derive(Debug, Clone, Copy)]
 pub struct RenderOptions {
@@ -54,6 +57,13 @@ struct Tile {
     non_finite: u64,
 }
 
+/// What one chunk of a `render_pixels` set produced: (pixel index, value) pairs.
+struct Traced {
+    pixels: Vec<(u32, Vec3)>,
+    stats: TrackingStats,
+    non_finite: u64,
+}
+
 /// Renders the scene's camera view. Each path has its own random stream (seed, pixel, sample), so
 /// the image does not depend on the number of threads.
 pub fn render(scene: &Scene, options: &RenderOptions) -> (RgbImage, RenderStats) {
@@ -72,27 +82,14 @@ pub fn render(scene: &Scene, options: &RenderOptions) -> (RgbImage, RenderStats)
             let mut pixels = Vec::with_capacity((TILE * TILE) as usize);
             for y in y0..(y0 + TILE).min(h) {
                 for x in x0..(x0 + TILE).min(w) {
-                    let mut sum = Vec3::ZERO;
-                    for sample in 0..options.spp {
-                        let mut rng =
-                            sample_rng(options.seed, (y * w + x) as u64, sample, Pass::Forward);
-                        let dir = camera
-                            .direction(x as f32 + rng.gen::<f32>(), y as f32 + rng.gen::<f32>());
-                        let radiance = trace_path(
-                            scene,
-                            camera.position,
-                            dir,
-                            options.max_depth,
-                            &mut rng,
-                            &mut stats,
-                        );
-                        if radiance.is_finite() {
-                            sum += radiance;
-                        } else {
-                            non_finite += 1;
-                        }
-                    }
-                    pixels.push(sum / options.spp as f32);
+                    pixels.push(trace_pixel(
+                        scene,
+                        options,
+                        x,
+                        y,
+                        &mut stats,
+                        &mut non_finite,
+                    ));
                 }
             }
             progress.inc(1);
@@ -122,4 +119,89 @@ pub fn render(scene: &Scene, options: &RenderOptions) -> (RgbImage, RenderStats)
     }
     stats.wall = start.elapsed();
     (image, stats)
+}
+
+/// `render` of the pixels of `set` only (a rank's share): the image holds those pixels, 0
+/// elsewhere, each the value `render` gives it.
+pub fn render_pixels(
+    scene: &Scene,
+    options: &RenderOptions,
+    set: &PixelSet,
+) -> (RgbImage, RenderStats) {
+    let start = Instant::now();
+    let w = scene.camera.width;
+    let chunks = set.len().div_ceil(CHUNK_PIXELS);
+    let progress = crate::io::progress::bar(options.progress, chunks, "rendering");
+    let results: Vec<Traced> = (0..chunks)
+        .into_par_iter()
+        .map(|chunk| {
+            let (mut stats, mut non_finite) = (TrackingStats::default(), 0);
+            let end = ((chunk + 1) * CHUNK_PIXELS).min(set.len());
+            let pixels = (chunk * CHUNK_PIXELS..end)
+                .map(|i| {
+                    let p = set.pixel(i);
+                    let c = trace_pixel(scene, options, p % w, p / w, &mut stats, &mut non_finite);
+                    (p, c)
+                })
+                .collect();
+            progress.inc(1);
+            Traced {
+                pixels,
+                stats,
+                non_finite,
+            }
+        })
+        .collect();
+    progress.finish_and_clear();
+    let mut image = RgbImage::new(w, scene.camera.height);
+    let mut stats = RenderStats {
+        paths: set.len() * options.spp as u64,
+        ..Default::default()
+    };
+    for chunk in results {
+        for (p, c) in chunk.pixels {
+            image.pixels[p as usize] = c;
+        }
+        stats.tracking += chunk.stats;
+        stats.non_finite += chunk.non_finite;
+    }
+    stats.wall = start.elapsed();
+    (image, stats)
+}
+
+/// The mean of pixel (x, y)'s `options.spp` paths, each with its own random stream; non-finite
+/// paths count as 0 and are counted in `non_finite`.
+fn trace_pixel(
+    scene: &Scene,
+    options: &RenderOptions,
+    x: u32,
+    y: u32,
+    stats: &mut TrackingStats,
+    non_finite: &mut u64,
+) -> Vec3 {
+    let camera = &scene.camera;
+    let mut sum = Vec3::ZERO;
+    for sample in 0..options.spp {
+        let mut rng = sample_rng(
+            options.seed,
+            (y * camera.width + x) as u64,
+            sample,
+            Pass::Forward,
+        );
+        let dir = camera.direction(x as f32 + rng.gen::<f32>(), y as f32 + rng.gen::<f32>());
+        let radiance = trace_path(
+            scene,
+            camera.position,
+            dir,
+            options.max_depth,
+            &mut rng,
+            stats,
+        );
+        if radiance.is_finite() {
+            sum += radiance;
+        } else {
+            *non_finite += 1;
+        }
+    }
+    sum / options.spp as f32
 }

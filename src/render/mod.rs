@@ -1,11 +1,12 @@
 //! The forward renderer: scene files, camera, lights, sampling, the path loop (`path`) and the
-//! image loop (`image`). Uses `volume` and `io`.
+//! image loop (`image`) over all pixels or a set of them (`pixel_set`). Uses `volume` and `io`.
 
 pub mod camera;
 pub mod fingerprint;
 pub mod image;
 pub mod lights;
 pub mod path;
+pub mod pixel_set;
 pub mod sampling;
 pub mod scene;
 pub mod scene_check;

@@ -1,0 +1,42 @@
+//! Images rendered by every rank together: each traces its share of the pixels
+//! (`PixelSet::share`), and the shares are summed. A pixel is non-zero on one rank only and
+//! x + 0 = x, so the sum is exact: every rank gets the image one process renders, bit for bit.
+
+use glam::Vec3;
+
+use crate::cluster::Cluster;
+use crate::io::images::RgbImage;
+use crate::render::image::{render, render_pixels, RenderOptions, RenderStats};
+use crate::render::pixel_set::PixelSet;
+use crate::render::scene::Scene;
+
+/// The scene's camera view, rendered by all ranks.
+pub fn render_shared(
+    cluster: &Cluster,
+    scene: &Scene,
+    options: &RenderOptions,
+) -> (RgbImage, RenderStats) {
+    if cluster.size() == 1 {
+        return render(scene, options);
+    }
+    let pixels = scene.camera.width * scene.camera.height;
+    let set = PixelSet::share(pixels, cluster.rank(), cluster.size());
+    let (mut image, mut stats) = render_pixels(scene, options, &set);
+    sum_image(cluster, &mut image);
+    let mut counts = [stats.paths, stats.non_finite];
+    cluster.sum_in_place(&mut counts);
+    [stats.paths, stats.non_finite] = counts;
+    (image, stats)
+}
+
+/// `image` summed over the ranks, in place (exact where each pixel is non-zero on one rank).
+pub fn sum_image(cluster: &Cluster, image: &mut RgbImage) {
+    if cluster.size() == 1 {
+        return;
+    }
+    let mut flat: Vec<f32> = image.pixels.iter().flat_map(|c| c.to_array()).collect();
+    cluster.sum_in_place(&mut flat);
+    for (c, v) in image.pixels.iter_mut().zip(flat.chunks_exact(3)) {
+        *c = Vec3::from_slice(v);
+    }
+}

@@ -1,0 +1,212 @@
+//! The processes of one job. Started by `mpirun` or Slurm's `srun`, volgrad runs as MPI ranks:
+//! every rank holds the scene and the unknown, computes its share of the pixels (`render::pixel_set`), and
+//! the ranks add their results (`sparse_sum` for gradients, `sum_disjoint` for images) so that
+//! every rank takes the same step. Started any other way, it is one process and every collective
+//! here returns its input.
+//!
+//! Faults: an error that one rank meets and the others do not (an unreadable file, a failing
+//! write) must not leave the others waiting in a collective. Every such point goes through
+//! `agree`, which ends every rank with the first failing rank's error; `main` prints it on rank 0
+//! only.
+
+pub mod images;
+pub mod passes;
+pub mod sparse_sum;
+
+use anyhow::{anyhow, Result};
+
+/// This process's place in the job, and the communicator to the other ranks.
+pub struct Cluster {
+    rank: usize,
+    size: usize,
+    #[cfg(feature = "mpi")]
+    world: Option<mpi::topology::SimpleCommunicator>,
+}
+
+/// Keeps MPI initialised while it lives (MPI_Finalize when dropped); `None` for one process.
+pub struct Session {
+    #[cfg(feature = "mpi")]
+    _universe: Option<mpi::environment::Universe>,
+}
+
+/// Whether a launcher started this process as one rank of several (OpenMPI's mpirun, PMIx, or
+/// Slurm's PMI): a plain start must not initialise MPI, which would look for a launcher.
+fn launched_as_rank() -> bool {
+    ["OMPI_COMM_WORLD_SIZE", "PMIX_RANK", "PMI_SIZE", "PMI_RANK"]
+        .iter()
+        .any(|name| std::env::var_os(name).is_some())
+}
+
+impl Cluster {
+    /// One process, no MPI.
+    pub fn single() -> Cluster {
+        Cluster {
+            rank: 0,
+            size: 1,
+            #[cfg(feature = "mpi")]
+            world: None,
+        }
+    }
+
+    /// The job this process was launched in: MPI ranks under mpirun or srun, else one process.
+    pub fn from_launcher() -> Result<(Cluster, Session)> {
+        if !launched_as_rank() {
+            return Ok((
+                Cluster::single(),
+                Session {
+                    #[cfg(feature = "mpi")]
+                    _universe: None,
+                },
+            ));
+        }
+        #[cfg(feature = "mpi")]
+        {
+            use mpi::traits::Communicator;
+            // Funneled: only the main thread calls MPI; rayon's threads only render.
+            let (universe, _) = mpi::initialize_with_threading(mpi::Threading::Funneled)
+                .ok_or_else(|| anyhow!("MPI was already initialised"))?;
+            let world = universe.world();
+            // A panic unwinds into MPI_Finalize, which would wait for ranks that wait for this
+            // one: end the whole job instead.
+            let report = std::panic::take_hook();
+            std::panic::set_hook(Box::new(move |info| {
+                report(info);
+                mpi::topology::SimpleCommunicator::world().abort(101);
+            }));
+            let cluster = Cluster {
+                rank: world.rank() as usize,
+                size: world.size() as usize,
+                world: Some(world),
+            };
+            Ok((
+                cluster,
+                Session {
+                    _universe: Some(universe),
+                },
+            ))
+        }
+        #[cfg(not(feature = "mpi"))]
+        Err(anyhow!(
+            "started by an MPI launcher, but this volgrad was built without the `mpi` feature"
+        ))
+    }
+
+    pub fn rank(&self) -> usize {
+        self.rank
+    }
+
+    pub fn size(&self) -> usize {
+        self.size
+    }
+
+    /// Rank 0: the one that writes files, the log and the progress bar.
+    pub fn is_root(&self) -> bool {
+        self.rank == 0
+    }
+
+    /// `values` summed over the ranks, in place. Exact (and so independent of MPI's reduction
+    /// order) for integers, and for floating-point values that are non-zero on at most one rank
+    /// each (x + 0 = x): pixels of disjoint shares.
+    pub fn sum_in_place<T: Summable>(&self, values: &mut [T]) {
+        #[cfg(feature = "mpi")]
+        if let Some(world) = &self.world {
+            use mpi::collective::{CommunicatorCollectives, SystemOperation};
+            let mine = values.to_vec();
+            world.all_reduce_into(&mine[..], values, SystemOperation::sum());
+        }
+        let _ = values;
+    }
+
+    /// The largest of each value over the ranks.
+    pub fn max_each<const N: usize>(&self, values: [f64; N]) -> [f64; N] {
+        #[cfg(feature = "mpi")]
+        if let Some(world) = &self.world {
+            use mpi::collective::{CommunicatorCollectives, SystemOperation};
+            let mut out = values;
+            world.all_reduce_into(&values[..], &mut out[..], SystemOperation::max());
+            return out;
+        }
+        values
+    }
+
+    /// Every rank's `mine`, concatenated in rank order.
+    pub fn gather_all<T: Summable>(&self, mine: &[T]) -> Vec<T> {
+        #[cfg(feature = "mpi")]
+        if let Some(world) = &self.world {
+            use mpi::collective::CommunicatorCollectives;
+            use mpi::datatype::PartitionMut;
+            let mut counts = vec![0 as mpi::Count; self.size];
+            world.all_gather_into(&(mine.len() as mpi::Count), &mut counts[..]);
+            let displs: Vec<mpi::Count> = counts
+                .iter()
+                .scan(0, |at, &n| {
+                    let d = *at;
+                    *at += n;
+                    Some(d)
+                })
+                .collect();
+            let total = counts.iter().map(|&n| n as usize).sum();
+            let mut all = vec![T::default(); total];
+            let mut partition = PartitionMut::new(&mut all[..], counts, &displs[..]);
+            world.all_gather_varcount_into(mine, &mut partition);
+            return all;
+        }
+        mine.to_vec()
+    }
+
+    /// `result` if every rank's is `Ok`; else, on every rank, the error of the first rank that
+    /// failed (its message, sent to all), so that all ranks end together with one message.
+    pub fn agree<T>(&self, result: Result<T>) -> Result<T> {
+        if self.size == 1 {
+            return result;
+        }
+        let failed = if result.is_err() {
+            self.rank
+        } else {
+            self.size
+        };
+        let first = self.gather_all(&[failed as u64]).into_iter().min();
+        let Some(first) = first.filter(|&r| (r as usize) < self.size) else {
+            return result;
+        };
+        let mine = match &result {
+            Err(e) if self.rank == first as usize => format!("{e:#}").into_bytes(),
+            _ => Vec::new(),
+        };
+        let message = self.gather_all(&mine);
+        Err(AgreedError(String::from_utf8_lossy(&message).into_owned()).into())
+    }
+
+    /// Ends every rank of the job at once (MPI_Abort): for an error only this rank met outside
+    /// `agree`, or a panic, where the others may be waiting in a collective.
+    pub fn abort(&self) {
+        #[cfg(feature = "mpi")]
+        if let Some(world) = &self.world {
+            use mpi::topology::Communicator;
+            world.abort(1);
+        }
+    }
+}
+
+/// An error every rank of the job returns together (`Cluster::agree`): rank 0 prints it, and
+/// every rank ends normally.
+#[derive(Debug)]
+pub struct AgreedError(pub String);
+
+impl std::fmt::Display for AgreedError {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(&self.0)
+    }
+}
+
+impl std::error::Error for AgreedError {}
+
+/// Values the collectives move: plain numbers MPI has a type for.
+#[cfg(feature = "mpi")]
+pub trait Summable: Copy + Default + mpi::traits::Equivalence {}
+#[cfg(feature = "mpi")]
+impl<T: Copy + Default + mpi::traits::Equivalence> Summable for T {}
+#[cfg(not(feature = "mpi"))]
+pub trait Summable: Copy + Default {}
+#[cfg(not(feature = "mpi"))]
+impl<T: Copy + Default> Summable for T {}

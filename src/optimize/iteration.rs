@@ -1,0 +1,244 @@
+//! One iteration's gradient of the images' loss, on every rank of a job at once:
+//!
+//! 1. the batch: `batch` views (each epoch a fresh permutation), or `batch_pixels` pixels drawn
+//!    across every training view (a uniform view, then a uniform pixel of it);
+//! 2. each view's primal render, its pixels split over the ranks and summed, so every rank has
+//!    the same images, losses and adjoint images δ = ∂loss/∂pixel;
+//! 3. the gradient passes, each rank over its share of the pixels, accumulated as quanta of one
+//!    quantum for the whole batch (`passes::quantum_for`);
+//! 4. the sum over the ranks (`cluster::sparse_sum`), exact, so that the step is the same bits at
+//!    any number of ranks and threads.
+//!
+//! The view batch's loss is the mean over its views of each view's mean over pixels; a pixel
+//! batch of N draws estimates the same mean as (1/N) Σ over its draws of the pixel's loss, and its
+//! gradient as the same sum of the pixels' gradients (a pixel drawn twice counts twice).
+
+use anyhow::Result;
+use glam::Vec3;
+use rand::seq::SliceRandom;
+use rand::{Rng, RngCore};
+
+use crate::cluster::images::sum_image;
+use crate::cluster::sparse_sum::{sum_over_ranks, Traffic};
+use crate::cluster::Cluster;
+use crate::gradient::adjoint::Estimator;
+use crate::gradient::grid::{GradientGrid, Quanta};
+use crate::gradient::objective::check_target;
+use crate::gradient::passes::{gradient_of, quantum_for, GradOptions};
+use crate::optimize::problem::Problem;
+use crate::render::image::{render_pixels, RenderOptions};
+use crate::render::pixel_set::PixelSet;
+use crate::render::sampling::pixel_rng;
+use crate::render::scene::Scene;
+
+/// Seeds the pixel batches' draws apart from every other stream of a run.
+const PIXEL_BATCH_SALT: u64 = 0x91c5_e1ba_7c40_0001;
+
+/// The images' gradient of one iteration, the same on every rank.
+pub struct ImagesGradient {
+    /// ∂loss/∂θ per voxel that some path reached.
+    pub voxels: Vec<(glam::IVec3, f64)>,
+    /// The batch's loss.
+    pub loss: f64,
+    pub traffic: Traffic,
+}
+
+/// One view's part of a batch: all its pixels, or the pixels drawn from it with their counts.
+struct Piece {
+    view: usize,
+    seed: u64,
+    drawn: Option<Vec<(u32, u32)>>,
+}
+
+impl Piece {
+    /// This rank's share of the pixels the piece traces.
+    fn pixels(&self, pixels: u32, cluster: &Cluster) -> PixelSet {
+        match &self.drawn {
+            None => PixelSet::share(pixels, cluster.rank(), cluster.size()),
+            Some(drawn) => {
+                let list: Vec<u32> = drawn.iter().map(|&(p, _)| p).collect();
+                PixelSet::share_of_list(&list, cluster.rank(), cluster.size())
+            }
+        }
+    }
+}
+
+/// The images' gradient at iteration `iteration` of the scene `scene` (θ at the current level).
+pub fn images_gradient(
+    problem: &Problem,
+    cluster: &Cluster,
+    scene: &mut Scene,
+    estimator: Estimator,
+    iteration: u64,
+) -> Result<ImagesGradient> {
+    let s = &problem.settings;
+    let pieces = batch_pieces(problem, iteration);
+    let (mut loss, mut deltas, mut lit) = (0.0, Vec::with_capacity(pieces.len()), 0);
+    let view_weight = 1.0 / pieces.len() as f64;
+    for piece in &pieces {
+        let view = &problem.views[piece.view];
+        problem.look_through(scene, &mut lit, view);
+        check_target(&view.target, scene)?;
+        let options = RenderOptions {
+            spp: s.primal_spp,
+            seed: piece.seed,
+            max_depth: s.max_depth,
+            progress: false,
+        };
+        let pixels = scene.camera.width * scene.camera.height;
+        let mut image = render_pixels(scene, &options, &piece.pixels(pixels, cluster)).0;
+        sum_image(cluster, &mut image);
+        let target = &view.target;
+        let delta = match &piece.drawn {
+            None => {
+                loss += view_weight * s.loss.evaluate(&image, Some(target));
+                let scale = view_weight as f32;
+                let delta = s.loss.adjoint(&image, Some(target));
+                delta.into_iter().map(|d| d * scale).collect()
+            }
+            Some(drawn) => {
+                // Each draw weighs 1/(3N): the loss is a mean over draws and channels.
+                let per_draw = 1.0 / (3.0 * s.batch_pixels as f64);
+                let mut delta = vec![Vec3::ZERO; pixels as usize];
+                for &(p, count) in drawn {
+                    let (c, t) = (image.pixels[p as usize], target.pixels[p as usize]);
+                    let weight = count as f64 * per_draw;
+                    loss += weight * s.loss.pixel_value(c, t);
+                    delta[p as usize] = s.loss.pixel_adjoint(c, t) * weight as f32;
+                }
+                delta
+            }
+        };
+        deltas.push(delta);
+    }
+    let quantum = quantum_for(deltas.iter().map(|d| &d[..]), s.spp);
+    let mut total = GradientGrid::<Quanta>::for_medium(&scene.medium);
+    for (piece, delta) in pieces.iter().zip(&deltas) {
+        problem.look_through(scene, &mut lit, &problem.views[piece.view]);
+        let options = GradOptions {
+            quantum: Some(quantum),
+            ..GradOptions::new(estimator, s.spp, piece.seed, s.max_depth)
+        };
+        let pixels = scene.camera.width * scene.camera.height;
+        let run = gradient_of(scene, delta, &options, &piece.pixels(pixels, cluster));
+        total.add_grid(&run.gradient);
+    }
+    let (total, traffic) = sum_over_ranks(cluster, total);
+    let voxels = total.voxels().map(|(v, q)| (v, q * quantum)).collect();
+    Ok(ImagesGradient {
+        voxels,
+        loss,
+        traffic,
+    })
+}
+
+/// The views of iteration `iteration` with their seeds: the view batch, or the views a pixel
+/// batch drew from, in view order, with the pixels drawn from each.
+fn batch_pieces(problem: &Problem, iteration: u64) -> Vec<Piece> {
+    let s = &problem.settings;
+    let seed_of = |slot: usize| pixel_rng(s.seed, iteration, slot as u64).next_u64();
+    if s.batch_pixels == 0 {
+        let views = batch(problem.views.len(), s.batch, s.seed, iteration);
+        return (views.into_iter().enumerate())
+            .map(|(slot, view)| Piece {
+                view,
+                seed: seed_of(slot),
+                drawn: None,
+            })
+            .collect();
+    }
+    let sizes: Vec<u32> = (problem.views.iter())
+        .map(|v| v.camera.width * v.camera.height)
+        .collect();
+    let draws = pixel_batch(&sizes, s.batch_pixels, s.seed, iteration);
+    (draws.into_iter().enumerate())
+        .map(|(slot, (view, drawn))| Piece {
+            view,
+            seed: seed_of(slot),
+            drawn: Some(drawn),
+        })
+        .collect()
+}
+
+/// `count` draws of a uniform view (of views with `sizes[v]` pixels), then a uniform pixel of it,
+/// as (view, [(pixel, times drawn)]) in view and pixel order.
+pub fn pixel_batch(
+    sizes: &[u32],
+    count: u32,
+    seed: u64,
+    iteration: u64,
+) -> Vec<(usize, Vec<(u32, u32)>)> {
+    let mut rng = pixel_rng(seed ^ PIXEL_BATCH_SALT, iteration, 0);
+    let mut draws: Vec<(usize, u32)> = (0..count)
+        .map(|_| {
+            let view = rng.gen_range(0..sizes.len());
+            (view, rng.gen_range(0..sizes[view]))
+        })
+        .collect();
+    draws.sort_unstable();
+    let mut grouped: Vec<(usize, Vec<(u32, u32)>)> = Vec::new();
+    for (view, pixel) in draws {
+        if grouped.last().is_none_or(|g| g.0 != view) {
+            grouped.push((view, Vec::new()));
+        }
+        let pixels = &mut grouped.last_mut().expect("pushed above").1;
+        match pixels.last_mut() {
+            Some((p, n)) if *p == pixel => *n += 1,
+            _ => pixels.push((pixel, 1)),
+        }
+    }
+    grouped
+}
+
+/// The views of iteration `iteration`: consecutive slots of a sequence of epochs, each epoch a
+/// fresh permutation of all views, so every view is used once per epoch.
+pub fn batch(views: usize, size: u32, seed: u64, iteration: u64) -> Vec<usize> {
+    let n = views as u64;
+    (0..u64::from(size))
+        .map(|k| {
+            let slot = iteration * u64::from(size) + k;
+            let mut order: Vec<usize> = (0..views).collect();
+            order.shuffle(&mut pixel_rng(seed, slot / n, u64::MAX));
+            order[(slot % n) as usize]
+        })
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn batches_use_every_view_once_per_epoch() {
+        let (views, size) = (6, 4);
+        let slots: Vec<usize> = (0..3).flat_map(|i| batch(views, size, 7, i)).collect();
+        // 12 slots = two epochs of 6 views.
+        for epoch in slots.chunks(views) {
+            let mut sorted = epoch.to_vec();
+            sorted.sort();
+            assert_eq!(sorted, (0..views).collect::<Vec<_>>());
+        }
+        assert_ne!(slots[..6], slots[6..], "each epoch is reshuffled");
+        assert_eq!(batch(views, size, 7, 1), batch(views, size, 7, 1));
+    }
+
+    /// Every draw is counted once, in a view that has the pixel, and views are drawn uniformly
+    /// whatever their size (a pixel of a small view is more likely than one of a large view).
+    #[test]
+    fn pixel_batches_draw_a_uniform_view_then_a_uniform_pixel() {
+        let sizes = [16, 4096];
+        let mut per_view = [0u32; 2];
+        for iteration in 0..50 {
+            let drawn = pixel_batch(&sizes, 1000, 3, iteration);
+            let total: u32 = drawn.iter().flat_map(|g| g.1.iter().map(|d| d.1)).sum();
+            assert_eq!(total, 1000);
+            for (view, pixels) in &drawn {
+                assert!(pixels.windows(2).all(|w| w[0].0 < w[1].0), "sorted, merged");
+                assert!(pixels.iter().all(|&(p, _)| p < sizes[*view]));
+                per_view[*view] += pixels.iter().map(|d| d.1).sum::<u32>();
+            }
+        }
+        // 50,000 draws: each view's share within 5 standard errors (±112) of 25,000.
+        assert!(per_view[0].abs_diff(25_000) < 560, "{per_view:?}");
+    }
+}

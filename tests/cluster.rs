@@ -1,0 +1,286 @@
+//! volgrad across MPI ranks (`mpirun -n N`): the same bits at 1, 2 and 3 ranks for `optimize`,
+//! `render` and `grad`; a run resumed at 2 ranks from a checkpoint written at 3; and faults that
+//! one rank meets end every rank with one message. Needs OpenMPI's `mpirun` (scripts/setup.sh).
+
+mod common;
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output, Stdio};
+use std::time::{Duration, Instant};
+
+use common::{ok, stderr};
+use volgrad::io::vdb::{read_grid, GridSelector};
+
+fn repo(path: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join(path)
+}
+
+/// The quick example on one thread per rank: 8 views of 32², two held out.
+fn run_file(extra: &str) -> String {
+    format!(
+        r#"
+scene = "{scene}"
+truth = "{truth}"
+target_spp = 64
+eval_spp = 64
+eval_every = 4
+checkpoint_every = 4
+
+[views.orbit]
+count = 8
+elevation_deg = [-30, 70]
+distance = 12
+fov_deg = 40
+width = 32
+height = 32
+
+[holdouts.orbit]
+count = 2
+elevation_deg = [0, 40]
+distance = 12
+fov_deg = 40
+width = 32
+height = 32
+azimuth_offset_deg = 60
+
+[unknown]
+bounds = "truth"
+start = 0.0
+
+[optimizer]
+spp = 4
+{extra}
+"#,
+        scene = repo("scenes/inverse/quick-scene.toml").display(),
+        truth = repo("scenes/analytic/sphere.vdb").display(),
+    )
+}
+
+/// `volgrad args` in `dir` as `ranks` MPI ranks of one thread each (1: a plain process, no
+/// mpirun), killed after `limit`: a hang is a failure, not a stuck test.
+fn ranks(dir: &Path, ranks: usize, args: &[&str], limit: Duration) -> Output {
+    let exe = env!("CARGO_BIN_EXE_volgrad");
+    let mut command = if ranks == 1 {
+        Command::new(exe)
+    } else {
+        let mut c = Command::new("mpirun");
+        c.args(["--oversubscribe", "-n", &ranks.to_string(), exe])
+            // OpenMPI refuses root without these; CI runs as root.
+            .env("OMPI_ALLOW_RUN_AS_ROOT", "1")
+            .env("OMPI_ALLOW_RUN_AS_ROOT_CONFIRM", "1");
+        c
+    };
+    command.current_dir(dir).args(args).args(["--threads", "1"]);
+    wait(command, limit)
+}
+
+fn wait(mut command: Command, limit: Duration) -> Output {
+    let mut child = command
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("mpirun is installed (scripts/setup.sh installs OpenMPI)");
+    let started = Instant::now();
+    while child.try_wait().unwrap().is_none() {
+        if started.elapsed() > limit {
+            child.kill().unwrap();
+            panic!("still running after {limit:?}: a rank waits for one that has gone");
+        }
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    child.wait_with_output().unwrap()
+}
+
+const LIMIT: Duration = Duration::from_secs(120);
+
+/// Every active voxel's value (index and bits), in the file's order.
+fn voxels(path: &Path) -> Vec<([i32; 3], u32)> {
+    let grid = read_grid(path, &GridSelector::Index(0)).unwrap();
+    let mut out = Vec::new();
+    for leaf in grid.bricks.leaves() {
+        for (i, v) in leaf.values.iter().enumerate() {
+            if leaf.active[i >> 6] & (1 << (i & 63)) != 0 {
+                out.push((leaf.origin.to_array().map(|c| c + i as i32), v.to_bits()));
+            }
+        }
+    }
+    out
+}
+
+fn exr_pixels(path: &Path) -> Vec<[u32; 3]> {
+    let image = volgrad::io::images::read_rgb(path).unwrap();
+    image
+        .pixels
+        .iter()
+        .map(|c| c.to_array().map(f32::to_bits))
+        .collect()
+}
+
+/// One run's outputs at 1, 2 and 3 ranks: `final.vdb`, `grad.vdb` and a render's EXR, bit for bit.
+#[test]
+fn results_do_not_depend_on_the_number_of_ranks() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    std::fs::write(d.join("run.toml"), run_file("batch = 3\niterations = 6")).unwrap();
+    let scene = repo("scenes/inverse/quick-scene.toml");
+    let scene = scene.to_str().unwrap();
+    let mut finals = Vec::new();
+    for n in 1..=3 {
+        let out = format!("o{n}");
+        ok(ranks(
+            d,
+            n,
+            &["optimize", "run.toml", "--out", &out, "-q"],
+            LIMIT,
+        ));
+        finals.push(voxels(&d.join(&out).join("final.vdb")));
+        let grad = format!("g{n}.vdb");
+        ok(ranks(
+            d,
+            n,
+            &["grad", scene, "--spp", "4", "-o", &grad, "-q"],
+            LIMIT,
+        ));
+        finals.push(voxels(&d.join(&grad)));
+        let exr = format!("r{n}.exr");
+        ok(ranks(
+            d,
+            n,
+            &["render", scene, "--spp", "4", "-o", &exr, "-q"],
+            LIMIT,
+        ));
+    }
+    assert!(!finals[0].is_empty() && !finals[1].is_empty());
+    for n in 1..3 {
+        assert!(finals[2 * n] == finals[0], "final.vdb at {} ranks", n + 1);
+        assert!(
+            finals[2 * n + 1] == finals[1],
+            "grad.vdb at {} ranks",
+            n + 1
+        );
+        let (one, many) = (
+            exr_pixels(&d.join("r1.exr")),
+            exr_pixels(&d.join(format!("r{}.exr", n + 1))),
+        );
+        assert!(one == many, "render at {} ranks", n + 1);
+    }
+    // Only rank 0 writes the log: one header, one row per iteration.
+    let log = std::fs::read_to_string(d.join("o3/log.csv")).unwrap();
+    assert_eq!(log.lines().count(), 1 + 7, "{log}");
+}
+
+/// A run resumed at 2 ranks from the checkpoint a 3-rank run wrote halfway ends where the
+/// uninterrupted one-process run ends.
+#[test]
+fn a_run_resumed_at_another_rank_count_continues_bit_for_bit() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    std::fs::write(d.join("run.toml"), run_file("batch = 3\niterations = 8")).unwrap();
+    ok(ranks(
+        d,
+        1,
+        &["optimize", "run.toml", "--out", "whole", "-q"],
+        LIMIT,
+    ));
+    ok(ranks(
+        d,
+        3,
+        &["optimize", "run.toml", "--out", "three", "-q"],
+        LIMIT,
+    ));
+    std::fs::create_dir(d.join("half")).unwrap();
+    for ext in ["vdb", "state"] {
+        let name = format!("checkpoint-0004.{ext}");
+        std::fs::copy(d.join("three").join(&name), d.join("half").join(&name)).unwrap();
+    }
+    ok(ranks(
+        d,
+        2,
+        &["optimize", "run.toml", "--resume", "half", "-q"],
+        LIMIT,
+    ));
+    assert!(
+        voxels(&d.join("half/final.vdb")) == voxels(&d.join("whole/final.vdb")),
+        "resumed at 2 ranks from 3"
+    );
+}
+
+/// Rank 1 is given a run file whose target image does not exist (MPMD: `mpirun -n 1 A : -n 1 B`):
+/// both ranks end within seconds, non-zero, with the one error printed once.
+#[test]
+fn a_file_one_rank_cannot_read_ends_every_rank_with_one_error() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let good = run_file("iterations = 2");
+    std::fs::write(d.join("good.toml"), &good).unwrap();
+    let image = "[[view]]\nposition = [0, 0, 12]\ntarget = [0, 0, 0]\nfov_deg = 40\nwidth = 32\nheight = 32\nimage = \"missing.exr\"\n";
+    // The [[view]] table goes before [views.orbit], whose keys would otherwise take it in.
+    let bad = good.replacen("[views.orbit]", &format!("{image}\n[views.orbit]"), 1);
+    std::fs::write(d.join("bad.toml"), bad).unwrap();
+    let exe = env!("CARGO_BIN_EXE_volgrad");
+    let mut command = Command::new("mpirun");
+    command
+        .current_dir(d)
+        .env("OMPI_ALLOW_RUN_AS_ROOT", "1")
+        .env("OMPI_ALLOW_RUN_AS_ROOT_CONFIRM", "1")
+        .args([
+            "--oversubscribe",
+            "-n",
+            "1",
+            exe,
+            "optimize",
+            "good.toml",
+            "--out",
+            "o",
+            "-q",
+            "--threads",
+            "1",
+        ])
+        .args([
+            ":",
+            "-n",
+            "1",
+            exe,
+            "optimize",
+            "bad.toml",
+            "--out",
+            "o",
+            "-q",
+            "--threads",
+            "1",
+        ]);
+    let started = Instant::now();
+    let out = wait(command, Duration::from_secs(60));
+    let err = stderr(&out);
+    assert!(!out.status.success(), "{err}");
+    assert!(
+        started.elapsed() < Duration::from_secs(30),
+        "took {:?}",
+        started.elapsed()
+    );
+    assert_eq!(err.matches("error: ").count(), 1, "one message: {err}");
+    assert!(err.contains("missing.exr"), "{err}");
+    assert!(!err.contains("panicked"), "{err}");
+}
+
+/// A run file every rank refuses: one message, every rank non-zero.
+#[test]
+fn a_bad_run_file_is_reported_once() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    std::fs::write(
+        d.join("run.toml"),
+        run_file("batch = 3\nbatch_pixels = 100"),
+    )
+    .unwrap();
+    let out = ranks(
+        d,
+        3,
+        &["optimize", "run.toml", "-q"],
+        Duration::from_secs(60),
+    );
+    let err = stderr(&out);
+    assert!(!out.status.success(), "{err}");
+    assert_eq!(err.matches("error: ").count(), 1, "one message: {err}");
+    assert!(err.contains("batch_pixels"), "{err}");
+}
