@@ -117,6 +117,17 @@ impl Cluster {
         let _ = values;
     }
 
+    /// `bits` OR-ed over the ranks, in place.
+    pub fn or_in_place(&self, bits: &mut [u64]) {
+        #[cfg(feature = "mpi")]
+        if let Some(world) = &self.world {
+            use mpi::collective::{CommunicatorCollectives, SystemOperation};
+            let mine = bits.to_vec();
+            world.all_reduce_into(&mine[..], bits, SystemOperation::bitwise_or());
+        }
+        let _ = bits;
+    }
+
     /// The largest of each value over the ranks.
     pub fn max_each<const N: usize>(&self, values: [f64; N]) -> [f64; N] {
         #[cfg(feature = "mpi")]

@@ -1,12 +1,57 @@
 //! The sum of every rank's gradient grid, moving only the blocks some rank touched: the ranks
-//! agree on the union of their block keys (an allgather of 12 bytes per block), then add the
-//! union's values in one allreduce of i64 quanta. Integer addition is exact, so the result is
-//! the same bits whatever order MPI adds the ranks in, and the same as one process would get.
+//! agree on the union of their block keys, then add the union's values in one allreduce of i64
+//! quanta. Integer addition is exact, so the result is the same bits whatever order MPI adds the
+//! ranks in, and the same as one process would get.
+//!
+//! The union is agreed on as a bitmap over the grid's block range (one bit per 4³ block, OR-ed
+//! across ranks: 26 KB for the ×8 cloud's box, whatever the number of ranks) when the range is
+//! compact, as an optimisation's unknown box is; a wide sparse box (`grad` on voxels thousands of
+//! voxels apart) gathers the keys themselves instead, 12 bytes per touched block from every rank.
 
 use glam::IVec3;
 
 use crate::cluster::Cluster;
-use crate::gradient::grid::{GradientGrid, Quanta, BLOCK_VOXELS};
+use crate::gradient::grid::{GradientGrid, Quanta, BLOCK_EDGE, BLOCK_VOXELS};
+
+/// Bitmaps up to this many blocks (16 MiB); wider ranges gather keys.
+const MAX_BITMAP_BLOCKS: u64 = 1 << 27;
+
+/// The first voxels of the blocks any rank touched, sorted by (x, y, z), and the bytes this rank
+/// sent to agree on them.
+fn agree_on_blocks(cluster: &Cluster, grid: &GradientGrid<Quanta>) -> (Vec<IVec3>, u64) {
+    let n = cluster.size() as u64;
+    let (lo, hi) = grid.block_range();
+    let dims = (hi - lo + IVec3::ONE).max(IVec3::ZERO).as_u64vec3();
+    let count = dims.x * dims.y * dims.z;
+    if count <= MAX_BITMAP_BLOCKS {
+        // Bit (x·dy + y)·dz + z: the bitmap's order is the keys' sorted order.
+        let mut bits = vec![0u64; count.div_ceil(64) as usize];
+        for (origin, _) in grid.blocks() {
+            let b = (origin / BLOCK_EDGE - lo).as_u64vec3();
+            let i = (b.x * dims.y + b.y) * dims.z + b.z;
+            bits[(i / 64) as usize] |= 1 << (i % 64);
+        }
+        cluster.or_in_place(&mut bits);
+        let mut union = Vec::new();
+        for (w, &word) in bits.iter().enumerate() {
+            let mut word = word;
+            while word != 0 {
+                let i = w as u64 * 64 + word.trailing_zeros() as u64;
+                word &= word - 1;
+                let b = glam::U64Vec3::new(i / (dims.y * dims.z), i / dims.z % dims.y, i % dims.z);
+                union.push((b.as_ivec3() + lo) * BLOCK_EDGE);
+            }
+        }
+        return (union, 2 * (n - 1) * (bits.len() as u64 * 8) / n);
+    }
+    let mine: Vec<i32> = grid.blocks().flat_map(|(o, _)| o.to_array()).collect();
+    let mut union: Vec<IVec3> = (cluster.gather_all(&mine).chunks_exact(3))
+        .map(IVec3::from_slice)
+        .collect();
+    union.sort_unstable_by_key(|v| (v.x, v.y, v.z));
+    union.dedup();
+    (union, mine.len() as u64 * 4 * (n - 1))
+}
 
 /// What one reduction moved.
 #[derive(Debug, Clone, Copy, Default)]
@@ -28,14 +73,7 @@ pub fn sum_over_ranks(
         return (grid, Traffic::default());
     }
     let started = std::time::Instant::now();
-    let mine: Vec<i32> = grid.blocks().flat_map(|(o, _)| o.to_array()).collect();
-    let mut union: Vec<IVec3> = cluster
-        .gather_all(&mine)
-        .chunks_exact(3)
-        .map(IVec3::from_slice)
-        .collect();
-    union.sort_unstable_by_key(|v| (v.x, v.y, v.z));
-    union.dedup();
+    let (union, key_bytes) = agree_on_blocks(cluster, &grid);
     let mut values = vec![0i64; union.len() * BLOCK_VOXELS];
     for (origin, block) in grid.blocks() {
         let at = union
@@ -54,7 +92,7 @@ pub fn sum_over_ranks(
     let n = cluster.size() as u64;
     let traffic = Traffic {
         blocks: union.len() as u64,
-        bytes_sent: mine.len() as u64 * 4 * (n - 1) + 2 * (n - 1) * (values.len() as u64 * 8) / n,
+        bytes_sent: key_bytes + 2 * (n - 1) * (values.len() as u64 * 8) / n,
         seconds: started.elapsed().as_secs_f64(),
     };
     (sum, traffic)

@@ -24,6 +24,8 @@ use crate::volume::sparse_index::{KeyMap, SparseIndex};
 
 /// Voxels per block edge (log2), per block, and blocks per storage chunk.
 const BLOCK_LOG2: i32 = 2;
+/// Voxels per block edge.
+pub const BLOCK_EDGE: i32 = 1 << BLOCK_LOG2;
 const BLOCK_MASK: i32 = (1 << BLOCK_LOG2) - 1;
 pub const BLOCK_VOXELS: usize = 1 << (3 * BLOCK_LOG2);
 const CHUNK_BLOCKS: usize = 256;
@@ -238,6 +240,12 @@ impl<T: Accumulator> GradientGrid<T> {
             0 => 0.0,
             i => self.values(i as usize - 1)[block_offset(v & BLOCK_MASK)].to_f64(),
         }
+    }
+
+    /// The inclusive range of block coordinates the grid accepts (a block's first voxel is its
+    /// coordinates × `BLOCK_EDGE`).
+    pub fn block_range(&self) -> (IVec3, IVec3) {
+        (self.block_lo, self.block_hi)
     }
 
     /// Blocks of 4³ voxels stored.

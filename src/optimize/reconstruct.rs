@@ -2,10 +2,10 @@
 //!
 //! 1. moves to the next level when the schedule says so (×2 upsampling, `resample`);
 //! 2. builds the medium from θ over the domain's fixed bounds;
-//! 3. for each view of a batch (reshuffled each epoch): a primal render (`primal_spp`) and the
-//!    adjoint image δ = ∂loss/∂pixel, then the estimator's gradient pass (`spp`; independent
-//!    random streams), averaged over the batch; plus the priors' gradients; at the finer levels
-//!    the gradient is smoothed (`smoothing`: a preconditioner);
+//! 3. the images' gradient of a batch of views or pixels (`iteration`: primal renders, adjoint
+//!    images δ = ∂loss/∂pixel, the estimator's gradient passes, summed over the MPI ranks); plus
+//!    the priors' gradients; at the finer levels the gradient is smoothed (`smoothing`: a
+//!    preconditioner);
 //! 4. one Adam step with θ ≥ 0 kept by projection; bricks that stay at 0 are dropped.
 //!
 //! One rule sets what changes from level to level: a voxel of the next level is 1/8 of its
@@ -17,9 +17,10 @@
 //! gradient's scale away (README, "One rule per level").
 //!
 //! Every random number is a function of (seed, iteration, view slot, pixel, sample) and every
-//! reduction runs in a fixed order, so a run's result depends on its settings only, not on the
-//! thread count; a run resumed from a checkpoint continues bit for bit. Evaluation and checkpoints
-//! are timed apart from the optimisation.
+//! reduction is exact or runs in a fixed order, so a run's result depends on its settings only, not
+//! on the thread or rank count; a run resumed from a checkpoint continues bit for bit. Evaluation
+//! and checkpoints are timed apart from the optimisation. Every rank of an MPI job runs this loop;
+//! rank 0 writes, and the ranks agree on the clock, an interruption and any write's failure.
 
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
