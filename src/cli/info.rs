@@ -1,21 +1,27 @@
-//! `volgrad info`: every grid in a .vdb file, and the brick map volgrad would build for it.
+//! `volgrad info`: every grid in a .vdb file, and the brick map volgrad would build for it; or,
+//! for a scene file, the grids the scene would use and what for.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 use anyhow::Result;
 
 use super::bytes;
 use volgrad::io::vdb;
+use volgrad::render::scene::Scene;
 use volgrad::volume::brickmap::BRICK_VOXELS;
+use volgrad::volume::emission::EmissionKind;
 
 #[derive(clap::Args)]
 pub struct Args {
-    /// The .vdb file.
+    /// The .vdb file, or a scene file (.toml).
     pub file: PathBuf,
 }
 
 pub fn run(args: &Args) -> Result<()> {
     let file = &args.file;
+    if file.extension().is_some_and(|e| e == "toml") {
+        return scene_grids(file);
+    }
     let grids = vdb::list_grids(file)?;
     if grids.is_empty() {
         println!("{}: no grids", file.display());
@@ -106,5 +112,46 @@ pub fn run(args: &Args) -> Result<()> {
             }
         }
     }
+    Ok(())
+}
+
+/// The grids a scene would read: its density and, if it emits, its emission grid, each with its
+/// file, transform and active voxels.
+fn scene_grids(path: &Path) -> Result<()> {
+    let scene = Scene::load(path)?;
+    let m = &scene.medium;
+    println!("{}:", path.display());
+    println!(
+        "  density    grid '{}' in '{}': {} active voxels, voxel size {:.4}, σt = {} × value",
+        scene.grid_name,
+        scene.vdb_path.display(),
+        m.grid.active_voxel_count(),
+        m.transform.voxel_size().x,
+        m.density_scale
+    );
+    match &m.emission {
+        None => println!("  emission   none"),
+        Some(e) => println!(
+            "  emission   grid '{}': {} active voxels, voxel size {:.4}, {}",
+            e.name,
+            e.grid.active_voxel_count(),
+            e.transform.voxel_size().x,
+            match e.kind {
+                EmissionKind::Blackbody {
+                    scale,
+                    offset,
+                    cutoff,
+                    strength,
+                } => format!(
+                    "blackbody at T = (value − {offset}) × {scale} K above {cutoff} K, × {strength}"
+                ),
+                EmissionKind::Radiance(rgb) => format!("radiance {rgb} × value"),
+            }
+        ),
+    }
+    println!(
+        "  albedo     {} (constant), phase g {}",
+        m.albedo, m.phase_g
+    );
     Ok(())
 }

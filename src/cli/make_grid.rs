@@ -4,7 +4,7 @@ use std::path::PathBuf;
 
 use anyhow::{bail, Result};
 
-use volgrad::io::make_grid::{make_grid, Class, GridKind, GridSpec};
+use volgrad::io::make_grid::{fireball_temperature, make_grid, Class, GridKind, GridSpec};
 use volgrad::io::vdb;
 
 #[derive(clap::Args)]
@@ -72,6 +72,16 @@ pub fn run(args: &Args) -> Result<()> {
         class: args.class,
     };
     let grid = make_grid(&spec)?;
+    if args.kind == GridKind::Fireball {
+        let temperature = fireball_temperature(&spec)?;
+        vdb::write_grids(&args.output, &[&grid, &temperature], args.half, args.force)?;
+        eprintln!(
+            "wrote {} with grids '{}' and 'temperature'",
+            args.output.display(),
+            grid.name
+        );
+        return Ok(());
+    }
     vdb::write_grids(&args.output, &[&grid], args.half, args.force)?;
     eprintln!(
         "wrote {} ({} active voxels)",

@@ -16,6 +16,10 @@ pub enum GridKind {
     Slab,
     /// A `size`³ block of active, empty voxels with one voxel of `value` at its centre.
     SingleVoxel,
+    /// A ball of diameter `size` whose density falls from `value` at the centre as 1 − (r/R)²,
+    /// and beside it a grid "temperature", 3 at the centre falling to 1 at the rim (× 1000 K with
+    /// `blackbody = { scale = 1000 }`): a test fire with no download.
+    Fireball,
 }
 
 /// The OpenVDB class of the grid written.
@@ -112,6 +116,12 @@ pub fn make_grid(spec: &GridSpec) -> anyhow::Result<Grid> {
                             b.set(v, spec.value, true);
                         }
                     }
+                    GridKind::Fireball => {
+                        let r = fireball_radius(v, centre, n);
+                        if r <= 1.0 {
+                            b.set(v, spec.value * (1.0 - r * r) as f32, true);
+                        }
+                    }
                     GridKind::SingleVoxel => {
                         let hot = v == IVec3::splat(n / 2);
                         b.set(v, if hot { spec.value } else { 0.0 }, true);
@@ -121,6 +131,35 @@ pub fn make_grid(spec: &GridSpec) -> anyhow::Result<Grid> {
         }
     }
     finish(spec, b.build(), centre)
+}
+
+/// Voxel `v`'s distance from the ball's centre over its radius (n/2 voxels).
+fn fireball_radius(v: IVec3, centre: DVec3, n: i32) -> f64 {
+    (v.as_dvec3() - centre).length() / (n as f64 * 0.5)
+}
+
+/// The fireball's "temperature" grid (`GridKind::Fireball`): 1 + 2·(1 − r/R) inside the ball, in
+/// the density grid's index space and transform.
+pub fn fireball_temperature(spec: &GridSpec) -> anyhow::Result<Grid> {
+    let n = spec.size as i32;
+    let centre = DVec3::splat((n - 1) as f64 * 0.5);
+    let mut b = BrickMapBuilder::new();
+    for x in 0..n {
+        for y in 0..n {
+            for z in 0..n {
+                let v = IVec3::new(x, y, z);
+                let r = fireball_radius(v, centre, n);
+                if r <= 1.0 {
+                    b.set(v, (1.0 + 2.0 * (1.0 - r)) as f32, true);
+                }
+            }
+        }
+    }
+    let spec = GridSpec {
+        name: "temperature".into(),
+        ..spec.clone()
+    };
+    finish(&spec, b.build(), centre)
 }
 
 /// Signed distances to the sphere of diameter `n` voxels around `centre`, in world units

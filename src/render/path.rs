@@ -324,11 +324,16 @@ pub fn trace(
                 radiance += throughput * segment.escape;
                 false
             }
-            // A collision past the maximum depth: the renderer does not scatter there.
-            Some(_) if depth >= max_depth => false,
+            // A collision past the maximum depth: the renderer does not scatter there, but the
+            // medium's emission there is light that reached the camera after `depth` bounces.
+            Some(t) if depth >= max_depth => {
+                radiance += throughput * emitted(medium, p + dir * t);
+                false
+            }
             Some(t) => {
                 depth += 1;
                 p += dir * t;
+                radiance += throughput * emitted(medium, p);
                 // A real collision scatters with probability α; the albedo weights the throughput.
                 throughput *= medium.albedo;
                 if throughput == Vec3::ZERO {
@@ -361,6 +366,19 @@ pub fn trace(
         }
     }
     radiance
+}
+
+/// What a real collision at world point `p` adds from the medium's emission, per unit throughput:
+/// collisions are drawn with density σt·T, so (σa/σt)·Le = (1 − α)·Le there estimates the
+/// emission ∫ T·σa·Le dt along the flight. (An estimate at every tentative collision of the
+/// tracker would have lower variance, but the tracker's null collisions are shared with shadow
+/// rays and the gradients' replay; real collisions change the path loop in one place.)
+#[inline]
+fn emitted(medium: &crate::volume::medium::Medium, p: Vec3) -> Vec3 {
+    match &medium.emission {
+        None => Vec3::ZERO,
+        Some(e) => (Vec3::ONE - medium.albedo) * e.radiance(p),
+    }
 }
 
 /// The factor by which Russian roulette after scattering event `depth` scales the throughput:

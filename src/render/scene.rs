@@ -11,8 +11,10 @@ use crate::io::vdb::{self, GridSelector};
 use crate::render::camera::Camera;
 use crate::render::lights::{DirectionalLight, EnvMap, Environment, Lights};
 use crate::render::scene_check::{self, MAX_EXTINCTION, MAX_LIGHT};
+use crate::render::scene_file::EmissionFile;
+use crate::volume::emission::{Emission, EmissionKind};
 use crate::volume::majorant::{Majorant, MajorantGrid, MajorantMode};
-use crate::volume::medium::Medium;
+use crate::volume::medium::{Filter, Medium};
 
 // The file's structs are named here too: the layers above load a scene and its settings through
 // `render::scene` alone; they live in `scene_file`, below `scene_check`, which validates them.
@@ -102,6 +104,9 @@ impl Scene {
         );
         medium.albedo = file.medium.albedo.rgb();
         medium.phase_g = file.medium.phase_g;
+        if let Some(e) = &file.medium.emission {
+            medium.emission = Some(load_emission(e, dir, &vdb_path, filter)?);
+        }
         let lights = load_lights(&file.light, dir)?;
         Ok(Scene {
             path: path.to_path_buf(),
@@ -173,6 +178,48 @@ pub fn load_lights(files: &[LightFile], dir: &Path) -> Result<Lights> {
     }
     lights.environment = environment;
     Ok(lights)
+}
+
+/// The emission grid `file` names, from its own file or the medium's (`medium_vdb`).
+fn load_emission(
+    file: &EmissionFile,
+    dir: &Path,
+    medium_vdb: &Path,
+    filter: Filter,
+) -> Result<Emission> {
+    let kind = file.emission_kind()?;
+    let path = file
+        .vdb
+        .as_ref()
+        .map_or(medium_vdb.to_path_buf(), |v| dir.join(v));
+    let grid = vdb::read_grid(&path, &GridSelector::Name(file.grid.clone()))
+        .with_context(|| format!("medium.emission.grid '{}'", file.grid))?;
+    if matches!(kind, EmissionKind::Radiance(_)) && grid.bricks.min_value() < 0.0 {
+        bail!(
+            "medium.emission: grid '{}' in '{}' has negative values (min {}), and radiance = [r, g, b] × the grid's value must be ≥ 0",
+            grid.name,
+            path.display(),
+            grid.bricks.min_value()
+        );
+    }
+    Ok(Emission::new(
+        grid.name,
+        grid.bricks,
+        grid.transform,
+        kind,
+        filter,
+    ))
+}
+
+/// An error for a scene that emits: the gradient passes do not yet carry emission in the
+/// radiance a segment end sends back (h = α·L_s + (1 − α)·Le), so their gradients would be wrong.
+pub fn refuse_emission(scene: &Scene, command: &str) -> Result<()> {
+    if scene.medium.emission.is_some() {
+        bail!(
+            "{command} does not differentiate emissive media yet: the scene's medium.emission would be left out of the gradients (render it with `volgrad render`)"
+        );
+    }
+    Ok(())
 }
 
 #[cfg(test)]

@@ -6,7 +6,8 @@
 use anyhow::{bail, Result};
 use glam::{DVec3, Vec3};
 
-use crate::render::scene_file::{CameraFile, LightFile, SceneFile};
+use crate::render::scene_file::{CameraFile, EmissionFile, LightFile, SceneFile};
+use crate::volume::emission::EmissionKind;
 
 /// Largest |coordinate| of camera.position and camera.target. The renderer traces in f32: beyond
 /// this, squared distances (up to ~1e31) approach f32::MAX (3.4e38) once scaled into index space,
@@ -74,6 +75,9 @@ impl SceneFile {
         if m.phase_g.is_nan() || m.phase_g.abs() >= 1.0 {
             bail!("medium.phase_g must satisfy |g| < 1 (got {})", m.phase_g);
         }
+        if let Some(e) = &m.emission {
+            e.emission_kind()?;
+        }
         check_lights(&self.light)?;
         let r = &self.render;
         if r.spp == 0 {
@@ -92,6 +96,46 @@ impl SceneFile {
             );
         }
         Ok(())
+    }
+}
+
+impl EmissionFile {
+    /// What the grid's values mean, checked: one of `blackbody` and `radiance`; finite settings.
+    pub fn emission_kind(&self) -> Result<EmissionKind> {
+        match (&self.blackbody, &self.radiance) {
+            (Some(b), None) => {
+                let strength = self.strength.unwrap_or(1.0);
+                for (key, v) in [
+                    ("blackbody.scale", b.scale),
+                    ("blackbody.offset", b.offset),
+                    ("blackbody.cutoff", b.cutoff),
+                    ("strength", strength),
+                ] {
+                    if !v.is_finite() {
+                        bail!("medium.emission.{key} must be a finite number (got {v})");
+                    }
+                }
+                if b.scale <= 0.0 || strength < 0.0 {
+                    bail!("medium.emission.blackbody.scale must be > 0 and strength ≥ 0 (got {} and {strength})", b.scale);
+                }
+                Ok(EmissionKind::Blackbody {
+                    scale: b.scale,
+                    offset: b.offset,
+                    cutoff: b.cutoff,
+                    strength,
+                })
+            }
+            (None, Some(radiance)) => {
+                if self.strength.is_some() {
+                    bail!("medium.emission.strength goes with blackbody; scale `radiance` instead");
+                }
+                light_value("medium.emission.radiance", radiance.rgb())?;
+                Ok(EmissionKind::Radiance(radiance.rgb()))
+            }
+            _ => bail!(
+                "medium.emission needs one of `blackbody = {{ scale, offset, cutoff }}` (a temperature grid) and `radiance = [r, g, b]` (× the grid's value)"
+            ),
+        }
     }
 }
 

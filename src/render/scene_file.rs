@@ -75,6 +75,37 @@ pub struct MediumFile {
     /// A level-set grid is refused unless this is "fog" (converted by OpenVDB's sdfToFogVolume).
     #[serde(default)]
     pub levelset: LevelSet,
+    /// Light the medium gives off, from a grid of its own.
+    pub emission: Option<EmissionFile>,
+}
+
+/// `emission = { grid = "temperature", blackbody = { … }, strength = S }` or
+/// `emission = { grid = "flames", radiance = [r, g, b] }`: the medium emits σa·Le.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct EmissionFile {
+    /// The grid's name.
+    pub grid: String,
+    /// The file it is in (default: `medium.vdb`), relative to the scene file.
+    pub vdb: Option<String>,
+    /// Le = strength × the normalised blackbody at T = (v − offset) · scale kelvin (pbrt-v4's
+    /// `Lescale`, `temperaturescale`, `temperatureoffset`, `temperaturecutoff`).
+    pub blackbody: Option<BlackbodyFile>,
+    pub strength: Option<f32>,
+    /// Le = radiance × v.
+    pub radiance: Option<Spectrum>,
+}
+
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct BlackbodyFile {
+    #[serde(default = "one")]
+    pub scale: f32,
+    #[serde(default)]
+    pub offset: f32,
+    /// Temperatures at or below this many kelvin emit nothing.
+    #[serde(default)]
+    pub cutoff: f32,
 }
 
 fn one() -> f32 {

@@ -1,10 +1,11 @@
 //! The participating medium: a brick map of grid values, the grid's transform, and the optical
 //! properties a scene gives it. σt(x) = density_scale · grid(x); the albedo and phase function are
-//! constant over the medium.
+//! constant over the medium; it may emit (`emission`: σa·Le from a grid of its own).
 
 use glam::Vec3;
 
 use crate::volume::brickmap::BrickMap;
+use crate::volume::emission::Emission;
 use crate::volume::majorant::{Majorant, MajorantGrid};
 use crate::volume::transform::IndexTransform;
 
@@ -24,6 +25,8 @@ pub struct Medium {
     pub albedo: Vec3,
     pub phase_g: f32,
     pub majorant: MajorantGrid,
+    /// Light the medium gives off, from its own grid (none: a medium that only scatters).
+    pub emission: Option<Emission>,
 }
 
 impl Medium {
@@ -62,6 +65,7 @@ impl Medium {
             albedo: Vec3::ONE,
             phase_g: 0.0,
             majorant,
+            emission: None,
         }
     }
 

@@ -5,10 +5,13 @@
 //! that no import closes a cycle): `ray`, `sparse_index` and `transform` are leaves; `brickmap`
 //! stores the voxels and `upsample` refines them; `hot_spots` finds loose cells through the
 //! `MajorantCells` trait, `majorant_cells` builds the per-cell bounds, `majorant` is the grid that
-//! holds both and `majorant_walk` its DDA; `medium` gathers grid, transform and majorant; `refine`
+//! holds both and `majorant_walk` its DDA; `blackbody` is a temperature's colour and `emission` a
+//! grid of emitted radiance; `medium` gathers grid, transform, majorant and emission; `refine`
 //! tightens a walk's segments along the ray and `tracking` samples them.
 
+pub mod blackbody;
 pub mod brickmap;
+pub mod emission;
 pub mod hot_spots;
 pub mod majorant;
 mod majorant_cells;
