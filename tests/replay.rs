@@ -17,6 +17,7 @@ use volgrad::render::lights::{DirectionalLight, EnvMap, Environment};
 use volgrad::render::path::{trace, PathRecord, PathState, Segment};
 use volgrad::render::sampling::{sample_rng, Pass};
 use volgrad::render::scene::Scene;
+use volgrad::volume::emission::{Emission, EmissionKind};
 use volgrad::volume::majorant::Majorant;
 use volgrad::volume::medium::Filter;
 use volgrad::volume::tracking::TrackingStats;
@@ -117,6 +118,7 @@ fn check_scene(name: &str, scene: &Scene) -> Branches {
                     j + 1,
                     context()
                 );
+                collected += segment.throughput * segment.emission;
                 if segment.light_sample.is_some() {
                     collected += segment.throughput * albedo * segment.nee;
                 }
@@ -240,4 +242,24 @@ fn carried_radiance_reproduces_traced_radiance() {
         b.unscattered >= 500 && b.rr_survived == 0,
         "absorbing: {b:?}"
     );
+
+    // An emitting medium, its emission from a grid of its own (offset by half a voxel and
+    // coloured): emission at scattered collisions, at collisions past the maximum depth, and
+    // at absorbing ones.
+    for (name, albedo, max_depth) in [
+        ("emitting", coloured, 16),
+        ("emitting, max depth 1", coloured, 1),
+        ("emitting, absorbing", Vec3::ZERO, 16),
+    ] {
+        let mut scene = lumpy(albedo, max_depth);
+        scene.medium.emission = Some(Emission::new(
+            "flames".into(),
+            grid(7, |v: IVec3| 0.5 + 0.1 * v.x as f32),
+            centred(7, 1.0),
+            EmissionKind::Radiance(Vec3::new(3.0, 1.5, 0.5)),
+            Filter::Trilinear,
+        ));
+        let b = check_scene(name, &scene);
+        assert!(b.lit_paths >= 1000, "{name}: {b:?}");
+    }
 }

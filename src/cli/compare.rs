@@ -10,7 +10,7 @@ use clap::ValueEnum;
 use super::{set_threads, values};
 use volgrad::compare::{self, EqualTimeOptions, StabilityOptions};
 use volgrad::gradient::adjoint::Estimator;
-use volgrad::render::scene::{refuse_emission, Scene};
+use volgrad::render::scene::Scene;
 
 #[derive(Clone, Copy, PartialEq, Eq, ValueEnum)]
 pub enum Suite {
@@ -98,7 +98,6 @@ pub fn run(args: &Args) -> Result<()> {
         (Suite::EqualTime, None) => bail!("give a scene file, or --suite stability"),
         (Suite::EqualTime, Some(path)) => {
             let scene = Scene::load(path)?;
-            refuse_emission(&scene, "compare")?;
             let name = path
                 .file_stem()
                 .map_or("scene".into(), |s| s.to_string_lossy().into_owned());

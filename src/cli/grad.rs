@@ -25,7 +25,7 @@ use volgrad::io::progress;
 use volgrad::io::{colormap, vdb};
 use volgrad::render::fingerprint;
 use volgrad::render::lights::luminance;
-use volgrad::render::scene::{refuse_emission, Scene};
+use volgrad::render::scene::Scene;
 
 /// What `grad` computes: an estimator's gradient of every voxel, or finite differences along
 /// directions. The names are the estimators' own, plus `fd`.
@@ -181,7 +181,6 @@ pub fn run(args: &Args, cluster: &Cluster) -> Result<()> {
         })?;
     }
     let (scene, target) = cluster.agree(Scene::load(&args.scene).and_then(|scene| {
-        refuse_emission(&scene, "grad")?;
         let target = load_target(args, &scene)?;
         Ok((scene, target))
     }))?;

@@ -9,7 +9,7 @@ use super::{set_threads, AdjointArgs, FdArgs};
 use volgrad::gradient::adjoint::Estimator;
 use volgrad::gradient::gradcheck::{checks_table, gradcheck, GradcheckOptions, Z_LIMIT};
 use volgrad::gradient::loss::Loss;
-use volgrad::render::scene::{refuse_emission, Scene};
+use volgrad::render::scene::Scene;
 
 #[derive(clap::Args)]
 pub struct Args {
@@ -32,7 +32,6 @@ pub struct Args {
 pub fn run(args: &Args) -> Result<()> {
     set_threads(args.adjoint.sampling.threads)?;
     let mut scene = Scene::load(&args.scene)?;
-    refuse_emission(&scene, "gradcheck")?;
     if args.width == 0 {
         bail!("--width must be at least 1");
     }

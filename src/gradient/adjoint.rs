@@ -3,8 +3,9 @@
 //!
 //! Notation (DESIGN.md, supplement eqs. 45–58): segment j leaves x_{j−1} along ω with throughput
 //! β_{j−1}; ℓ = min(t, t_max) is how far it got (clipped to where it is inside the medium's box);
-//! R_j = ĥ(x_j) is what the path carries back from x_j on (α·(NEE + deeper) at a collision, the
-//! MIS-weighted environment radiance on escape). ∂σt(y)/∂θ_k = density_scale · (lookup weight of
+//! R_j = ĥ(x_j) is what the path carries back from x_j on ((1 − α)·Le + α·(NEE + deeper) at a
+//! collision, the MIS-weighted environment radiance on escape: the supplement's h with the
+//! emission term, eq. 45). ∂σt(y)/∂θ_k = density_scale · (lookup weight of
 //! voxel k at y).
 //!
 //! - joint:  β_{j−1} · ℓ · [ĥ(y) − ĥ(x_j)] · ∂σt(y),  y uniform on the segment (eq. 58);
@@ -12,7 +13,7 @@
 //! - naive:  −β_{j−1} · ℓ · ĥ(x_j) · ∂σt(s)  +  β_{j−1} · ĥ(x_j) · ∂σt(x_j) / σt(x_j);
 //!
 //! and for all three, every NEE shadow ray adds −C · ℓ_s · ∂σt(u) (C its contribution, u uniform
-//! on it). ĥ at a probe is α·(NEE + indirect): the NEE reuses the light sample of x_j (joint) and
+//! on it). ĥ at a probe is (1 − α)·Le + α·(NEE + indirect): the NEE reuses the light sample of x_j (joint) and
 //! walks one shadow ray, to a light picked ∝ its unoccluded contribution (`direct_light_one`); the
 //! indirect part is suffix paths traced from the probes, either one on every segment or K per path
 //! on segments picked with probability P_j ∝ |β_{j−1}|·ℓ_j (systematic sampling), each weighted by
@@ -28,10 +29,12 @@
 //! it enters and leaves the medium's box, the collision distance or none), the throughput β_{j−1}
 //! entering it, and what its end contributed — after a collision that scattered, the light sample,
 //! the NEE radiance before the albedo and the Russian-roulette factor w_j (1/q, or 0 where the path
-//! ended); on escape, the MIS-weighted environment radiance; after a collision that did not scatter
-//! (past the maximum depth, or absorbed with albedo 0), nothing. From these fields alone the replay
+//! ended); on escape, the MIS-weighted environment radiance; at every collision, scattered or not
+//! (past the maximum depth, or absorbed with albedo 0), the medium's emission (1 − α)·Le there
+//! (zero in a medium that does not emit). From these fields alone the replay
 //! re-derives, last segment first, the radiance the path carries back from each vertex,
-//! R_j = α·(NEE_j + w_j·R_{j+1}) (`carried_radiance`), and every estimator uses R_j as ĥ(x_j). That
+//! R_j = (1 − α)·Le_j + α·(NEE_j + w_j·R_{j+1}) (`carried_radiance`; the emission term at any
+//! collision, the rest where it scattered), and every estimator uses R_j as ĥ(x_j). That
 //! rule is the one `trace` used to add up the pixel, written a second time, backwards; the test
 //! `carried_radiance_reproduces_traced_radiance` in `tests/replay.rs` ties the two together: for
 //! random camera paths in scenes where Russian roulette, the max-depth cut, absorption, a sun and
@@ -44,7 +47,7 @@ use rand::Rng;
 
 use crate::render::lights::luminance;
 use crate::render::path::{
-    direct_light_one, trace, LightSample, PathRecord, PathState, Segment, ShadowRay,
+    direct_light_one, emitted, trace, LightSample, PathRecord, PathState, Segment, ShadowRay,
 };
 use crate::render::scene::Scene;
 use crate::volume::brickmap::{corner, floor_ivec3};
@@ -169,8 +172,10 @@ pub fn carried_radiance(segments: &[Segment], albedo: Vec3, carried: &mut Vec<Ve
     for (j, segment) in segments.iter().enumerate().rev() {
         deeper = match (segment.collision, segment.light_sample) {
             (None, _) => segment.escape,
-            (Some(_), None) => Vec3::ZERO,
-            (Some(_), Some(_)) => albedo * (segment.nee + segment.continuation_weight * deeper),
+            (Some(_), None) => segment.emission,
+            (Some(_), Some(_)) => {
+                segment.emission + albedo * (segment.nee + segment.continuation_weight * deeper)
+            }
         };
         carried[j] = deeper;
     }
@@ -255,10 +260,10 @@ impl<R: Rng> Replay<'_, R> {
         self.plan_suffixes(&record.segments, suffixes);
         for (j, segment) in record.segments.iter().enumerate() {
             let length = segment.length_in_medium();
-            if length <= 0.0
-                || (segment.depth > self.options.max_depth && segment.collision.is_some())
-            {
-                // Outside the medium, or a collision beyond the maximum depth: ĥ(y) = ĥ(x_j) = 0.
+            let beyond = segment.depth > self.options.max_depth && segment.collision.is_some();
+            if length <= 0.0 || (beyond && medium.emission.is_none()) {
+                // Outside the medium, or a collision beyond the maximum depth in a medium that
+                // does not emit: ĥ(y) = ĥ(x_j) = 0.
                 continue;
             }
             let replayed = ReplayedSegment {
@@ -356,10 +361,10 @@ impl<R: Rng> Replay<'_, R> {
     fn drt_term(&mut self, replayed: &ReplayedSegment, sink: &mut impl GradientSink) {
         self.transmittance_term(replayed, sink);
         let segment = replayed.segment;
-        if segment.depth > self.options.max_depth {
+        let medium = &self.scene.medium;
+        if segment.depth > self.options.max_depth && medium.emission.is_none() {
             return;
         }
-        let medium = &self.scene.medium;
         let ray = &replayed.ray;
         let Some((t, w)) = sample_transmittance_distance(
             medium,
@@ -411,9 +416,9 @@ impl<R: Rng> Replay<'_, R> {
         splat_d_sigma(medium, ray.at(u), -shadow.contribution * length, sink);
     }
 
-    /// ĥ at distance `t` along `segment`: α·(NEE with `light_sample` + the weighted sum of
-    /// `suffix.count` suffix paths), zero past the maximum depth (the renderer would not scatter
-    /// there either).
+    /// ĥ at distance `t` along `segment`: the emission there, (1 − α)·Le, plus α·(NEE with
+    /// `light_sample` + the weighted sum of `suffix.count` suffix paths), the latter zero past the
+    /// maximum depth (the renderer would not scatter there either).
     fn h_at(
         &mut self,
         segment: &Segment,
@@ -421,11 +426,12 @@ impl<R: Rng> Replay<'_, R> {
         light_sample: &LightSample,
         suffix: SuffixPlan,
     ) -> Vec3 {
-        if segment.depth > self.options.max_depth {
-            return Vec3::ZERO;
-        }
         let scene = self.scene;
         let (p, dir) = (segment.at(t), segment.dir);
+        let emission = emitted(&scene.medium, p);
+        if segment.depth > self.options.max_depth {
+            return emission;
+        }
         let mut in_scattered =
             direct_light_one(scene, p, dir, light_sample, self.rng, self.stats, None);
         for _ in 0..suffix.count {
@@ -434,6 +440,6 @@ impl<R: Rng> Replay<'_, R> {
             in_scattered +=
                 suffix.weight * trace(scene, state, max_depth, self.rng, self.stats, None);
         }
-        scene.medium.albedo * in_scattered
+        emission + scene.medium.albedo * in_scattered
     }
 }

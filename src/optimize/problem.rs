@@ -23,7 +23,7 @@ use crate::optimize::targets::{
 };
 use crate::render::camera::Camera;
 use crate::render::lights::Lights;
-use crate::render::scene::{refuse_emission, Scene};
+use crate::render::scene::Scene;
 use crate::volume::brickmap::{floor_ivec3, BrickMap};
 use crate::volume::medium::Medium;
 use crate::volume::transform::IndexTransform;
@@ -317,7 +317,6 @@ impl Inputs {
         file.target_seed = Some(file.target_seed.unwrap_or(file.seed));
         file.seed = seed.unwrap_or(file.seed);
         let scene = Scene::load(&RunFile::resolve(run_path, &file.scene)).context("scene")?;
-        refuse_emission(&scene, "optimize")?;
         if scene.medium.density_scale <= 0.0 {
             bail!(
                 "scene: medium.density_scale is {}: a vacuum's images do not depend on the grid, so it cannot be reconstructed from them",

@@ -97,6 +97,8 @@ pub struct Segment {
     pub escape: Vec3,
     /// Russian roulette after this vertex: the 1/q factor, or 0 if the path ended here.
     pub continuation_weight: f32,
+    /// At any collision (scattered or not): the medium's emission there, (1 − α)·Le.
+    pub emission: Vec3,
 }
 
 impl Segment {
@@ -315,6 +317,7 @@ pub fn trace(
             nee: Vec3::ZERO,
             escape: Vec3::ZERO,
             continuation_weight: 0.0,
+            emission: Vec3::ZERO,
         };
         let path_goes_on = match collision {
             None => {
@@ -327,13 +330,15 @@ pub fn trace(
             // A collision past the maximum depth: the renderer does not scatter there, but the
             // medium's emission there is light that reached the camera after `depth` bounces.
             Some(t) if depth >= max_depth => {
-                radiance += throughput * emitted(medium, p + dir * t);
+                segment.emission = emitted(medium, p + dir * t);
+                radiance += throughput * segment.emission;
                 false
             }
             Some(t) => {
                 depth += 1;
                 p += dir * t;
-                radiance += throughput * emitted(medium, p);
+                segment.emission = emitted(medium, p);
+                radiance += throughput * segment.emission;
                 // A real collision scatters with probability α; the albedo weights the throughput.
                 throughput *= medium.albedo;
                 if throughput == Vec3::ZERO {
@@ -374,7 +379,7 @@ pub fn trace(
 /// tracker would have lower variance, but the tracker's null collisions are shared with shadow
 /// rays and the gradients' replay; real collisions change the path loop in one place.)
 #[inline]
-fn emitted(medium: &crate::volume::medium::Medium, p: Vec3) -> Vec3 {
+pub fn emitted(medium: &crate::volume::medium::Medium, p: Vec3) -> Vec3 {
     match &medium.emission {
         None => Vec3::ZERO,
         Some(e) => (Vec3::ONE - medium.albedo) * e.radiance(p),

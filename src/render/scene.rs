@@ -211,17 +211,6 @@ fn load_emission(
     ))
 }
 
-/// An error for a scene that emits: the gradient passes do not yet carry emission in the
-/// radiance a segment end sends back (h = α·L_s + (1 − α)·Le), so their gradients would be wrong.
-pub fn refuse_emission(scene: &Scene, command: &str) -> Result<()> {
-    if scene.medium.emission.is_some() {
-        bail!(
-            "{command} does not differentiate emissive media yet: the scene's medium.emission would be left out of the gradients (render it with `volgrad render`)"
-        );
-    }
-    Ok(())
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
