@@ -16,7 +16,7 @@ use volgrad::gradient::adjoint::Estimator;
 use volgrad::gradient::fd;
 use volgrad::gradient::loss::Loss;
 use volgrad::gradient::objective::{check_target, render_target};
-use volgrad::gradient::passes::{derivative_image, GradientRun};
+use volgrad::gradient::passes::{derivative_image, GradientRun, Parameter};
 use volgrad::io::fingerprint::image as image_fingerprint;
 use volgrad::io::gradient_files::{self, Provenance};
 use volgrad::io::images::{self, RgbImage};
@@ -64,6 +64,10 @@ pub struct Args {
     pub estimator: Method,
     #[arg(long, value_enum, default_value_t = Loss::Mean)]
     pub loss: Loss,
+    /// The grid the gradient is with respect to: the density (through extinction) or the
+    /// scene's emission grid (`medium.emission`; written as grad_<its name>).
+    #[arg(long, value_enum, default_value_t = Parameter::Extinction)]
+    pub parameter: Parameter,
     /// Target image (EXR, PNG, ...) for l2, l1 and relative-l2.
     #[arg(long, conflicts_with = "target_scene")]
     pub target: Option<PathBuf>,
@@ -165,6 +169,11 @@ pub fn run(args: &Args, cluster: &Cluster) -> Result<()> {
             args.scene.file_stem().unwrap_or_default().to_string_lossy()
         ))
     });
+    if args.parameter == Parameter::Emission
+        && (args.estimator == Method::FiniteDifferences || args.image_of.is_some())
+    {
+        bail!("--parameter emission goes with the path estimators: --estimator fd and --image-of perturb the density");
+    }
     if cluster.size() > 1
         && (args.estimator == Method::FiniteDifferences || args.image_of.is_some())
     {
@@ -197,6 +206,10 @@ pub fn run(args: &Args, cluster: &Cluster) -> Result<()> {
         Method::FiniteDifferences => return finite_differences(args, &scene, target.as_ref()),
     };
     let mut options = args.adjoint.options(&scene, estimator)?;
+    options.parameter = args.parameter;
+    if args.parameter == Parameter::Emission && scene.medium.emission.is_none() {
+        bail!("--parameter emission: the scene's medium has no emission (medium.emission)");
+    }
     options.progress &= cluster.is_root();
     let adjoint = adjoint_shared(cluster, &scene, args.loss, target.as_ref(), &options)?;
     if let (Some(loss), true) = (adjoint.loss, cluster.is_root()) {
@@ -225,7 +238,10 @@ pub fn run(args: &Args, cluster: &Cluster) -> Result<()> {
         // the ×64 cloud it is a third of what a render holds).
         let derivative =
             image_box.map(|(lo, hi)| (lo, hi, derivative_image(&scene, lo, hi, &options)));
-        let (medium_grid, transform) = (scene.grid_name.clone(), scene.medium.transform);
+        let (medium_grid, transform) = match (args.parameter, &scene.medium.emission) {
+            (Parameter::Emission, Some(e)) => (e.name.clone(), e.transform),
+            _ => (scene.grid_name.clone(), scene.medium.transform),
+        };
         drop(scene);
         // What the report needs of the gradient, then the gradient itself goes, and the exported grid
         // goes as soon as its values are in the bridge's arrays: a large gradient is held twice at a

@@ -21,7 +21,7 @@ use clap::{Args, ValueEnum};
 use volgrad::gradient::adjoint::{AdjointOptions, Estimator, Suffix, DEFAULT_SUFFIX_PATHS};
 use volgrad::gradient::fd::{self, FdOptions};
 use volgrad::gradient::loss::Loss;
-use volgrad::gradient::passes::GradOptions;
+use volgrad::gradient::passes::{GradOptions, Parameter};
 use volgrad::render::image::RenderStats;
 use volgrad::render::scene::Scene;
 
@@ -108,6 +108,7 @@ impl AdjointArgs {
             active_only: self.domain == Domain::Active,
             progress: !s.quiet,
             quantum: None,
+            parameter: Parameter::Extinction,
         })
     }
 }

@@ -101,8 +101,13 @@ pub trait GradientSink {
 /// Adds `value · ∂σt(p)/∂θ_k` for every voxel k that the lookup at index point `p` weights.
 #[inline]
 pub fn splat_d_sigma(medium: &Medium, p: Vec3, value: Vec3, sink: &mut impl GradientSink) {
-    let value = value * medium.density_scale;
-    match medium.filter {
+    splat_lookup(medium.filter, p, value * medium.density_scale, sink);
+}
+
+/// `value` spread over the voxels a lookup at index point `p` through `filter` weights, by their
+/// weights.
+pub fn splat_lookup(filter: Filter, p: Vec3, value: Vec3, sink: &mut impl GradientSink) {
+    match filter {
         Filter::Nearest => sink.add(floor_ivec3(p + 0.5), value),
         Filter::Trilinear => {
             let base = floor_ivec3(p);

@@ -33,7 +33,21 @@ pub struct GradOptions {
     /// The gradient's quantum (`GradientRun::quantum`); `None`: `quantum_for` this pass's δ.
     /// Passes whose grids are added together as quanta share one.
     pub quantum: Option<f64>,
+    /// Which grid's values the gradient is with respect to.
+    pub parameter: Parameter,
 }
+
+/// The grid a gradient is taken with respect to.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, clap::ValueEnum)]
+pub enum Parameter {
+    /// The density grid, through σt (the estimators' business).
+    #[default]
+    Extinction,
+    /// The emission grid's values, through Le (`emission_gradient`).
+    Emission,
+}
+
+crate::display_as_value_enum!(Parameter);
 
 impl GradOptions {
     /// Per-path suffixes over every voxel of the domain, without a progress bar: what tests,
@@ -51,6 +65,7 @@ impl GradOptions {
             active_only: false,
             progress: false,
             quantum: None,
+            parameter: Parameter::Extinction,
         }
     }
 }
@@ -317,7 +332,32 @@ impl GradientPass<'_> {
             rng: &mut rng,
             stats: &mut worker.stats,
         };
-        replay.camera_path_gradient(camera.position, dir, &mut worker.scratch, sink)
+        let scratch = &mut worker.scratch;
+        match self.options.parameter {
+            Parameter::Extinction => {
+                replay.camera_path_gradient(camera.position, dir, scratch, sink)
+            }
+            Parameter::Emission => {
+                replay.camera_path_emission_gradient(camera.position, dir, scratch, sink)
+            }
+        }
+    }
+}
+
+/// The grid whose values `parameter` names: the density's, or the emission's (the density's for a
+/// medium that does not emit: its gradient is then 0).
+pub fn parameter_grid(scene: &Scene, parameter: Parameter) -> &BrickMap {
+    match (parameter, &scene.medium.emission) {
+        (Parameter::Emission, Some(e)) => &e.grid,
+        _ => &scene.medium.grid,
+    }
+}
+
+/// An empty gradient grid over every voxel `parameter`'s lookups can weight.
+pub fn gradient_grid_for<T: Accumulator>(scene: &Scene, parameter: Parameter) -> GradientGrid<T> {
+    match (parameter, &scene.medium.emission) {
+        (Parameter::Emission, Some(e)) => GradientGrid::for_grid(&e.grid),
+        _ => GradientGrid::for_medium(&scene.medium),
     }
 }
 
@@ -337,9 +377,11 @@ pub fn gradient_of(
 ) -> GradientRun {
     let camera = &scene.camera;
     let w = camera.width;
-    let mut gradient = GradientGrid::for_medium(&scene.medium);
+    let mut gradient = gradient_grid_for(scene, options.parameter);
     let mut image = RgbImage::new(camera.width, camera.height);
-    let active = options.active_only.then_some(&scene.medium.grid);
+    let active = options
+        .active_only
+        .then_some(parameter_grid(scene, options.parameter));
     let spp = options.spp;
     let quantum = options
         .quantum

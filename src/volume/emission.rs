@@ -70,11 +70,42 @@ impl Emission {
 
     /// Le at world point `p` (looked up in the grid's own index space).
     pub fn radiance(&self, p: Vec3) -> Vec3 {
-        let index = self.transform.point_to_index(p);
-        let v = match self.filter {
+        self.radiance_of(self.value(self.transform.point_to_index(p)))
+    }
+
+    /// The grid's value at index point `index`, through the medium's filter.
+    fn value(&self, index: Vec3) -> f32 {
+        match self.filter {
             Filter::Nearest => self.grid.nearest(index),
             Filter::Trilinear => self.grid.trilinear(index),
+        }
+    }
+
+    /// ∂Le/∂v at world point `p`, with `p` in the grid's index space (where the lookup's voxel
+    /// weights are): `radiance` for a radiance grid; for a temperature grid strength × scale ×
+    /// the blackbody's slope at T (0 at or below the cutoff, where Le does not depend on v).
+    pub fn radiance_derivative(&self, p: Vec3) -> (Vec3, Vec3) {
+        let index = self.transform.point_to_index(p);
+        let d = match self.kind {
+            EmissionKind::Radiance(rgb) => rgb,
+            EmissionKind::Blackbody {
+                scale,
+                offset,
+                cutoff,
+                strength,
+            } => {
+                let kelvin = (self.value(index) - offset) * scale;
+                if kelvin <= cutoff || kelvin <= 0.0 {
+                    Vec3::ZERO
+                } else {
+                    strength * scale * self.blackbody_slope(kelvin)
+                }
+            }
         };
+        (index, d)
+    }
+
+    fn radiance_of(&self, v: f32) -> Vec3 {
         match self.kind {
             EmissionKind::Radiance(rgb) => rgb * v,
             EmissionKind::Blackbody {
@@ -90,6 +121,16 @@ impl Emission {
                 strength * self.blackbody(kelvin)
             }
         }
+    }
+
+    /// d blackbody / dT, per kelvin: the slope of the table's interval holding `kelvin`.
+    fn blackbody_slope(&self, kelvin: f32) -> Vec3 {
+        let x = kelvin / TABLE_KELVIN_STEP;
+        if x >= (TABLE_ENTRIES - 1) as f32 {
+            return Vec3::ZERO;
+        }
+        let i = x as usize;
+        (self.table[i + 1] - self.table[i]) / TABLE_KELVIN_STEP
     }
 
     fn blackbody(&self, kelvin: f32) -> Vec3 {
