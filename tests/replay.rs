@@ -14,7 +14,7 @@ use glam::{IVec3, Vec3};
 use rand::Rng;
 use volgrad::gradient::adjoint::carried_radiance;
 use volgrad::render::lights::{DirectionalLight, EnvMap, Environment};
-use volgrad::render::path::{trace, PathRecord, PathState, Segment};
+use volgrad::render::path::{trace, PathRecord, PathState, Segment, SegmentEnd};
 use volgrad::render::sampling::{sample_rng, Pass};
 use volgrad::render::scene::Scene;
 use volgrad::volume::emission::{Emission, EmissionKind};
@@ -45,13 +45,19 @@ struct Branches {
 impl Branches {
     fn count(&mut self, segments: &[Segment]) {
         for segment in segments {
-            match (segment.collision, segment.light_sample) {
-                (None, _) if segment.escape != Vec3::ZERO => self.escapes += 1,
-                (None, _) => {}
-                (Some(_), None) => self.unscattered += 1,
-                (Some(_), Some(_)) if segment.continuation_weight > 1.0 => self.rr_survived += 1,
-                (Some(_), Some(_)) if segment.continuation_weight == 0.0 => self.rr_ended += 1,
-                (Some(_), Some(_)) => {}
+            match segment.end {
+                SegmentEnd::Escaped { radiance } if radiance != Vec3::ZERO => self.escapes += 1,
+                SegmentEnd::Escaped { .. } => {}
+                SegmentEnd::Stopped { .. } => self.unscattered += 1,
+                SegmentEnd::Scattered {
+                    continuation_weight: w,
+                    ..
+                } if w > 1.0 => self.rr_survived += 1,
+                SegmentEnd::Scattered {
+                    continuation_weight: 0.0,
+                    ..
+                } => self.rr_ended += 1,
+                SegmentEnd::Scattered { .. } => {}
             }
         }
     }
@@ -118,9 +124,14 @@ fn check_scene(name: &str, scene: &Scene) -> Branches {
                     j + 1,
                     context()
                 );
-                collected += segment.throughput * segment.emission;
-                if segment.light_sample.is_some() {
-                    collected += segment.throughput * albedo * segment.nee;
+                match segment.end {
+                    SegmentEnd::Escaped { .. } => {}
+                    SegmentEnd::Stopped { emission, .. } => {
+                        collected += segment.throughput * emission
+                    }
+                    SegmentEnd::Scattered { emission, nee, .. } => {
+                        collected += segment.throughput * (emission + albedo * nee)
+                    }
                 }
             }
         }

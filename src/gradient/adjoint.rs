@@ -47,7 +47,8 @@ use rand::Rng;
 
 use crate::render::lights::luminance;
 use crate::render::path::{
-    direct_light_one, emitted, trace, LightSample, PathRecord, PathState, Segment, ShadowRay,
+    direct_light_one, emitted, trace, LightSample, PathRecord, PathState, Segment, SegmentEnd,
+    ShadowRay,
 };
 use crate::render::scene::Scene;
 use crate::volume::brickmap::{corner, floor_ivec3};
@@ -175,12 +176,15 @@ pub fn carried_radiance(segments: &[Segment], albedo: Vec3, carried: &mut Vec<Ve
     carried.resize(segments.len(), Vec3::ZERO);
     let mut deeper = Vec3::ZERO;
     for (j, segment) in segments.iter().enumerate().rev() {
-        deeper = match (segment.collision, segment.light_sample) {
-            (None, _) => segment.escape,
-            (Some(_), None) => segment.emission,
-            (Some(_), Some(_)) => {
-                segment.emission + albedo * (segment.nee + segment.continuation_weight * deeper)
-            }
+        deeper = match segment.end {
+            SegmentEnd::Escaped { radiance } => radiance,
+            SegmentEnd::Stopped { emission, .. } => emission,
+            SegmentEnd::Scattered {
+                emission,
+                nee,
+                continuation_weight,
+                ..
+            } => emission + albedo * (nee + continuation_weight * deeper),
         };
         carried[j] = deeper;
     }
@@ -265,7 +269,7 @@ impl<R: Rng> Replay<'_, R> {
         self.plan_suffixes(&record.segments, suffixes);
         for (j, segment) in record.segments.iter().enumerate() {
             let length = segment.length_in_medium();
-            let beyond = segment.depth > self.options.max_depth && segment.collision.is_some();
+            let beyond = segment.depth > self.options.max_depth && segment.collision().is_some();
             if length <= 0.0 || (beyond && medium.emission.is_none()) {
                 // Outside the medium, or a collision beyond the maximum depth in a medium that
                 // does not emit: ĥ(y) = ĥ(x_j) = 0.
@@ -348,9 +352,10 @@ impl<R: Rng> Replay<'_, R> {
     /// small; a segment that ended without one (escape, absorption) draws a fresh one.
     fn joint_term(&mut self, replayed: &ReplayedSegment, sink: &mut impl GradientSink) {
         let segment = replayed.segment;
-        let light_sample = segment
-            .light_sample
-            .unwrap_or_else(|| LightSample::draw(self.rng));
+        let light_sample = match segment.end {
+            SegmentEnd::Scattered { light_sample, .. } => light_sample,
+            _ => LightSample::draw(self.rng),
+        };
         let h_probe = self.h_at(segment, replayed.probe, &light_sample, replayed.suffix);
         splat_d_sigma(
             &self.scene.medium,
@@ -391,7 +396,7 @@ impl<R: Rng> Replay<'_, R> {
     fn naive_term(&mut self, replayed: &ReplayedSegment, sink: &mut impl GradientSink) {
         self.transmittance_term(replayed, sink);
         let segment = replayed.segment;
-        if let Some(t) = segment.collision {
+        if let Some(t) = segment.collision() {
             let medium = &self.scene.medium;
             let x = replayed.ray.at(t);
             let sigma = medium.sigma_t(x);

@@ -47,7 +47,7 @@ pub fn emission_path_gradient(scene: &Scene, segments: &[Segment], sink: &mut im
     };
     let absorbed = Vec3::ONE - medium.albedo;
     for segment in segments {
-        if let Some(t) = segment.collision {
+        if let Some(t) = segment.collision() {
             let (index, d_radiance) = emission.radiance_derivative(segment.at(t));
             let value = segment.throughput * absorbed * d_radiance;
             if value != Vec3::ZERO {

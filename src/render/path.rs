@@ -75,36 +75,55 @@ impl PathState {
 }
 
 /// One free flight of a path, as the adjoint pass replays it: from `origin` along `dir`, entering
-/// the medium's box at `t_enter` and leaving it at `t_exit`, ending in a real collision at
-/// `collision` or escaping. `trace` records one per loop iteration; the replay re-derives the
-/// radiance the path carries from the fields below (`gradient::adjoint::carried_radiance`).
+/// the medium's box at `t_enter` and leaving it at `t_exit`, and how it ended (`end`). `trace`
+/// records one per loop iteration; the replay re-derives the radiance the path carries from these
+/// fields alone (`gradient::adjoint::carried_radiance`).
 #[derive(Debug, Clone, Copy)]
 pub struct Segment {
     pub origin: Vec3,
     pub dir: Vec3,
     pub t_enter: f32,
     pub t_exit: f32,
-    pub collision: Option<f32>,
     /// Path throughput entering the segment (β_{j−1}).
     pub throughput: Vec3,
     /// Index j of the segment (1 for the camera ray); a collision on it is scattering event j.
     pub depth: u32,
-    /// At a collision that scattered: the light sample and the NEE radiance (before the albedo).
-    /// `None` at a collision that did not scatter (past the maximum depth, or albedo 0).
-    pub light_sample: Option<LightSample>,
-    pub nee: Vec3,
-    /// On escape: the environment radiance with its MIS weight.
-    pub escape: Vec3,
-    /// Russian roulette after this vertex: the 1/q factor, or 0 if the path ended here.
-    pub continuation_weight: f32,
-    /// At any collision (scattered or not): the medium's emission there, (1 − α)·Le.
-    pub emission: Vec3,
+    pub end: SegmentEnd,
+}
+
+/// How a recorded flight ended, with what that end sends back along the path: each kind holds
+/// exactly what the replay needs of it, so the compiler keeps `trace` and the replay in step.
+#[derive(Debug, Clone, Copy)]
+pub enum SegmentEnd {
+    /// Left the medium's box: the environment radiance with its MIS weight.
+    Escaped { radiance: Vec3 },
+    /// A real collision at distance `at` that did not scatter (past the maximum depth, or
+    /// absorbed with albedo 0): only the medium's emission there, (1 − α)·Le.
+    Stopped { at: f32, emission: Vec3 },
+    /// A real collision at distance `at` that scattered: its emission, the light sample and the
+    /// NEE radiance (before the albedo), and Russian roulette's factor after it (1/q, or 0 where
+    /// the path ended).
+    Scattered {
+        at: f32,
+        emission: Vec3,
+        light_sample: LightSample,
+        nee: Vec3,
+        continuation_weight: f32,
+    },
 }
 
 impl Segment {
+    /// Where the real collision that ended the flight was, if it did not escape.
+    pub fn collision(&self) -> Option<f32> {
+        match self.end {
+            SegmentEnd::Escaped { .. } => None,
+            SegmentEnd::Stopped { at, .. } | SegmentEnd::Scattered { at, .. } => Some(at),
+        }
+    }
+
     /// ℓ: how far the flight ran inside the medium's box (to the collision, or to where it left).
     pub fn length_in_medium(&self) -> f32 {
-        (self.collision.unwrap_or(self.t_exit) - self.t_enter).max(0.0)
+        (self.collision().unwrap_or(self.t_exit) - self.t_enter).max(0.0)
     }
 
     /// The world point at distance `t` along the flight.
@@ -303,68 +322,68 @@ pub fn trace(
         let collision =
             bounds.and_then(|(t0, t1)| sample_collision(medium, &ray, t0, t1, rng, stats));
         let (t_enter, t_exit) = bounds.unwrap_or((0.0, 0.0));
-        // Filled in below with whatever the flight's end contributes; the defaults (no light
-        // sample, no NEE, no escape, continuation weight 0) describe a path that ends unscattered.
-        let mut segment = Segment {
-            origin: p,
-            dir,
-            t_enter,
-            t_exit,
-            collision,
-            throughput,
-            depth: depth + 1,
-            light_sample: None,
-            nee: Vec3::ZERO,
-            escape: Vec3::ZERO,
-            continuation_weight: 0.0,
-            emission: Vec3::ZERO,
-        };
-        let path_goes_on = match collision {
+        // The flight as it began: the collision below moves p, turns dir and scales throughput.
+        let (origin, flight_dir, entering, index) = (p, dir, throughput, depth + 1);
+        let (end, path_goes_on) = match collision {
             None => {
                 // Escaped: the environment, MIS-weighted against the phase sample that aimed here.
                 let weight = phase_pdf.map_or(1.0, |pdf| power_heuristic(pdf, env.pdf(dir)));
-                segment.escape = env.eval(dir) * weight;
-                radiance += throughput * segment.escape;
-                false
+                let escape = env.eval(dir) * weight;
+                radiance += throughput * escape;
+                (SegmentEnd::Escaped { radiance: escape }, false)
             }
             // A collision past the maximum depth: the renderer does not scatter there, but the
             // medium's emission there is light that reached the camera after `depth` bounces.
             Some(t) if depth >= max_depth => {
-                segment.emission = emitted(medium, p + dir * t);
-                radiance += throughput * segment.emission;
-                false
+                let emission = emitted(medium, p + dir * t);
+                radiance += throughput * emission;
+                (SegmentEnd::Stopped { at: t, emission }, false)
             }
             Some(t) => {
                 depth += 1;
                 p += dir * t;
-                segment.emission = emitted(medium, p);
-                radiance += throughput * segment.emission;
+                let emission = emitted(medium, p);
+                radiance += throughput * emission;
                 // A real collision scatters with probability α; the albedo weights the throughput.
                 throughput *= medium.albedo;
                 if throughput == Vec3::ZERO {
                     // Absorbed (albedo 0): nothing more can reach the camera along this path.
-                    false
+                    (SegmentEnd::Stopped { at: t, emission }, false)
                 } else {
                     let light_sample = LightSample::draw(rng);
                     let shadows = record.as_deref_mut().map(|r| (&mut r.shadows, throughput));
-                    segment.nee = if one_light_nee {
+                    let nee = if one_light_nee {
                         direct_light_one(scene, p, dir, &light_sample, rng, stats, shadows)
                     } else {
                         direct_light(scene, p, dir, &light_sample, rng, stats, shadows)
                     };
-                    segment.light_sample = Some(light_sample);
-                    radiance += throughput * segment.nee;
+                    radiance += throughput * nee;
                     let new_dir = phase.sample(dir, [rng.gen(), rng.gen()]);
                     phase_pdf = Some(phase.eval(dir.dot(new_dir)));
                     dir = new_dir;
-                    segment.continuation_weight = russian_roulette(throughput, depth, rng);
-                    throughput *= segment.continuation_weight;
-                    segment.continuation_weight != 0.0
+                    let continuation_weight = russian_roulette(throughput, depth, rng);
+                    throughput *= continuation_weight;
+                    let end = SegmentEnd::Scattered {
+                        at: t,
+                        emission,
+                        light_sample,
+                        nee,
+                        continuation_weight,
+                    };
+                    (end, continuation_weight != 0.0)
                 }
             }
         };
         if let Some(r) = record.as_deref_mut() {
-            r.segments.push(segment);
+            r.segments.push(Segment {
+                origin,
+                dir: flight_dir,
+                t_enter,
+                t_exit,
+                throughput: entering,
+                depth: index,
+                end,
+            });
         }
         if !path_goes_on {
             break;
