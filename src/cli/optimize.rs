@@ -9,7 +9,7 @@ use std::time::Duration;
 use anyhow::{bail, Context, Result};
 
 use super::{set_threads, values};
-use volgrad::cluster::Cluster;
+use volgrad::cluster::{AgreedError, Cluster};
 use volgrad::gradient::adjoint::Estimator;
 use volgrad::optimize::checkpoint;
 use volgrad::optimize::problem::Problem;
@@ -59,8 +59,23 @@ pub struct Args {
     pub quiet: bool,
 }
 
-/// Set by Ctrl-C; the loop stops after the current iteration and writes a checkpoint.
+/// Set by Ctrl-C (or SIGUSR1); the loop stops after the current iteration and writes a checkpoint.
 static INTERRUPTED: AtomicBool = AtomicBool::new(false);
+
+/// SIGUSR1 stops the run as Ctrl-C does. Under MPI it is the signal that reaches the ranks:
+/// OpenMPI's mpirun answers SIGINT by killing them, but forwards SIGUSR1 (and Slurm delivers it
+/// with `scancel --signal=USR1`).
+fn stop_on_sigusr1() {
+    extern "C" fn on_signal(_: libc::c_int) {
+        // Only an atomic store: async-signal-safe.
+        INTERRUPTED.store(true, Ordering::SeqCst);
+    }
+    #[cfg(unix)]
+    // SAFETY: the handler only stores to an atomic, which is async-signal-safe.
+    unsafe {
+        libc::signal(libc::SIGUSR1, on_signal as *const () as libc::sighandler_t);
+    }
+}
 
 pub fn run(args: &Args, cluster: &Cluster) -> Result<()> {
     set_threads(args.threads)?;
@@ -97,6 +112,7 @@ pub fn run(args: &Args, cluster: &Cluster) -> Result<()> {
     let problem = cluster.agree(Problem::load(&args.run, args.seed, progress, cluster))?;
     ctrlc::set_handler(|| INTERRUPTED.store(true, Ordering::SeqCst))
         .context("cannot install the Ctrl-C handler")?;
+    stop_on_sigusr1();
     let options = RunOptions {
         estimator: args.estimator,
         stop,
@@ -121,12 +137,14 @@ pub fn run(args: &Args, cluster: &Cluster) -> Result<()> {
     let outcome = reconstruct(&problem, &options)?;
     let p = &outcome.position;
     if outcome.interrupted {
-        bail!(
+        // Every rank stops at the same iteration (they agree on it): one message, from rank 0.
+        return Err(AgreedError(format!(
             "interrupted at iteration {}: checkpoint written; continue with `volgrad optimize {} --resume {}`",
             p.iteration,
             args.run.display(),
             out.display()
-        );
+        ))
+        .into());
     }
     if !cluster.is_root() {
         return Ok(());

@@ -92,10 +92,11 @@ pub fn equal_time(
         };
         let outcome = reconstruct(problem, &run_options)?;
         if outcome.interrupted {
-            anyhow::bail!(
+            return Err(crate::cluster::AgreedError(format!(
                 "interrupted during the {estimator} run (its checkpoint is in '{}')",
                 run_options.out.display()
-            );
+            ))
+            .into());
         }
         runs.push(StudyRun {
             estimator,
