@@ -402,3 +402,29 @@ fn sigusr1_to_mpirun_stops_every_rank_with_a_checkpoint() {
         .count();
     assert!(states >= 1, "{err}");
 }
+
+/// Pixel batches split their pixels, not their views, over the ranks: the same `final.vdb` at 1
+/// and 3 ranks.
+#[test]
+fn pixel_batches_do_not_depend_on_the_number_of_ranks() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    std::fs::write(
+        d.join("run.toml"),
+        run_file("batch_pixels = 700\niterations = 5"),
+    )
+    .unwrap();
+    let mut finals = Vec::new();
+    for n in [1, 3] {
+        let out = format!("o{n}");
+        ok(ranks(
+            d,
+            n,
+            &["optimize", "run.toml", "--out", &out, "-q"],
+            LIMIT,
+        ));
+        finals.push(voxels(&d.join(&out).join("final.vdb")));
+    }
+    assert!(!finals[0].is_empty());
+    assert!(finals[0] == finals[1], "3 ranks against 1");
+}

@@ -31,12 +31,21 @@ pub fn render_shared(
 
 /// `image` summed over the ranks, in place (exact where each pixel is non-zero on one rank).
 pub fn sum_image(cluster: &Cluster, image: &mut RgbImage) {
+    let all: Vec<u32> = (0..image.pixels.len() as u32).collect();
+    sum_pixels(cluster, image, &all);
+}
+
+/// The pixels `pixels` (indices) of `image` summed over the ranks, in place; the others are left
+/// as they are: a pixel batch moves its pixels, not the image.
+pub fn sum_pixels(cluster: &Cluster, image: &mut RgbImage, pixels: &[u32]) {
     if cluster.size() == 1 {
         return;
     }
-    let mut flat: Vec<f32> = image.pixels.iter().flat_map(|c| c.to_array()).collect();
+    let mut flat: Vec<f32> = (pixels.iter())
+        .flat_map(|&p| image.pixels[p as usize].to_array())
+        .collect();
     cluster.sum_in_place(&mut flat);
-    for (c, v) in image.pixels.iter_mut().zip(flat.chunks_exact(3)) {
-        *c = Vec3::from_slice(v);
+    for (&p, v) in pixels.iter().zip(flat.chunks_exact(3)) {
+        image.pixels[p as usize] = Vec3::from_slice(v);
     }
 }

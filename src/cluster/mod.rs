@@ -1,8 +1,8 @@
 //! The processes of one job. Started by `mpirun` or Slurm's `srun`, volgrad runs as MPI ranks:
-//! every rank holds the scene and the unknown, computes its share of the pixels (`render::pixel_set`), and
-//! the ranks add their results (`sparse_sum` for gradients, `sum_disjoint` for images) so that
-//! every rank takes the same step. Started any other way, it is one process and every collective
-//! here returns its input.
+//! every rank holds the scene and the unknown and traces its share of the pixels
+//! (`render::pixel_set`), and the ranks add their results (`sparse_sum` for gradients, `images`
+//! for images, `passes` for whole gradient passes) so that every rank takes the same step.
+//! Started any other way, it is one process and every collective here returns its input.
 //!
 //! Faults: an error that one rank meets and the others do not (an unreadable file, a failing
 //! write) must not leave the others waiting in a collective. Every such point goes through

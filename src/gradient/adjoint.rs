@@ -13,11 +13,11 @@
 //! - naive:  −β_{j−1} · ℓ · ĥ(x_j) · ∂σt(s)  +  β_{j−1} · ĥ(x_j) · ∂σt(x_j) / σt(x_j);
 //!
 //! and for all three, every NEE shadow ray adds −C · ℓ_s · ∂σt(u) (C its contribution, u uniform
-//! on it). ĥ at a probe is (1 − α)·Le + α·(NEE + indirect): the NEE reuses the light sample of x_j (joint) and
-//! walks one shadow ray, to a light picked ∝ its unoccluded contribution (`direct_light_one`); the
-//! indirect part is suffix paths traced from the probes, either one on every segment or K per path
-//! on segments picked with probability P_j ∝ |β_{j−1}|·ℓ_j (systematic sampling), each weighted by
-//! 1/(K·P_j).
+//! on it). ĥ at a probe is (1 − α)·Le + α·(NEE + indirect): the emission there (none in a medium
+//! that does not emit); the NEE reuses the light sample of x_j (joint) and walks one shadow ray, to
+//! a light picked ∝ its unoccluded contribution (`direct_light_one`); the indirect part is suffix
+//! paths traced from the probes, either one on every segment or K per path on segments picked with
+//! probability P_j ∝ |β_{j−1}|·ℓ_j (systematic sampling), each weighted by 1/(K·P_j).
 //!
 //! In the code: [`carried_radiance`] gives R_j, `Replay::plan_suffixes` the suffix segments and
 //! their weights, and `joint_term`, `drt_term`, `naive_term` (with the `transmittance_term` that drt

@@ -18,7 +18,7 @@ use glam::Vec3;
 use rand::seq::SliceRandom;
 use rand::{Rng, RngCore};
 
-use crate::cluster::images::sum_image;
+use crate::cluster::images::{sum_image, sum_pixels};
 use crate::cluster::sparse_sum::{sum_over_ranks, Traffic};
 use crate::cluster::Cluster;
 use crate::gradient::adjoint::Estimator;
@@ -87,7 +87,13 @@ pub fn images_gradient(
         };
         let pixels = scene.camera.width * scene.camera.height;
         let mut image = render_pixels(scene, &options, &piece.pixels(pixels, cluster)).0;
-        sum_image(cluster, &mut image);
+        match &piece.drawn {
+            None => sum_image(cluster, &mut image),
+            Some(drawn) => {
+                let list: Vec<u32> = drawn.iter().map(|&(p, _)| p).collect();
+                sum_pixels(cluster, &mut image, &list);
+            }
+        }
         let target = &view.target;
         let delta = match &piece.drawn {
             None => {
