@@ -428,3 +428,20 @@ fn pixel_batches_do_not_depend_on_the_number_of_ranks() {
     assert!(!finals[0].is_empty());
     assert!(finals[0] == finals[1], "3 ranks against 1");
 }
+
+/// Rank 0 cannot write (`--out` names a file, not a folder): every rank ends, non-zero, with the
+/// one message; no rank waits for the others.
+#[test]
+fn a_write_rank_0_cannot_make_ends_every_rank_with_one_error() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    std::fs::write(d.join("run.toml"), run_file("batch = 3\niterations = 3")).unwrap();
+    std::fs::write(d.join("taken"), "a file where the output folder should go").unwrap();
+    let args = ["optimize", "run.toml", "--out", "taken", "--force", "-q"];
+    let out = ranks(d, 2, &args, Duration::from_secs(60));
+    let err = stderr(&out);
+    assert!(!out.status.success(), "{err}");
+    assert_eq!(err.matches("error: ").count(), 1, "one message: {err}");
+    assert!(err.contains("output directory"), "{err}");
+    assert!(!err.contains("error (rank"), "{err}");
+}
