@@ -76,45 +76,9 @@ pub fn images_gradient(
     let (mut loss, mut deltas, mut lit) = (0.0, Vec::with_capacity(pieces.len()), 0);
     let view_weight = 1.0 / pieces.len() as f64;
     for piece in &pieces {
-        let view = &problem.views[piece.view];
-        problem.look_through(scene, &mut lit, view);
-        check_target(&view.target, scene)?;
-        let options = RenderOptions {
-            spp: s.primal_spp,
-            seed: piece.seed,
-            max_depth: s.max_depth,
-            progress: false,
-        };
-        let pixels = scene.camera.width * scene.camera.height;
-        let mut image = render_pixels(scene, &options, &piece.pixels(pixels, cluster)).0;
-        match &piece.drawn {
-            None => sum_image(cluster, &mut image),
-            Some(drawn) => {
-                let list: Vec<u32> = drawn.iter().map(|&(p, _)| p).collect();
-                sum_pixels(cluster, &mut image, &list);
-            }
-        }
-        let target = &view.target;
-        let delta = match &piece.drawn {
-            None => {
-                loss += view_weight * s.loss.evaluate(&image, Some(target));
-                let scale = view_weight as f32;
-                let delta = s.loss.adjoint(&image, Some(target));
-                delta.into_iter().map(|d| d * scale).collect()
-            }
-            Some(drawn) => {
-                // Each draw weighs 1/(3N): the loss is a mean over draws and channels.
-                let per_draw = 1.0 / (3.0 * s.batch_pixels as f64);
-                let mut delta = vec![Vec3::ZERO; pixels as usize];
-                for &(p, count) in drawn {
-                    let (c, t) = (image.pixels[p as usize], target.pixels[p as usize]);
-                    let weight = count as f64 * per_draw;
-                    loss += weight * s.loss.pixel_value(c, t);
-                    delta[p as usize] = s.loss.pixel_adjoint(c, t) * weight as f32;
-                }
-                delta
-            }
-        };
+        problem.look_through(scene, &mut lit, &problem.views[piece.view]);
+        let (piece_loss, delta) = piece_adjoint(problem, cluster, scene, piece, view_weight)?;
+        loss += piece_loss;
         deltas.push(delta);
     }
     let quantum = quantum_for(deltas.iter().map(|d| &d[..]), s.spp);
@@ -136,6 +100,49 @@ pub fn images_gradient(
         loss,
         traffic,
     })
+}
+
+/// A piece's share of the batch's loss and its adjoint image δ (zero where it draws no pixel),
+/// from a primal render whose pixels the ranks share and sum; `scene` looks through its view.
+fn piece_adjoint(
+    problem: &Problem,
+    cluster: &Cluster,
+    scene: &Scene,
+    piece: &Piece,
+    view_weight: f64,
+) -> Result<(f64, Vec<Vec3>)> {
+    let s = &problem.settings;
+    let target = &problem.views[piece.view].target;
+    check_target(target, scene)?;
+    let options = RenderOptions {
+        spp: s.primal_spp,
+        seed: piece.seed,
+        max_depth: s.max_depth,
+        progress: false,
+    };
+    let pixels = scene.camera.width * scene.camera.height;
+    let mut image = render_pixels(scene, &options, &piece.pixels(pixels, cluster)).0;
+    let Some(drawn) = &piece.drawn else {
+        sum_image(cluster, &mut image);
+        let loss = view_weight * s.loss.evaluate(&image, Some(target));
+        let delta = s.loss.adjoint(&image, Some(target));
+        return Ok((
+            loss,
+            delta.into_iter().map(|d| d * view_weight as f32).collect(),
+        ));
+    };
+    let list: Vec<u32> = drawn.iter().map(|&(p, _)| p).collect();
+    sum_pixels(cluster, &mut image, &list);
+    // Each draw weighs 1/(3N): the loss is a mean over draws and channels.
+    let per_draw = 1.0 / (3.0 * s.batch_pixels as f64);
+    let (mut loss, mut delta) = (0.0, vec![Vec3::ZERO; pixels as usize]);
+    for &(p, count) in drawn {
+        let (c, t) = (image.pixels[p as usize], target.pixels[p as usize]);
+        let weight = count as f64 * per_draw;
+        loss += weight * s.loss.pixel_value(c, t);
+        delta[p as usize] = s.loss.pixel_adjoint(c, t) * weight as f32;
+    }
+    Ok((loss, delta))
 }
 
 /// The views of iteration `iteration` with their seeds: the view batch, or the views a pixel
