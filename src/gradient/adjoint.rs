@@ -230,20 +230,7 @@ impl<R: Rng> Replay<'_, R> {
         scratch: &mut Scratch,
         sink: &mut impl GradientSink,
     ) -> Vec3 {
-        scratch.clear();
-        // One shadow ray per scattering event, as in the suffixes: the pass's cost is mostly
-        // shadow walks, and one light picked by its contribution costs little variance.
-        let radiance = trace(
-            self.scene,
-            PathState {
-                one_light_nee: true,
-                ..PathState::camera(origin, dir)
-            },
-            self.options.max_depth,
-            self.rng,
-            self.stats,
-            Some(&mut scratch.record),
-        );
+        let radiance = self.trace_recorded(origin, dir, scratch);
         let albedo = self.scene.medium.albedo;
         carried_radiance(&scratch.record.segments, albedo, &mut scratch.carried);
         self.add_path_gradient(
@@ -253,6 +240,25 @@ impl<R: Rng> Replay<'_, R> {
             sink,
         );
         radiance
+    }
+
+    /// Traces one camera path into `scratch.record`; returns its radiance. Every gradient pass
+    /// traces its camera paths here, so that passes with the same seed follow the same paths.
+    pub fn trace_recorded(&mut self, origin: Vec3, dir: Vec3, scratch: &mut Scratch) -> Vec3 {
+        scratch.clear();
+        // One shadow ray per scattering event, as in the suffixes: the pass's cost is mostly
+        // shadow walks, and one light picked by its contribution costs little variance.
+        trace(
+            self.scene,
+            PathState {
+                one_light_nee: true,
+                ..PathState::camera(origin, dir)
+            },
+            self.options.max_depth,
+            self.rng,
+            self.stats,
+            Some(&mut scratch.record),
+        )
     }
 
     /// Every segment's term of the chosen estimator, then every shadow ray's. The random numbers

@@ -11,7 +11,7 @@ use glam::Vec3;
 use rand::Rng;
 
 use crate::gradient::adjoint::{splat_lookup, GradientSink, Replay, Scratch};
-use crate::render::path::{trace, PathState, Segment};
+use crate::render::path::Segment;
 use crate::render::scene::Scene;
 
 impl<R: Rng> Replay<'_, R> {
@@ -24,15 +24,7 @@ impl<R: Rng> Replay<'_, R> {
         scratch: &mut Scratch,
         sink: &mut impl GradientSink,
     ) -> Vec3 {
-        scratch.clear();
-        let radiance = trace(
-            self.scene,
-            PathState::camera(origin, dir),
-            self.options.max_depth,
-            self.rng,
-            self.stats,
-            Some(&mut scratch.record),
-        );
+        let radiance = self.trace_recorded(origin, dir, scratch);
         emission_path_gradient(self.scene, &scratch.record.segments, sink);
         radiance
     }

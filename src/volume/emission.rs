@@ -89,18 +89,11 @@ impl Emission {
         let d = match self.kind {
             EmissionKind::Radiance(rgb) => rgb,
             EmissionKind::Blackbody {
-                scale,
-                offset,
-                cutoff,
-                strength,
-            } => {
-                let kelvin = (self.value(index) - offset) * scale;
-                if kelvin <= cutoff || kelvin <= 0.0 {
-                    Vec3::ZERO
-                } else {
-                    strength * scale * self.blackbody_slope(kelvin)
-                }
-            }
+                scale, strength, ..
+            } => match self.kelvin(self.value(index)) {
+                Some(kelvin) => strength * scale * self.blackbody_slope(kelvin),
+                None => Vec3::ZERO,
+            },
         };
         (index, d)
     }
@@ -108,19 +101,27 @@ impl Emission {
     fn radiance_of(&self, v: f32) -> Vec3 {
         match self.kind {
             EmissionKind::Radiance(rgb) => rgb * v,
-            EmissionKind::Blackbody {
-                scale,
-                offset,
-                cutoff,
-                strength,
-            } => {
-                let kelvin = (v - offset) * scale;
-                if kelvin <= cutoff || kelvin <= 0.0 {
-                    return Vec3::ZERO;
-                }
-                strength * self.blackbody(kelvin)
-            }
+            EmissionKind::Blackbody { strength, .. } => match self.kelvin(v) {
+                Some(kelvin) => strength * self.blackbody(kelvin),
+                None => Vec3::ZERO,
+            },
         }
+    }
+
+    /// T = (v − offset) · scale of a temperature grid's value, where it is above the cutoff and
+    /// 0 K (`None`: it emits nothing there, and Le does not depend on v).
+    fn kelvin(&self, v: f32) -> Option<f32> {
+        let EmissionKind::Blackbody {
+            scale,
+            offset,
+            cutoff,
+            ..
+        } = self.kind
+        else {
+            return None;
+        };
+        let kelvin = (v - offset) * scale;
+        (kelvin > cutoff && kelvin > 0.0).then_some(kelvin)
     }
 
     /// d blackbody / dT, per kelvin: the slope of the table's interval holding `kelvin`.
