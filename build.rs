@@ -2,7 +2,8 @@
 //! OpenVDB and OpenImageIO (Debian: libopenvdb-dev, libopenimageio-dev, libtbb-dev, libboost-dev).
 //!
 //! `cpp/bridge.h` declares the bridge functions for the generated glue; they are defined by job:
-//! `cpp/vdb_read.cpp` (the hardened archive reader, grids copied into plain data),
+//! `cpp/vdb_read.cpp` (grids copied into plain data, through the hardened archive reader in
+//! `cpp/vdb_archive.h`),
 //! `cpp/vdb_write.cpp` (grids built from plain data, written to a temporary file then renamed) and
 //! `cpp/images.cpp` (OpenImageIO, no OpenVDB headers), with the errors and file checks they share
 //! in `cpp/files.cpp` (declared in `cpp/internal.h`).
@@ -31,7 +32,10 @@ fn main() {
 
     println!("cargo:rerun-if-changed=build.rs");
     println!("cargo:rerun-if-changed=src/io/bridge.rs");
-    for file in SOURCES.iter().chain(&["cpp/bridge.h", "cpp/internal.h"]) {
+    for file in SOURCES
+        .iter()
+        .chain(&["cpp/bridge.h", "cpp/internal.h", "cpp/vdb_archive.h"])
+    {
         println!("cargo:rerun-if-changed={file}");
     }
 }

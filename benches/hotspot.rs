@@ -10,6 +10,7 @@ use volgrad::render::camera::Camera;
 use volgrad::render::image::{render, RenderOptions};
 use volgrad::render::lights::{DirectionalLight, Environment, Lights};
 use volgrad::render::scene::{RenderFile, Scene};
+use volgrad::volume::albedo::Albedo;
 use volgrad::volume::brickmap::BrickMap;
 use volgrad::volume::majorant::Majorant;
 use volgrad::volume::medium::{Filter, Medium};
@@ -24,7 +25,7 @@ fn scene(hot: impl Fn(IVec3) -> Option<f32>, filter: Filter) -> Scene {
     let grid = BrickMap::block(N, |v| hot(v).unwrap_or(1.0));
     let transform = IndexTransform::uniform(1.0, DVec3::splat(-(N - 1) as f64 * 0.5));
     let mut medium = Medium::new(grid, transform, 0.15, filter, Majorant::grid(4));
-    medium.albedo = Vec3::splat(0.9);
+    medium.albedo = Albedo::Constant(Vec3::splat(0.9));
     medium.phase_g = 0.3;
     let lights = Lights {
         environment: Environment {

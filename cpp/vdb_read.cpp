@@ -11,35 +11,15 @@
 //  * Every error is a C++ exception whose what() names the file and the reason; cxx turns it into
 //    the Rust Err.
 //
-// VDB files are read through a small io::Archive subclass rather than io::File, because:
-//  * io::File lists grids sorted by name (its descriptors live in a std::multimap), while the
-//    bridge promises file order; the subclass sees the descriptors in the order they are stored.
-//  * It validates every grid's byte range against the file size before reading anything, and sets
-//    the stream to throw on a short read, so a truncated file raises instead of being read from
-//    uninitialised lengths (OpenVDB does not check its istream after every read). The length
-//    fields of the file and grid metadata and of the descriptors are checked before OpenVDB
-//    allocates strings of those sizes (garbage lengths otherwise cost multi-GB allocations).
-//  * It reads a float or double grid's metadata, transform and topology the way Archive::readGrid
-//    does, but decodes the voxel buffers itself, with OpenVDB's decoder on several threads, from
-//    the file mapped into memory (OpenVDB's reader decodes one leaf after another: most of a large
-//    grid's load). Other grids, and level sets to be converted to fog, go through readGrid.
-//    Known limit: a file whose compressed voxel payload is corrupted in place (not truncated) can
-//    still crash inside OpenVDB 10 (io::bloscFromStream reads an uncompressed chunk into its buffer
-//    before checking the chunk's length); nothing outside OpenVDB can check that cheaply.
+// The archive reader itself (hardened against corrupt files) is in cpp/vdb_archive.h.
 
 #include "volgrad/cpp/bridge.h"
 #include "volgrad/cpp/internal.h"
+#include "volgrad/cpp/vdb_archive.h"
 #include "volgrad/src/io/bridge.rs.h"
 
-#include <openvdb/Grid.h>
-#include <openvdb/Metadata.h>
-#include <openvdb/io/Archive.h>
-#include <openvdb/io/Compression.h>
-#include <openvdb/io/GridDescriptor.h>
-#include <openvdb/io/io.h>
 #include <openvdb/math/Maps.h>
 #include <openvdb/math/Transform.h>
-#include <openvdb/openvdb.h>
 #include <openvdb/tools/LevelSetUtil.h>
 #include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>
@@ -47,23 +27,9 @@
 
 #include <algorithm>
 #include <array>
-#include <cerrno>
 #include <charconv>
 #include <cmath>
-#include <filesystem>
-#include <fstream>
 #include <limits>
-#include <memory>
-#include <mutex>
-#include <stdexcept>
-#include <string>
-#include <vector>
-
-#include <fcntl.h>
-#include <sys/mman.h>
-#include <unistd.h>
-
-namespace fs = std::filesystem;
 
 namespace volgrad {
 namespace {
@@ -154,309 +120,6 @@ bool is_axis_aligned(const std::array<double, 16>& c, bool linear) {
     return true;
 }
 
-// ------------------------------------------------------------------------------------------------
-// Reading VDB files
-
-/// A whole file mapped read-only into memory, so that several threads can read it at once without
-/// a system call per seek.
-class MappedFile {
-public:
-    explicit MappedFile(const std::string& path) {
-        const int fd = ::open(path.c_str(), O_RDONLY | O_CLOEXEC);
-        if (fd < 0) fail("cannot open " + quoted(path) + ": " + errno_text(errno));
-        size_ = size_t(fs::file_size(path));
-        void* p = ::mmap(nullptr, size_, PROT_READ, MAP_PRIVATE, fd, 0);
-        const int err = errno;
-        ::close(fd);
-        if (p == MAP_FAILED) fail("cannot map " + quoted(path) + ": " + errno_text(err));
-        data_ = static_cast<const char*>(p);
-    }
-    MappedFile(const MappedFile&) = delete;
-    MappedFile& operator=(const MappedFile&) = delete;
-    ~MappedFile() { ::munmap(const_cast<char*>(data_), size_); }
-    const char* data() const { return data_; }
-    size_t size() const { return size_; }
-
-private:
-    const char* data_ = nullptr;
-    size_t size_ = 0;
-};
-
-/// A seekable stream buffer over bytes in memory: OpenVDB's decoders read std::istreams, and each
-/// thread that decodes leaves needs a stream of its own over the same mapped file.
-class MemoryBuffer : public std::streambuf {
-public:
-    explicit MemoryBuffer(const MappedFile& file) {
-        char* begin = const_cast<char*>(file.data());  // only ever read: the get area
-        setg(begin, begin, begin + file.size());
-    }
-
-protected:
-    pos_type seekoff(off_type off, std::ios_base::seekdir dir, std::ios_base::openmode) override {
-        const char* base = dir == std::ios_base::beg   ? eback()
-                           : dir == std::ios_base::cur ? gptr()
-                                                       : egptr();
-        if (off < eback() - base || off > egptr() - base) return pos_type(off_type(-1));
-        setg(eback(), const_cast<char*>(base) + off, egptr());
-        return pos_type(gptr() - eback());
-    }
-    pos_type seekpos(pos_type pos, std::ios_base::openmode mode) override {
-        return seekoff(off_type(pos), std::ios_base::beg, mode);
-    }
-};
-
-/// What decoding a grid's voxel buffers needs after `VdbArchive::read_topology`: the mapped file,
-/// a stream whose OpenVDB state (format version, compression, half floats, background) is the
-/// grid's, and where each leaf's buffer starts, in leaf-iteration order (the order they are
-/// stored in).
-struct DeferredBuffers {
-    std::unique_ptr<MappedFile> file;
-    std::unique_ptr<MemoryBuffer> buffer;
-    std::unique_ptr<std::istream> state;
-    openvdb::io::StreamMetadata::Ptr meta;  // the grid's stream metadata, which `state` points to
-    std::vector<std::streamoff> offsets;
-    bool from_half = false;
-    std::mutex copying_state;  // the decoding threads copy `state` one at a time
-};
-
-/// Minimal io::Archive client: header, descriptors in file order, one grid at a time.
-class VdbArchive : public openvdb::io::Archive {
-public:
-    /// Opens `path` and reads the header and every grid descriptor (validated against the file
-    /// size). Throws plain exceptions; callers wrap them with context.
-    explicit VdbArchive(const std::string& path) : path_(path) {
-        file_size_ = static_cast<int64_t>(fs::file_size(path));
-        if (file_size_ == 0) corrupt("the file is empty");
-        is_.open(path, std::ios::in | std::ios::binary);
-        if (!is_) fail("cannot open " + quoted(path) + ": " + errno_text(errno));
-        // Every short read throws (std::ios_base::failure) instead of leaving a length unset.
-        is_.exceptions(std::ios::failbit | std::ios::badbit);
-
-        // The format version is checked here because readHeader() only warns about it.
-        if (file_size_ < 8 || pod<int64_t>() != openvdb::OPENVDB_MAGIC) corrupt("not a VDB file");
-        const auto version = pod<uint32_t>();
-        if (version > openvdb::OPENVDB_FILE_VERSION) {
-            corrupt("file format version " + std::to_string(version) + " is newer than the " +
-                    std::to_string(openvdb::OPENVDB_FILE_VERSION) + " this OpenVDB reads");
-        }
-        is_.seekg(0);
-        readHeader(is_);
-        stream_meta_ = std::make_shared<openvdb::io::StreamMetadata>();
-        stream_meta_->setSeekable(true);
-        openvdb::io::setStreamMetadataPtr(is_, stream_meta_, /*transfer=*/false);
-        setFormatVersion(is_);
-        setLibraryVersion(is_);
-        setDataCompression(is_);
-        // Lengths are validated before OpenVDB allocates buffers of those sizes.
-        check_meta_map(file_size_, "the file metadata");
-        file_meta_.readMeta(is_);
-
-        const int32_t count = readGridCount(is_);
-        // A descriptor takes at least 3 lengths + 3 offsets = 36 bytes.
-        const int64_t rest = file_size_ - int64_t(is_.tellg());
-        if (count < 0 || int64_t(count) * 36 > rest) {
-            corrupt("it declares " + std::to_string(count) + " grids but only " +
-                    std::to_string(rest) + " bytes follow");
-        }
-        if (inputHasGridOffsets()) {
-            for (int32_t i = 0; i < count; ++i) {
-                const int64_t here = int64_t(is_.tellg());
-                if (here >= file_size_) {
-                    corrupt("grid " + std::to_string(i) + " of " + std::to_string(count) +
-                            " starts past the end of the file");
-                }
-                check_descriptor(i);
-                openvdb::io::GridDescriptor gd;
-                gd.read(is_);  // also checks that the grid type is registered
-                const std::string name = gd.gridName();
-                if (gd.getGridPos() != int64_t(is_.tellg()) || gd.getBlockPos() < gd.getGridPos() ||
-                    gd.getEndPos() < gd.getBlockPos()) {
-                    corrupt("grid '" + name + "' has inconsistent offsets");
-                }
-                if (gd.getEndPos() > file_size_) {
-                    corrupt("grid '" + name + "' ends at byte " + std::to_string(gd.getEndPos()) +
-                            " but the file has " + std::to_string(file_size_) + " bytes");
-                }
-                descriptors_.push_back(gd);
-                gd.seekToEnd(is_);
-            }
-        } else {
-            // Old streamed layout (io::Stream): no offsets, so everything is read now, in order.
-            NamedGridMap named;
-            for (int32_t i = 0; i < count; ++i) {
-                openvdb::io::GridDescriptor gd;
-                openvdb::GridBase::Ptr grid = gd.read(is_);
-                if (!grid) corrupt("cannot create a grid of type " + gd.gridType());
-                Archive::readGrid(grid, gd, is_);
-                descriptors_.push_back(gd);
-                streamed_.push_back(grid);
-                named[gd.uniqueName()] = grid;
-            }
-            for (const auto& gd : descriptors_) connectInstance(gd, named);
-        }
-    }
-
-    size_t size() const { return descriptors_.size(); }
-    std::string name(size_t i) const { return descriptors_[i].gridName(); }
-    const std::string& path() const { return path_; }
-
-    /// Reads grid `i` completely (metadata, transform, tree).
-    openvdb::GridBase::Ptr read_grid(size_t i, int depth = 0) {
-        if (!streamed_.empty()) return streamed_[i];
-        const openvdb::io::GridDescriptor& gd = descriptors_[i];
-        openvdb::GridBase::Ptr grid = openvdb::GridBase::createGrid(gd.gridType());
-        if (!grid) corrupt("cannot create a grid of type " + gd.gridType());
-        grid->setSaveFloatAsHalf(gd.saveFloatAsHalf());
-        check_grid_metadata(gd);
-        Archive::readGrid(grid, gd, is_);
-        if (gd.isInstance()) {
-            // The tree is stored once, with the instance parent.
-            if (depth > int(descriptors_.size())) corrupt("grid instances form a cycle");
-            const auto parent = std::find_if(
-                descriptors_.begin(), descriptors_.end(),
-                [&](const auto& d) { return d.uniqueName() == gd.instanceParentName(); });
-            if (parent == descriptors_.end()) {
-                corrupt("grid '" + gd.gridName() + "' is an instance of a missing grid");
-            }
-            grid->setTree(read_grid(size_t(parent - descriptors_.begin()), depth + 1)->baseTreePtr());
-        }
-        return grid;
-    }
-
-    /// Whether grid `i` can be read by `read_topology` and its buffers decoded in parallel: a
-    /// float or double grid with a tree of its own, in a file of the current layout (per-grid
-    /// compression, format 222 and later). Anything else goes through OpenVDB's reader.
-    bool can_defer_buffers(size_t i) const {
-        const openvdb::io::GridDescriptor& gd = descriptors_[i];
-        return streamed_.empty() && !gd.isInstance() &&
-               fileVersion() >= openvdb::OPENVDB_FILE_VERSION_NODE_MASK_COMPRESSION &&
-               (gd.gridType() == openvdb::FloatGrid::gridType() ||
-                gd.gridType() == openvdb::DoubleGrid::gridType());
-    }
-
-    /// Grid `i` read as Archive::readGrid reads it (compression, metadata, transform, topology),
-    /// but from the mapped file and without its voxel buffers: the leaves are created with their
-    /// masks and no values. `deferred` receives the stream state to decode the buffers with,
-    /// which `find_leaf_buffers` then locates. Only for grids that `can_defer_buffers`.
-    openvdb::GridBase::Ptr read_topology(size_t i, DeferredBuffers& deferred) {
-        const openvdb::io::GridDescriptor& gd = descriptors_[i];
-        check_grid_metadata(gd);
-        deferred.file = std::make_unique<MappedFile>(path_);
-        deferred.buffer = std::make_unique<MemoryBuffer>(*deferred.file);
-        deferred.state = std::make_unique<std::istream>(deferred.buffer.get());
-        std::istream& is = *deferred.state;
-        is.copyfmt(is_);  // the file's format version and compression, and short reads throw
-        gd.seekToGrid(is);
-        readGridCompression(is);
-
-        openvdb::GridBase::Ptr grid = openvdb::GridBase::createGrid(gd.gridType());
-        if (!grid) corrupt("cannot create a grid of type " + gd.gridType());
-        grid->setSaveFloatAsHalf(gd.saveFloatAsHalf());
-        deferred.from_half = gd.saveFloatAsHalf();
-        deferred.meta = std::make_shared<openvdb::io::StreamMetadata>(*stream_meta_);
-        deferred.meta->setHalfFloat(gd.saveFloatAsHalf());
-        openvdb::io::setStreamMetadataPtr(is, deferred.meta, /*transfer=*/false);
-        openvdb::io::setGridClass(is, openvdb::GRID_UNKNOWN);
-        openvdb::io::setGridBackgroundValuePtr(is, nullptr);
-        grid->readMeta(is);
-        // Delayed-load metadata would make the decoders take each buffer's layout from it rather
-        // than from the buffer itself; Archive::readGrid drops it from the grid too.
-        if ((*grid)[openvdb::GridBase::META_FILE_DELAYED_LOAD]) {
-            grid->removeMeta(openvdb::GridBase::META_FILE_DELAYED_LOAD);
-        }
-        deferred.meta->gridMetadata() = static_cast<openvdb::MetaMap&>(*grid);
-        openvdb::io::setGridClass(is, grid->getGridClass());
-        grid->readTransform(is);
-        grid->readTopology(is);  // also points the stream's background at the tree's
-        if (int64_t(is.tellg()) != gd.getBlockPos()) {
-            corrupt("the topology of grid '" + gd.gridName() + "' does not end where its "
-                    "voxel data begins");
-        }
-        return grid;
-    }
-
-    /// Where grid `i`'s stored data ends (to check the located buffers against).
-    int64_t grid_end(size_t i) const { return descriptors_[i].getEndPos(); }
-
-private:
-    [[noreturn]] void corrupt(const std::string& why) const { throw std::runtime_error(why); }
-
-    /// Checks the length fields of grid `gd`'s metadata before OpenVDB reads it.
-    void check_grid_metadata(const openvdb::io::GridDescriptor& gd) {
-        gd.seekToGrid(is_);
-        if (fileVersion() >= openvdb::OPENVDB_FILE_VERSION_NODE_MASK_COMPRESSION) pod<uint32_t>();
-        check_meta_map(gd.getEndPos(), "the metadata of grid '" + gd.gridName() + "'");
-        gd.seekToGrid(is_);
-    }
-
-    template <typename T>
-    T pod() {
-        T v;
-        is_.read(reinterpret_cast<char*>(&v), sizeof v);
-        return v;
-    }
-
-    /// Skips `n` bytes, which must end at or before byte `limit`.
-    void skip(uint64_t n, int64_t limit, const std::string& what) {
-        const int64_t here = int64_t(is_.tellg());
-        if (here > limit || n > uint64_t(limit - here)) corrupt(what + " runs past its end");
-        is_.seekg(int64_t(n), std::ios::cur);
-    }
-
-    void skip_string(int64_t limit, const std::string& what) { skip(pod<uint32_t>(), limit, what); }
-
-    /// Checks the length fields of a serialized MetaMap (count, then per entry: name, type name,
-    /// byte count + value), leaving the stream where it was.
-    void check_meta_map(int64_t limit, const std::string& what) {
-        const auto start = is_.tellg();
-        const auto count = pod<uint32_t>();
-        if (uint64_t(count) * 12 > uint64_t(std::max<int64_t>(0, limit - int64_t(is_.tellg())))) {
-            corrupt(what + " declares " + std::to_string(count) + " entries, more than fit");
-        }
-        for (uint32_t i = 0; i < count; ++i) {
-            skip_string(limit, what);
-            skip_string(limit, what);
-            skip(pod<uint32_t>(), limit, what);
-        }
-        is_.seekg(start);
-    }
-
-    /// Checks the string lengths of grid descriptor `i`, leaving the stream where it was.
-    void check_descriptor(int32_t i) {
-        const auto start = is_.tellg();
-        const std::string what = "the descriptor of grid " + std::to_string(i);
-        skip_string(file_size_, what);  // unique name
-        skip_string(file_size_, what);  // grid type
-        if (fileVersion() >= openvdb::OPENVDB_FILE_VERSION_GRID_INSTANCING) {
-            skip_string(file_size_, what);  // instance parent
-        }
-        skip(3 * sizeof(int64_t), file_size_, what);
-        is_.seekg(start);
-    }
-
-    std::string path_;
-    int64_t file_size_ = 0;
-    std::ifstream is_;
-    openvdb::io::StreamMetadata::Ptr stream_meta_;
-    openvdb::MetaMap file_meta_;
-    std::vector<openvdb::io::GridDescriptor> descriptors_;
-    std::vector<openvdb::GridBase::Ptr> streamed_;
-};
-
-std::string corrupt_context(const std::string& path) {
-    return quoted(path) + " is not a valid VDB file (truncated or corrupt)";
-}
-
-/// Opens a VDB file for reading, with plain errors for missing / corrupt files.
-std::unique_ptr<VdbArchive> open_vdb(const std::string& path) {
-    init_openvdb();
-    check_readable(path);
-    return with_context(corrupt_context(path), [&] { return std::make_unique<VdbArchive>(path); });
-}
-
-openvdb::GridBase::Ptr read_grid_checked(VdbArchive& vdb, size_t i) {
-    return with_context(corrupt_context(vdb.path()), [&] { return vdb.read_grid(i); });
-}
 
 GridSummary summarize(const openvdb::GridBase& grid) {
     GridSummary s;
@@ -501,11 +164,27 @@ GridSummary summarize(const openvdb::GridBase& grid) {
     return s;
 }
 
-/// Copies a float (or double, converted) grid into FloatGridData. The leaves' values come from
+/// The float a stored value becomes: a float or double as itself, converted; a vector's component
+/// `component`.
+struct ToFloat {
+    int component = 0;
+    template <typename T>
+    float operator()(const T& v) const {
+        if constexpr (openvdb::VecTraits<T>::IsVec) {
+            return static_cast<float>(v[component]);
+        } else {
+            return static_cast<float>(v);
+        }
+    }
+};
+
+/// Copies a grid into FloatGridData, each value through `to_float` (a float or double grid's
+/// values, or one component of a vector grid's). The leaves' values come from
 /// `fill_values(nodes, begin, end, out)`, which writes the values of leaf l to out[l].values for
 /// the leaves [begin, end) of `nodes` (leaf-iteration order); it runs on `threads` threads.
 template <typename GridT, typename FillValues>
-FloatGridData copy_grid(const GridT& grid, uint32_t threads, FillValues&& fill_values) {
+FloatGridData copy_grid(const GridT& grid, uint32_t threads, ToFloat to_float,
+                        FillValues&& fill_values) {
     using TreeT = typename GridT::TreeType;
     using LeafT = typename TreeT::LeafNodeType;
     static_assert(LeafT::SIZE == 512, "volgrad expects 8^3 leaves");
@@ -517,7 +196,7 @@ FloatGridData copy_grid(const GridT& grid, uint32_t threads, FillValues&& fill_v
     bool linear = false;
     const auto m = column_major_affine(grid.constTransform(), linear);
     std::copy(m.begin(), m.end(), d.index_to_world.begin());
-    d.background = static_cast<float>(tree.background());
+    d.background = to_float(tree.background());
     d.saved_as_half = grid.saveFloatAsHalf();
 
     // Sized once by Rust and filled through data(): push_back would call into Rust per leaf.
@@ -555,7 +234,7 @@ FloatGridData copy_grid(const GridT& grid, uint32_t threads, FillValues&& fill_v
         it.getBoundingBox(bb);
         for (int i = 0; i < 3; ++i) d.tile_origins.push_back(bb.min()[i]);
         d.tile_sizes.push_back(static_cast<uint32_t>(bb.dim().x()));
-        d.tile_values.push_back(static_cast<float>(*it));
+        d.tile_values.push_back(to_float(*it));
     }
     // Inactive tiles are not copied (the brick map reads 0 there), so count those that OpenVDB
     // would read as something other than the background: the caller decides whether that matters.
@@ -568,13 +247,13 @@ FloatGridData copy_grid(const GridT& grid, uint32_t threads, FillValues&& fill_v
     return d;
 }
 
-/// Values from the leaves' own buffers: a grid OpenVDB read completely.
+/// Values from the leaves' own buffers, through `to_float`: a grid OpenVDB read completely.
 template <typename LeafT>
-void copy_leaf_values(const LeafT* const* nodes, size_t begin, size_t end, LeafData* out) {
+void copy_leaf_values(const LeafT* const* nodes, size_t begin, size_t end, LeafData* out,
+                      ToFloat to_float) {
     for (size_t l = begin; l != end; ++l) {
         const auto* buffer = nodes[l]->buffer().data();
-        std::transform(buffer, buffer + LeafT::SIZE, out[l].values.begin(),
-                       [](auto v) { return static_cast<float>(v); });
+        std::transform(buffer, buffer + LeafT::SIZE, out[l].values.begin(), to_float);
     }
 }
 
@@ -638,16 +317,28 @@ FloatGridData copy_deferred(const GridT& grid, int64_t grid_end, DeferredBuffers
                             uint32_t threads) {
     using LeafT = typename GridT::TreeType::LeafNodeType;
     find_leaf_buffers(grid, grid_end, deferred);
-    return copy_grid(grid, threads, [&](const LeafT* const* nodes, size_t begin, size_t end,
-                                        LeafData* out) {
-        decode_leaf_values(deferred, nodes, begin, end, out);
-    });
+    return copy_grid(grid, threads, ToFloat{},
+                     [&](const LeafT* const* nodes, size_t begin, size_t end, LeafData* out) {
+                         decode_leaf_values(deferred, nodes, begin, end, out);
+                     });
 }
 
-/// OpenVDB's own copy of the grid, values from its leaves' buffers.
+/// OpenVDB's own copy of the grid, values from its leaves' buffers through `to_float`.
 template <typename GridT>
-FloatGridData copy_read_grid(const GridT& grid, uint32_t threads) {
-    return copy_grid(grid, threads, copy_leaf_values<typename GridT::TreeType::LeafNodeType>);
+FloatGridData copy_read_grid(const GridT& grid, uint32_t threads, ToFloat to_float = {}) {
+    using LeafT = typename GridT::TreeType::LeafNodeType;
+    return copy_grid(grid, threads, to_float,
+                     [&](const LeafT* const* nodes, size_t begin, size_t end, LeafData* out) {
+                         copy_leaf_values(nodes, begin, end, out, to_float);
+                     });
+}
+
+/// A vector grid's three components, each as a float grid's data.
+template <typename GridT>
+rust::Vec<FloatGridData> copy_components(const GridT& grid, uint32_t threads) {
+    rust::Vec<FloatGridData> out;
+    for (int c = 0; c < 3; ++c) out.push_back(copy_read_grid(grid, threads, ToFloat{c}));
+    return out;
 }
 
 /// Index of the grid selected by `index` (>= 0) or else by `name`.
@@ -759,6 +450,32 @@ FloatGridData read_float_grid_with(rust::Str path_str, rust::Str name_str, int32
 }
 
 }  // namespace
+
+rust::Vec<FloatGridData> read_grid_components(rust::Str path_str, rust::Str name_str, int32_t index,
+                                              uint32_t threads) {
+    const std::string path = to_std(path_str);
+    {
+        auto vdb = open_vdb(path);
+        const size_t i = select_grid(*vdb, path, to_std(name_str), index);
+        const std::string type = vdb->grid_type(i);
+        if (type == openvdb::Vec3SGrid::gridType() || type == openvdb::Vec3DGrid::gridType()) {
+            const openvdb::GridBase::Ptr base = read_grid_checked(*vdb, i);
+            const std::string what = "grid '" + base->getName() + "' in " + quoted(path);
+            check_linear(*base, what);
+            return with_context("cannot copy " + what, [&] {
+                if (auto g = openvdb::gridConstPtrCast<openvdb::Vec3SGrid>(base)) {
+                    return copy_components(*g, threads);
+                }
+                return copy_components(*openvdb::gridConstPtrCast<openvdb::Vec3DGrid>(base),
+                                       threads);
+            });
+        }
+    }
+    // Anything else is read as one float grid (which refuses other value types).
+    rust::Vec<FloatGridData> out;
+    out.push_back(read_float_grid_with(path_str, name_str, index, false, threads, true));
+    return out;
+}
 
 FloatGridData read_float_grid(rust::Str path, rust::Str name, int32_t index,
                               bool level_set_to_fog_volume, uint32_t threads) {

@@ -1,6 +1,7 @@
 // Writing VDB files for the cxx bridge declared in src/io/bridge.rs: write_float_grids validates
 // each FloatGridData, builds the OpenVDB (10.x) grid and writes them all to a temporary file that
-// replaces the target only once complete. Nothing OpenVDB-typed crosses the bridge.
+// replaces the target only once complete; write_grids_with_colours also writes vec3 grids (colours),
+// each made of three float components. Nothing OpenVDB-typed crosses the bridge.
 //
 // Conventions (see the doc comments in src/io/bridge.rs and cpp/vdb_read.cpp): index_to_world is
 // column-vector convention, row-major, the TRANSPOSE of OpenVDB's Mat4d; every error is a C++
@@ -298,54 +299,106 @@ openvdb::FloatGrid::Ptr build_grid(const FloatGridData& d) {
 }  // namespace
 
 // ------------------------------------------------------------------------------------------------
-// The bridge function
+// The bridge functions
 
-void write_float_grids(rust::Str path_str, rust::Slice<const FloatGridData> grids, bool save_half) {
+namespace {
+
+/// Writes `grids` to a temporary file beside `path` that then replaces it.
+void write_archive(const std::string& path, const openvdb::GridCPtrVec& grids) {
+    const fs::path tmp = path + ".tmp";
+    std::ofstream os(tmp, std::ios::out | std::ios::binary | std::ios::trunc);
+    if (!os) {
+        fail("cannot write " + quoted(path) + ": cannot create " + quoted(tmp.string()) + ": " +
+             errno_text(errno));
+    }
+    openvdb::MetaMap file_meta;
+    file_meta.insertMeta("creator", openvdb::StringMetadata("volgrad"));
+    try {
+        with_context("cannot write " + quoted(path), [&] {
+            VdbWriter().write_to(os, grids, file_meta);
+            os.flush();
+            if (!os) fail("cannot write " + quoted(path) + ": " + errno_text(errno));
+            os.close();
+            if (os.fail()) fail("cannot write " + quoted(path) + ": " + errno_text(errno));
+        });
+    } catch (...) {
+        os.close();
+        std::error_code ignored;
+        fs::remove(tmp, ignored);
+        throw;
+    }
+    commit_file(tmp, path);
+}
+
+/// `build_grid` with errors that name the file and the grid.
+openvdb::FloatGrid::Ptr build_grid_for(const std::string& path, const FloatGridData& d, size_t i) {
+    try {
+        return build_grid(d);
+    } catch (const std::exception& e) {  // BridgeError or an OpenVDB exception
+        fail("cannot write " + quoted(path) + ": grid " + std::to_string(i) + " ('" +
+             std::string(d.name) + "'): " + e.what());
+    }
+}
+
+/// One vec3s grid from three float components: every voxel active in any component is active
+/// (one voxel at a time: a tile of one component may hold leaves of another), with the name,
+/// transform and metadata of the first.
+openvdb::Vec3SGrid::Ptr build_vec3_grid(const std::string& path, const FloatGridData* components,
+                                        size_t first_index) {
+    using namespace openvdb;
+    std::array<FloatGrid::Ptr, 3> parts;
+    for (size_t c = 0; c < 3; ++c) parts[c] = build_grid_for(path, components[c], first_index + c);
+    const FloatGridData& first = components[0];
+    Vec3SGrid::Ptr grid = Vec3SGrid::create(
+        Vec3s(first.background, components[1].background, components[2].background));
+    grid->setTransform(parts[0]->transform().copy());
+    grid->setName(std::string(first.name));
+    with_context("cannot write " + quoted(path), [&] {
+        for (const auto& part : parts) grid->tree().topologyUnion(part->tree());
+        grid->tree().voxelizeActiveTiles();
+        std::array<FloatGrid::ConstAccessor, 3> values{parts[0]->getConstAccessor(),
+                                                       parts[1]->getConstAccessor(),
+                                                       parts[2]->getConstAccessor()};
+        for (auto v = grid->beginValueOn(); v; ++v) {
+            const Coord xyz = v.getCoord();
+            v.setValue(Vec3s(values[0].getValue(xyz), values[1].getValue(xyz),
+                             values[2].getValue(xyz)));
+        }
+        for (const MetaEntry& e : first.metadata) {
+            const std::string key(e.name);
+            if (!skip_on_write(key)) grid->insertMeta(key, *make_metadata(e));
+        }
+    });
+    return grid;
+}
+
+}  // namespace
+
+void write_grids_with_colours(rust::Str path_str, rust::Slice<const FloatGridData> grids,
+                              rust::Slice<const FloatGridData> colours, bool save_half) {
     const std::string path = to_std(path_str);
     init_openvdb();
     check_writable_target(path);
-
+    if (colours.size() % 3 != 0) {
+        fail("cannot write " + quoted(path) + ": colour grids come as 3 components each, not " +
+             std::to_string(colours.size()));
+    }
     openvdb::GridCPtrVec vdb_grids;
-    size_t i = 0;
     for (const FloatGridData& d : grids) {
-        const std::string ctx = "cannot write " + quoted(path) + ": grid " + std::to_string(i) +
-                                " ('" + std::string(d.name) + "')";
-        openvdb::FloatGrid::Ptr g;
-        try {
-            g = build_grid(d);
-        } catch (const std::exception& e) {  // BridgeError or an OpenVDB exception
-            fail(ctx + ": " + e.what());
-        }
-        with_context(ctx, [&] { g->setSaveFloatAsHalf(save_half); });
+        openvdb::FloatGrid::Ptr g = build_grid_for(path, d, vdb_grids.size());
+        g->setSaveFloatAsHalf(save_half);
         vdb_grids.push_back(g);
-        ++i;
     }
+    for (size_t c = 0; c < colours.size(); c += 3) {
+        auto g = build_vec3_grid(path, colours.data() + c, grids.size() + c);
+        g->setSaveFloatAsHalf(save_half);
+        vdb_grids.push_back(g);
+    }
+    write_archive(path, vdb_grids);
+}
 
-    const fs::path tmp = path + ".tmp";
-    {
-        std::ofstream os(tmp, std::ios::out | std::ios::binary | std::ios::trunc);
-        if (!os) {
-            fail("cannot write " + quoted(path) + ": cannot create " + quoted(tmp.string()) + ": " +
-                 errno_text(errno));
-        }
-        openvdb::MetaMap file_meta;
-        file_meta.insertMeta("creator", openvdb::StringMetadata("volgrad"));
-        try {
-            with_context("cannot write " + quoted(path), [&] {
-                VdbWriter().write_to(os, vdb_grids, file_meta);
-                os.flush();
-                if (!os) fail("cannot write " + quoted(path) + ": " + errno_text(errno));
-                os.close();
-                if (os.fail()) fail("cannot write " + quoted(path) + ": " + errno_text(errno));
-            });
-        } catch (...) {
-            os.close();
-            std::error_code ignored;
-            fs::remove(tmp, ignored);
-            throw;
-        }
-    }
-    commit_file(tmp, path);
+void write_float_grids(rust::Str path, rust::Slice<const FloatGridData> grids, bool save_half) {
+    write_grids_with_colours(path, grids, {}, save_half);
 }
 
 }  // namespace volgrad

@@ -206,8 +206,8 @@ fn bad_emission_keys_are_refused_by_name() {
     }
 }
 
-/// The extinction gradient of an emitting medium against finite differences, where emission is
-/// most of the light (a dim sky, no sun): joint and drt carry ĥ = (1 − α)·Le + α·(NEE + indirect)
+/// The extinction gradient of an emitting medium with an RGB albedo grid against finite
+/// differences, where emission is most of the light (a dim sky, no sun): joint and drt carry ĥ = (1 − α)·Le + α·(NEE + indirect)
 /// at their probes and path vertices, so their means agree with FD (|z| < 4.5) on single voxels
 /// (one of them empty: the emission a new density there would add), an empty box and ⟨g, 1⟩.
 /// With the emission term left out of the probes' ĥ they do not (seen: joint at z = −24 on the
@@ -222,6 +222,7 @@ fn extinction_gradients_with_emission_agree_with_finite_differences() {
     use volgrad::gradient::loss::Loss;
     use volgrad::gradient::passes::{gradient, GradOptions};
     use volgrad::gradient::runs::MeanAndError;
+    use volgrad::volume::albedo::{Albedo, AlbedoGrid};
     use volgrad::volume::emission::{Emission, EmissionKind};
     use volgrad::volume::medium::Filter;
 
@@ -235,6 +236,19 @@ fn extinction_gradients_with_emission_agree_with_finite_differences() {
         EmissionKind::Radiance(Vec3::new(2.0, 1.0, 0.4)),
         Filter::Trilinear,
     ));
+    // An RGB albedo grid over the block's voxels (0 outside them): ĥ's (1 − α) and α are the
+    // probe's own, and R_j's the collision's.
+    scene.medium.albedo = Albedo::Grid(Box::new(AlbedoGrid::new(
+        "Cd".into(),
+        vec![
+            common::grid(6, |v: IVec3| 0.3 + 0.1 * v.x as f32),
+            common::grid(6, |v: IVec3| 0.8 - 0.1 * v.y as f32),
+            common::grid(6, |_| 0.5),
+        ],
+        Vec3::ZERO,
+        common::centred(6, 1.0),
+        Filter::Trilinear,
+    )));
     let fd_along = |direction: &fd::Direction| {
         let options = FdOptions {
             loss: Loss::Mean,

@@ -17,6 +17,7 @@ use volgrad::render::lights::{DirectionalLight, EnvMap, Environment};
 use volgrad::render::path::{trace, PathRecord, PathState, Segment, SegmentEnd};
 use volgrad::render::sampling::{sample_rng, Pass};
 use volgrad::render::scene::Scene;
+use volgrad::volume::albedo::{Albedo, AlbedoGrid};
 use volgrad::volume::emission::{Emission, EmissionKind};
 use volgrad::volume::majorant::Majorant;
 use volgrad::volume::medium::Filter;
@@ -72,7 +73,6 @@ fn close(a: Vec3, b: Vec3) -> bool {
 /// the replay's carried radiance against `trace`'s radiance; returns the branches the paths took.
 fn check_scene(name: &str, scene: &Scene) -> Branches {
     let camera = &scene.camera;
-    let albedo = scene.medium.albedo;
     let max_depth = scene.settings.max_depth;
     let mut branches = Branches::default();
     let mut stats = TrackingStats::default();
@@ -97,7 +97,7 @@ fn check_scene(name: &str, scene: &Scene) -> Branches {
                 Some(&mut record),
             );
             let segments = &record.segments;
-            carried_radiance(segments, albedo, &mut carried);
+            carried_radiance(segments, &mut carried);
             branches.count(segments);
             if radiance != Vec3::ZERO {
                 branches.lit_paths += 1;
@@ -129,9 +129,12 @@ fn check_scene(name: &str, scene: &Scene) -> Branches {
                     SegmentEnd::Stopped { emission, .. } => {
                         collected += segment.throughput * emission
                     }
-                    SegmentEnd::Scattered { emission, nee, .. } => {
-                        collected += segment.throughput * (emission + albedo * nee)
-                    }
+                    SegmentEnd::Scattered {
+                        emission,
+                        albedo,
+                        nee,
+                        ..
+                    } => collected += segment.throughput * (emission + albedo * nee),
                 }
             }
         }
@@ -273,4 +276,31 @@ fn carried_radiance_reproduces_traced_radiance() {
         let b = check_scene(name, &scene);
         assert!(b.lit_paths >= 1000, "{name}: {b:?}");
     }
+
+    // An albedo grid (RGB, from 0 to 1 across the block, 0 outside it) in an emitting medium:
+    // each collision's α is its own, and R_j must use the one `trace` weighted with.
+    let mut scene = lumpy(Vec3::ONE, 16);
+    scene.medium.albedo = Albedo::Grid(Box::new(AlbedoGrid::new(
+        "Cd".into(),
+        vec![
+            grid(6, |v: IVec3| v.x as f32 / 5.0),
+            grid(6, |v: IVec3| 1.0 - v.y as f32 / 5.0),
+            grid(6, |_| 0.9),
+        ],
+        Vec3::ZERO,
+        centred(6, 1.0),
+        Filter::Trilinear,
+    )));
+    scene.medium.emission = Some(Emission::new(
+        "flames".into(),
+        grid(6, |_| 1.0),
+        centred(6, 1.0),
+        EmissionKind::Radiance(Vec3::new(0.5, 1.0, 2.0)),
+        Filter::Trilinear,
+    ));
+    let b = check_scene("albedo grid", &scene);
+    assert!(
+        b.lit_paths >= 1000 && b.rr_survived > 0,
+        "albedo grid: {b:?}"
+    );
 }

@@ -16,7 +16,7 @@ use volgrad::gradient::adjoint::Estimator;
 use volgrad::gradient::fd;
 use volgrad::gradient::loss::Loss;
 use volgrad::gradient::objective::{check_target, render_target};
-use volgrad::gradient::passes::{derivative_image, GradientRun, Parameter};
+use volgrad::gradient::passes::{derivative_image, GradOptions, GradientRun, Parameter};
 use volgrad::io::fingerprint::image as image_fingerprint;
 use volgrad::io::gradient_files::{self, Provenance};
 use volgrad::io::images::{self, RgbImage};
@@ -26,6 +26,7 @@ use volgrad::io::{colormap, vdb};
 use volgrad::render::fingerprint;
 use volgrad::render::lights::luminance;
 use volgrad::render::scene::Scene;
+use volgrad::volume::transform::IndexTransform;
 
 /// What `grad` computes: an estimator's gradient of every voxel, or finite differences along
 /// directions. The names are the estimators' own, plus `fd`.
@@ -64,10 +65,6 @@ pub struct Args {
     pub estimator: Method,
     #[arg(long, value_enum, default_value_t = Loss::Mean)]
     pub loss: Loss,
-    /// The grid the gradient is with respect to: the density (through extinction) or the
-    /// scene's emission grid (`medium.emission`; written as grad_<its name>).
-    #[arg(long, value_enum, default_value_t = Parameter::Extinction)]
-    pub parameter: Parameter,
     /// Target image (EXR, PNG, ...) for l2, l1 and relative-l2.
     #[arg(long, conflicts_with = "target_scene")]
     pub target: Option<PathBuf>,
@@ -169,10 +166,13 @@ pub fn run(args: &Args, cluster: &Cluster) -> Result<()> {
             args.scene.file_stem().unwrap_or_default().to_string_lossy()
         ))
     });
-    if args.parameter == Parameter::Emission
+    if args.adjoint.parameter != Parameter::Extinction
         && (args.estimator == Method::FiniteDifferences || args.image_of.is_some())
     {
-        bail!("--parameter emission goes with the path estimators: --estimator fd and --image-of perturb the density");
+        bail!(
+            "--parameter {} goes with the path estimators: --estimator fd and --image-of perturb the density",
+            args.adjoint.parameter
+        );
     }
     if cluster.size() > 1
         && (args.estimator == Method::FiniteDifferences || args.image_of.is_some())
@@ -206,19 +206,29 @@ pub fn run(args: &Args, cluster: &Cluster) -> Result<()> {
         Method::FiniteDifferences => return finite_differences(args, &scene, target.as_ref()),
     };
     let mut options = args.adjoint.options(&scene, estimator)?;
-    options.parameter = args.parameter;
-    if args.parameter == Parameter::Emission && scene.medium.emission.is_none() {
-        bail!("--parameter emission: the scene's medium has no emission (medium.emission)");
-    }
+    let (parameter_name, transform, channels) = parameter_grid(&scene, args.adjoint.parameter)?;
     options.progress &= cluster.is_root();
     let adjoint = adjoint_shared(cluster, &scene, args.loss, target.as_ref(), &options)?;
     if let (Some(loss), true) = (adjoint.loss, cluster.is_root()) {
         eprintln!("loss ({}) = {loss:.6e}", args.loss);
     }
-    let run = gradient_shared(cluster, &scene, &adjoint.delta, &options);
+    // One pass per colour channel of an RGB parameter (the same paths each: the same seed).
+    let runs: Vec<GradientRun> = (0..channels)
+        .map(|c| {
+            let options = GradOptions {
+                channel: (channels > 1).then_some(c),
+                ..options
+            };
+            gradient_shared(cluster, &scene, &adjoint.delta, &options)
+        })
+        .collect();
     // Rank 0 writes; every rank learns whether it could.
     let write = move || -> Result<()> {
-        report_non_finite(&run.stats);
+        let mut stats = runs[0].stats;
+        for run in &runs[1..] {
+            stats.merge(&run.stats);
+        }
+        report_non_finite(&stats);
         let provenance = Provenance {
             estimator: estimator.to_string(),
             spp: options.spp as u64,
@@ -233,38 +243,49 @@ pub fn run(args: &Args, cluster: &Cluster) -> Result<()> {
             domain: args.adjoint.domain.to_string(),
             max_depth: options.adjoint.max_depth,
             suffix: options.adjoint.suffix.to_string(),
+            parameter: args.adjoint.parameter.to_string(),
         };
         // The derivative image needs the medium; the export does not, so the medium goes first (on
         // the ×64 cloud it is a third of what a render holds).
         let derivative =
             image_box.map(|(lo, hi)| (lo, hi, derivative_image(&scene, lo, hi, &options)));
-        let (medium_grid, transform) = match (args.parameter, &scene.medium.emission) {
-            (Parameter::Emission, Some(e)) => (e.name.clone(), e.transform),
-            _ => (scene.grid_name.clone(), scene.medium.transform),
-        };
         drop(scene);
         // What the report needs of the gradient, then the gradient itself goes, and the exported grid
         // goes as soon as its values are in the bridge's arrays: a large gradient is held twice at a
         // time, not four times.
-        let GradientRun {
-            gradient,
-            quantum,
-            stats,
-            ..
-        } = run;
-        let gradient = gradient.converted::<f32>(quantum);
+        let mut gradients = runs
+            .into_iter()
+            .map(|run| run.gradient.converted::<f32>(run.quantum));
+        let mut gradient = gradients.next().expect("one pass at least");
+        let mut colour = Vec::new();
+        for channel in gradients {
+            colour.push(std::mem::replace(&mut gradient, channel));
+        }
         let (gradient_sum, gradient_blocks, gradient_bytes) = (
-            gradient.sum(),
+            gradient.sum() + colour.iter().map(|g| g.sum()).sum::<f64>(),
             gradient.block_count(),
-            gradient.memory_bytes(),
+            gradient.memory_bytes() * (1 + colour.len()),
         );
-        let bricks = gradient.to_brickmap();
-        drop(gradient);
-        let grid = gradient_files::gradient_grid(bricks, &medium_grid, transform, &provenance);
+        let as_grid =
+            |bricks| gradient_files::gradient_grid(bricks, &parameter_name, transform, &provenance);
         let png = vdb_out.with_extension("png");
-        let scale = gradient_files::write_projection_png(&png, &grid)?;
-        let (grid_name, voxels) = (grid.name.clone(), grid.bricks.active_voxel_count());
-        vdb::write_grid_consumed(&vdb_out, grid, false, args.force)?;
+        let (scale, grid_name, voxels) = if colour.is_empty() {
+            let grid = as_grid(gradient.to_brickmap());
+            drop(gradient);
+            let scale = gradient_files::write_projection_png(&png, &grid)?;
+            let (grid_name, voxels) = (grid.name.clone(), grid.bricks.active_voxel_count());
+            vdb::write_grid_consumed(&vdb_out, grid, false, args.force)?;
+            (scale, grid_name, voxels)
+        } else {
+            // An RGB parameter: one vec3 grid, as the input; the picture sums the channels.
+            colour.push(gradient);
+            let [r, g, b] = [0, 1, 2].map(|c| as_grid(colour[c].to_brickmap()));
+            let mut total = colour[0].empty_like();
+            colour.iter().for_each(|c| total.merge(c, 1.0));
+            let scale = gradient_files::write_projection_png(&png, &as_grid(total.to_brickmap()))?;
+            vdb::write_grids_with_colours(&vdb_out, &[], &[[&r, &g, &b]], args.force)?;
+            (scale, r.name.clone(), r.bricks.active_voxel_count())
+        };
         let picture = match scale {
             Some(scale) => format!(
                 "and {} (sum along index z; full colour at ±{scale:.3e})",
@@ -309,6 +330,28 @@ pub fn run(args: &Args, cluster: &Cluster) -> Result<()> {
         Ok(())
     };
     cluster.agree(if cluster.is_root() { write() } else { Ok(()) })
+}
+
+/// Refuses a parameter whose grid the scene does not have.
+pub fn check_parameter(scene: &Scene, parameter: Parameter) -> Result<()> {
+    parameter_grid(scene, parameter).map(|_| ())
+}
+
+/// The name and transform of the grid `parameter` names, and how many colour channels its gradient
+/// has (3 for an RGB albedo grid, else 1); refused where the scene has no such grid.
+fn parameter_grid(scene: &Scene, parameter: Parameter) -> Result<(String, IndexTransform, usize)> {
+    let medium = &scene.medium;
+    Ok(match parameter {
+        Parameter::Extinction => (scene.grid_name.clone(), medium.transform, 1),
+        Parameter::Emission => match &medium.emission {
+            Some(e) => (e.name.clone(), e.transform, 1),
+            None => bail!("--parameter emission: the scene's medium has no emission (medium.emission)"),
+        },
+        Parameter::Albedo => match medium.albedo.grid() {
+            Some(a) => (a.name.clone(), a.transform, a.channels.len()),
+            None => bail!("--parameter albedo: the scene's albedo is a constant, not a grid (medium.albedo = {{ grid = \"Cd\" }})"),
+        },
+    })
 }
 
 /// The finite-difference directions `--fd` names, each with a label.

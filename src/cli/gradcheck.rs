@@ -5,10 +5,12 @@ use std::path::PathBuf;
 
 use anyhow::{bail, Result};
 
+use super::grad::check_parameter;
 use super::{set_threads, AdjointArgs, FdArgs};
 use volgrad::gradient::adjoint::Estimator;
 use volgrad::gradient::gradcheck::{checks_table, gradcheck, GradcheckOptions, Z_LIMIT};
 use volgrad::gradient::loss::Loss;
+use volgrad::gradient::passes::Parameter;
 use volgrad::render::scene::Scene;
 
 #[derive(clap::Args)]
@@ -23,6 +25,10 @@ pub struct Args {
     /// render the image many times, so a small one keeps the check quick.
     #[arg(long, default_value_t = 32)]
     pub width: u32,
+    /// The colour channel to check of an RGB albedo grid (`--parameter albedo`): 0 red, 1 green,
+    /// 2 blue.
+    #[arg(long, default_value_t = 0, value_parser = clap::value_parser!(u8).range(0..=2))]
+    pub channel: u8,
     #[command(flatten)]
     pub fd_args: FdArgs,
     #[command(flatten)]
@@ -38,7 +44,11 @@ pub fn run(args: &Args) -> Result<()> {
     let c = scene.camera;
     let height = ((args.width as u64 * c.height as u64) / c.width as u64).max(1) as u32;
     scene.camera = c.with_resolution(args.width, height);
-    let grad = args.adjoint.options(&scene, args.estimator)?;
+    let mut grad = args.adjoint.options(&scene, args.estimator)?;
+    check_parameter(&scene, grad.parameter)?;
+    if let (Parameter::Albedo, Some(a)) = (grad.parameter, scene.medium.albedo.grid()) {
+        grad.channel = (a.channels.len() == 3).then_some(args.channel as usize);
+    }
     let fd = args
         .fd_args
         .options(&scene, Loss::Mean, grad.seed, grad.adjoint.max_depth)?;
@@ -54,7 +64,7 @@ pub fn run(args: &Args) -> Result<()> {
         Some(e) => e.to_string(),
         None => "automatic".into(),
     };
-    eprintln!("checking {:?} ({} spp × {} runs) against finite differences (ε {eps}, {} spp × {} repeats) on d(mean pixel)/dθ", args.estimator, grad.spp, options.repeats, fd.spp, fd.repeats);
+    eprintln!("checking {:?} on {} ({} spp × {} runs) against finite differences (ε {eps}, {} spp × {} repeats) on d(mean pixel)/dθ", args.estimator, grad.parameter, grad.spp, options.repeats, fd.spp, fd.repeats);
     let checks = gradcheck(&scene, &options)?;
     print!("{}", checks_table(&checks).markdown());
     let failed = checks.iter().filter(|c| !c.passed()).count();

@@ -149,9 +149,6 @@ fn scene_grids(path: &Path) -> Result<()> {
             }
         ),
     }
-    println!(
-        "  albedo     {} (constant), phase g {}",
-        m.albedo, m.phase_g
-    );
+    println!("  albedo     {}, phase g {}", m.albedo, m.phase_g);
     Ok(())
 }

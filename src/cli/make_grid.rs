@@ -1,10 +1,13 @@
-//! `volgrad make-grid`: a small analytic grid (box, sphere, slab, single dense voxel) as a .vdb.
+//! `volgrad make-grid`: a small analytic grid (box, sphere, slab, single dense voxel; a fireball
+//! with its temperature, coloured smoke with its albedo) as a .vdb.
 
 use std::path::PathBuf;
 
 use anyhow::{bail, Result};
 
-use volgrad::io::make_grid::{fireball_temperature, make_grid, Class, GridKind, GridSpec};
+use volgrad::io::make_grid::{
+    coloured_smoke_albedo, fireball_temperature, make_grid, Class, GridKind, GridSpec,
+};
 use volgrad::io::vdb;
 
 #[derive(clap::Args)]
@@ -77,6 +80,16 @@ pub fn run(args: &Args) -> Result<()> {
         vdb::write_grids(&args.output, &[&grid, &temperature], args.half, args.force)?;
         eprintln!(
             "wrote {} with grids '{}' and 'temperature'",
+            args.output.display(),
+            grid.name
+        );
+        return Ok(());
+    }
+    if args.kind == GridKind::ColouredSmoke {
+        let [r, g, b] = coloured_smoke_albedo(&spec)?;
+        vdb::write_grids_with_colours(&args.output, &[&grid], &[[&r, &g, &b]], args.force)?;
+        eprintln!(
+            "wrote {} with grids '{}' and 'Cd' (vec3)",
             args.output.display(),
             grid.name
         );

@@ -1,4 +1,5 @@
-//! `volgrad merge`: gradient VDBs of runs with different seeds, combined weighted by their spp.
+//! `volgrad merge`: gradient VDBs of runs with different seeds, combined weighted by their spp (any
+//! parameter's; an RGB albedo gradient stays a vec3 grid).
 
 use std::path::{Path, PathBuf};
 
@@ -21,8 +22,11 @@ pub struct Args {
 pub fn run(args: &Args) -> Result<()> {
     let (inputs, output, force) = (&args.inputs, &args.output, args.force);
     let paths: Vec<&Path> = inputs.iter().map(|p| p.as_path()).collect();
-    let grid = gradient_files::merge(&paths)?;
-    vdb::write_grids(output, &[&grid], false, force)?;
+    match gradient_files::merge(&paths)?.as_slice() {
+        [grid] => vdb::write_grids(output, &[grid], false, force)?,
+        [r, g, b] => vdb::write_grids_with_colours(output, &[], &[[r, g, b]], force)?,
+        _ => unreachable!("a gradient has one or three channels"),
+    }
     eprintln!("wrote {} ({} inputs)", output.display(), inputs.len());
     Ok(())
 }

@@ -90,6 +90,11 @@ pub struct AdjointArgs {
     /// Which voxels are parameters.
     #[arg(long, value_enum, default_value = "all")]
     pub domain: Domain,
+    /// The grid the gradient is with respect to: the density (through extinction), the scene's
+    /// emission grid (`medium.emission`) or its albedo grid (`medium.albedo = { grid = … }`; an
+    /// RGB grid's gradient is RGB, one pass per channel), written as grad_<its name>.
+    #[arg(long, value_enum, default_value_t = Parameter::Extinction)]
+    pub parameter: Parameter,
 }
 
 impl AdjointArgs {
@@ -108,7 +113,8 @@ impl AdjointArgs {
             active_only: self.domain == Domain::Active,
             progress: !s.quiet,
             quantum: None,
-            parameter: Parameter::Extinction,
+            parameter: self.parameter,
+            channel: None,
         })
     }
 }

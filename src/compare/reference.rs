@@ -102,6 +102,7 @@ fn reference_provenance(scene: &Scene, r: &Reference) -> Provenance {
         domain: "all".into(),
         max_depth: scene.settings.max_depth,
         suffix: Suffix::PerPath.to_string(),
+        parameter: "extinction".into(),
     }
 }
 

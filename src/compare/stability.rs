@@ -17,6 +17,7 @@ use crate::io::table::{Align, Table};
 use crate::render::camera::Camera;
 use crate::render::lights::{DirectionalLight, Environment, Lights};
 use crate::render::scene::{RenderFile, Scene};
+use crate::volume::albedo::Albedo;
 use crate::volume::brickmap::BrickMap;
 use crate::volume::majorant::Majorant;
 use crate::volume::medium::{Filter, Medium};
@@ -41,7 +42,7 @@ fn suite_scene(
     filter: Filter,
 ) -> Scene {
     let mut medium = Medium::new(grid, transform, density_scale, filter, Majorant::grid(4));
-    medium.albedo = Vec3::splat(albedo);
+    medium.albedo = Albedo::Constant(Vec3::splat(albedo));
     medium.phase_g = g;
     let mut lights = Lights {
         environment: Environment {

@@ -149,7 +149,8 @@ pub struct AdjointOptions {
 #[derive(Default)]
 pub struct Scratch {
     pub record: PathRecord,
-    carried: Vec<Vec3>,
+    /// R_j of the recorded path (`carried_radiance`).
+    pub carried: Vec<Vec3>,
     suffixes: Vec<SuffixPlan>,
 }
 
@@ -171,7 +172,7 @@ impl Scratch {
 /// - a collision that did not scatter (past the maximum depth, or absorbed with albedo 0): 0.
 ///
 /// This is `trace`'s sum read backwards: with β_0 = 1, R_1 is the path's radiance.
-pub fn carried_radiance(segments: &[Segment], albedo: Vec3, carried: &mut Vec<Vec3>) {
+pub fn carried_radiance(segments: &[Segment], carried: &mut Vec<Vec3>) {
     carried.clear();
     carried.resize(segments.len(), Vec3::ZERO);
     let mut deeper = Vec3::ZERO;
@@ -181,6 +182,7 @@ pub fn carried_radiance(segments: &[Segment], albedo: Vec3, carried: &mut Vec<Ve
             SegmentEnd::Stopped { emission, .. } => emission,
             SegmentEnd::Scattered {
                 emission,
+                albedo,
                 nee,
                 continuation_weight,
                 ..
@@ -231,8 +233,7 @@ impl<R: Rng> Replay<'_, R> {
         sink: &mut impl GradientSink,
     ) -> Vec3 {
         let radiance = self.trace_recorded(origin, dir, scratch);
-        let albedo = self.scene.medium.albedo;
-        carried_radiance(&scratch.record.segments, albedo, &mut scratch.carried);
+        carried_radiance(&scratch.record.segments, &mut scratch.carried);
         self.add_path_gradient(
             &scratch.record,
             &scratch.carried,
@@ -442,12 +443,27 @@ impl<R: Rng> Replay<'_, R> {
         light_sample: &LightSample,
         suffix: SuffixPlan,
     ) -> Vec3 {
-        let scene = self.scene;
-        let (p, dir) = (segment.at(t), segment.dir);
-        let emission = emitted(&scene.medium, p);
+        let medium = &self.scene.medium;
+        let p = segment.at(t);
+        let albedo = medium.albedo.at(p);
+        let emission = emitted(medium, p, albedo);
         if segment.depth > self.options.max_depth {
             return emission;
         }
+        emission + albedo * self.in_scattered(segment, t, light_sample, suffix)
+    }
+
+    /// The light arriving at distance `t` along `segment` to scatter on, before the albedo: NEE
+    /// with `light_sample` plus the weighted sum of `suffix.count` suffix paths.
+    pub fn in_scattered(
+        &mut self,
+        segment: &Segment,
+        t: f32,
+        light_sample: &LightSample,
+        suffix: SuffixPlan,
+    ) -> Vec3 {
+        let scene = self.scene;
+        let (p, dir) = (segment.at(t), segment.dir);
         let mut in_scattered =
             direct_light_one(scene, p, dir, light_sample, self.rng, self.stats, None);
         for _ in 0..suffix.count {
@@ -456,6 +472,6 @@ impl<R: Rng> Replay<'_, R> {
             in_scattered +=
                 suffix.weight * trace(scene, state, max_depth, self.rng, self.stats, None);
         }
-        emission + scene.medium.albedo * in_scattered
+        in_scattered
     }
 }

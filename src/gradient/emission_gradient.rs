@@ -37,11 +37,11 @@ pub fn emission_path_gradient(scene: &Scene, segments: &[Segment], sink: &mut im
     let Some(emission) = &medium.emission else {
         return;
     };
-    let absorbed = Vec3::ONE - medium.albedo;
     for segment in segments {
         if let Some(t) = segment.collision() {
-            let (index, d_radiance) = emission.radiance_derivative(segment.at(t));
-            let value = segment.throughput * absorbed * d_radiance;
+            let p = segment.at(t);
+            let (index, d_radiance) = emission.radiance_derivative(p);
+            let value = segment.throughput * (Vec3::ONE - medium.albedo.at(p)) * d_radiance;
             if value != Vec3::ZERO {
                 splat_lookup(emission.filter, index, value, sink);
             }

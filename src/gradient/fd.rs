@@ -18,6 +18,7 @@ use glam::IVec3;
 use rand::Rng;
 
 use crate::gradient::loss::Loss;
+use crate::gradient::passes::{parameter_grid, parameter_grid_mut, Parameter};
 use crate::io::images::RgbImage;
 use crate::render::image::{render, RenderOptions};
 use crate::render::sampling::pixel_rng;
@@ -155,26 +156,42 @@ fn scaled(direction: &Direction, factor: f32) -> Direction {
     direction.iter().map(|&(v, d)| (v, d * factor)).collect()
 }
 
-/// The scene with its grid replaced (bounds and transform kept) and a given majorant.
-fn variant(scene: &Scene, grid: BrickMap, majorant: &MajorantGrid) -> Scene {
-    let mut s = scene.clone();
-    s.medium.grid = grid;
-    s.medium.majorant = majorant.clone();
-    s
-}
-
-/// d loss / d ε along `direction`. Fails if even the one-sided stencil would make a voxel negative.
+/// d loss / d ε along `direction` in the density. Fails if even the one-sided stencil would make a
+/// voxel negative.
 pub fn directional_derivative(
     scene: &Scene,
     target: Option<&RgbImage>,
     direction: &Direction,
     options: &FdOptions,
 ) -> anyhow::Result<FdResult> {
-    let grid = &scene.medium.grid;
+    directional_derivative_of(
+        scene,
+        target,
+        Parameter::Extinction,
+        None,
+        direction,
+        options,
+    )
+}
+
+/// d loss / d ε along `direction` in the grid of `parameter` (its `channel`, for an RGB albedo
+/// grid). The density's steps keep σt ≥ 0 (one-sided where needed) and share a majorant; the
+/// other grids do not steer sampling, so their steps are central and the renders see the same
+/// paths.
+pub fn directional_derivative_of(
+    scene: &Scene,
+    target: Option<&RgbImage>,
+    parameter: Parameter,
+    channel: Option<usize>,
+    direction: &Direction,
+    options: &FdOptions,
+) -> anyhow::Result<FdResult> {
+    let grid = parameter_grid(scene, parameter, channel);
     let eps = options.eps;
-    let one_sided = direction
-        .iter()
-        .any(|&(v, d)| grid.voxel(v) - eps * d.abs() < 0.0);
+    let one_sided = parameter == Parameter::Extinction
+        && direction
+            .iter()
+            .any(|&(v, d)| grid.voxel(v) - eps * d.abs() < 0.0);
     // (coefficient, step in units of ε) pairs; the estimate is Σ c·L(θ + k·ε·v) / (denominator·ε).
     let (stencil, denominator): (&[(f64, f32)], f64) = if one_sided {
         (&[(-11.0, 0.0), (18.0, 1.0), (-9.0, 2.0), (2.0, 3.0)], 6.0)
@@ -194,25 +211,25 @@ pub fn directional_derivative(
             .map(|&(v, d)| (v, reach * eps * d.abs()))
             .collect::<Vec<_>>(),
     );
-    let mode = scene.settings.majorant();
-    let majorant = MajorantGrid::build(
-        &upper,
-        scene.medium.bounds,
-        scene.medium.density_scale,
-        mode,
-    )
-    .with_hot_spots(&upper, scene.medium.transform.voxel_diagonal());
+    let majorant = (parameter == Parameter::Extinction).then(|| {
+        MajorantGrid::build(
+            &upper,
+            scene.medium.bounds,
+            scene.medium.density_scale,
+            scene.settings.majorant(),
+        )
+        .with_hot_spots(&upper, scene.medium.transform.voxel_diagonal())
+    });
     let scenes: Vec<(f64, Scene)> = stencil
         .iter()
         .map(|&(c, k)| {
-            (
-                c,
-                variant(
-                    scene,
-                    grid.with_added(&scaled(direction, k * eps)),
-                    &majorant,
-                ),
-            )
+            let mut s = scene.clone();
+            *parameter_grid_mut(&mut s, parameter, channel) =
+                grid.with_added(&scaled(direction, k * eps));
+            if let Some(majorant) = &majorant {
+                s.medium.majorant = majorant.clone();
+            }
+            (c, s)
         })
         .collect();
     let samples: Vec<f64> = (0..options.repeats.max(2))

@@ -7,7 +7,7 @@ use rand::seq::SliceRandom;
 
 use crate::gradient::fd::{self, Direction, FdOptions, FdResult};
 use crate::gradient::grid::GradientGrid;
-use crate::gradient::passes::{gradient, GradOptions};
+use crate::gradient::passes::{gradient, parameter_grid, GradOptions, Parameter};
 use crate::gradient::runs::{seeded_runs, MeanAndError};
 use crate::io::table::{Align, Table};
 use crate::render::sampling::pixel_rng;
@@ -78,7 +78,8 @@ pub struct GradcheckOptions {
 }
 
 pub fn gradcheck(scene: &Scene, options: &GradcheckOptions) -> anyhow::Result<Vec<Check>> {
-    let grid = &scene.medium.grid;
+    let (parameter, channel) = (options.grad.parameter, options.grad.channel);
+    let grid = parameter_grid(scene, parameter, channel);
     let Some((lo, hi)) = fd::domain_bounds(grid) else {
         return Ok(Vec::new());
     };
@@ -113,9 +114,22 @@ pub fn gradcheck(scene: &Scene, options: &GradcheckOptions) -> anyhow::Result<Ve
         } = MeanAndError::of(&along);
         let mut fd_options = options.fd;
         if !options.fixed_eps {
-            fd_options.eps = fd::auto_eps(scene, &direction);
+            fd_options.eps = match parameter {
+                Parameter::Extinction => fd::auto_eps(scene, &direction),
+                // Grids that do not steer sampling: the renders see the same paths, so a small
+                // step costs no noise, and 1 % of the grid's range keeps the stencil's O(ε²)
+                // error below the estimator's (5 % put a blackbody's ⟨g, 1⟩ 1.2 % off: seen).
+                _ => 0.01 * grid.max_value().max(-grid.min_value()).max(1e-3),
+            };
         }
-        let fd = fd::directional_derivative(scene, None, &direction, &fd_options)?;
+        let fd = fd::directional_derivative_of(
+            scene,
+            None,
+            parameter,
+            channel,
+            &direction,
+            &fd_options,
+        )?;
         bar.inc(1);
         checks.push(Check {
             name,

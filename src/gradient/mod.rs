@@ -2,6 +2,7 @@
 //! grid, losses, finite differences and the estimator check. Uses `volume`, `io` and `render`.
 
 pub mod adjoint;
+pub mod albedo_gradient;
 pub mod emission_gradient;
 pub mod fd;
 pub mod gradcheck;

@@ -19,6 +19,7 @@ use crate::render::image::RenderStats;
 use crate::render::pixel_set::PixelSet;
 use crate::render::sampling::{sample_rng, Pass};
 use crate::render::scene::Scene;
+use crate::volume::albedo::{Albedo, AlbedoGrid};
 use crate::volume::brickmap::{corner, BrickMap};
 use crate::volume::tracking::TrackingStats;
 
@@ -35,6 +36,9 @@ pub struct GradOptions {
     pub quantum: Option<f64>,
     /// Which grid's values the gradient is with respect to.
     pub parameter: Parameter,
+    /// One colour channel of a colour parameter (an RGB albedo grid's red, green or blue): the
+    /// pass weights only that channel of the adjoint image, and its grid is that channel's.
+    pub channel: Option<usize>,
 }
 
 /// The grid a gradient is taken with respect to.
@@ -45,6 +49,8 @@ pub enum Parameter {
     Extinction,
     /// The emission grid's values, through Le (`emission_gradient`).
     Emission,
+    /// The albedo grid's values (`albedo_gradient`), one colour channel per pass for an RGB grid.
+    Albedo,
 }
 
 crate::display_as_value_enum!(Parameter);
@@ -66,6 +72,7 @@ impl GradOptions {
             progress: false,
             quantum: None,
             parameter: Parameter::Extinction,
+            channel: None,
         }
     }
 }
@@ -340,24 +347,53 @@ impl GradientPass<'_> {
             Parameter::Emission => {
                 replay.camera_path_emission_gradient(camera.position, dir, scratch, sink)
             }
+            Parameter::Albedo => {
+                replay.camera_path_albedo_gradient(camera.position, dir, scratch, sink)
+            }
         }
     }
 }
 
-/// The grid whose values `parameter` names: the density's, or the emission's (the density's for a
-/// medium that does not emit: its gradient is then 0).
-pub fn parameter_grid(scene: &Scene, parameter: Parameter) -> &BrickMap {
-    match (parameter, &scene.medium.emission) {
-        (Parameter::Emission, Some(e)) => &e.grid,
-        _ => &scene.medium.grid,
+/// The grid whose values the pass's parameter names: the density's, the emission's, or the
+/// albedo's (the channel's, of an RGB grid); the density's where the medium has no such grid (the
+/// gradient is then 0).
+pub fn parameter_grid(scene: &Scene, parameter: Parameter, channel: Option<usize>) -> &BrickMap {
+    let medium = &scene.medium;
+    match (parameter, &medium.emission, medium.albedo.grid()) {
+        (Parameter::Emission, Some(e), _) => &e.grid,
+        (Parameter::Albedo, _, Some(a)) => &a.channels[channel_of(a, channel)],
+        _ => &medium.grid,
     }
 }
 
-/// An empty gradient grid over every voxel `parameter`'s lookups can weight.
-pub fn gradient_grid_for<T: Accumulator>(scene: &Scene, parameter: Parameter) -> GradientGrid<T> {
-    match (parameter, &scene.medium.emission) {
-        (Parameter::Emission, Some(e)) => GradientGrid::for_grid(&e.grid),
-        _ => GradientGrid::for_medium(&scene.medium),
+/// `parameter_grid`, to be changed (finite differences perturb it). The density's majorants are
+/// the caller's to rebuild.
+pub fn parameter_grid_mut(
+    scene: &mut Scene,
+    parameter: Parameter,
+    channel: Option<usize>,
+) -> &mut BrickMap {
+    let medium = &mut scene.medium;
+    match (parameter, &mut medium.emission, &mut medium.albedo) {
+        (Parameter::Emission, Some(e), _) => &mut e.grid,
+        (Parameter::Albedo, _, Albedo::Grid(a)) => {
+            let c = channel_of(a, channel);
+            &mut a.channels[c]
+        }
+        _ => &mut medium.grid,
+    }
+}
+
+/// The brick map of `channel` (red for none; a grey grid's one map for any).
+fn channel_of(grid: &AlbedoGrid, channel: Option<usize>) -> usize {
+    channel.unwrap_or(0).min(grid.channels.len() - 1)
+}
+
+/// An empty gradient grid over every voxel the pass's lookups can weight.
+pub fn gradient_grid_for<T: Accumulator>(scene: &Scene, options: &GradOptions) -> GradientGrid<T> {
+    match options.parameter {
+        Parameter::Extinction => GradientGrid::for_medium(&scene.medium),
+        _ => GradientGrid::for_grid(parameter_grid(scene, options.parameter, options.channel)),
     }
 }
 
@@ -377,17 +413,22 @@ pub fn gradient_of(
 ) -> GradientRun {
     let camera = &scene.camera;
     let w = camera.width;
-    let mut gradient = gradient_grid_for(scene, options.parameter);
+    let mut gradient = gradient_grid_for(scene, options);
     let mut image = RgbImage::new(camera.width, camera.height);
-    let active = options
-        .active_only
-        .then_some(parameter_grid(scene, options.parameter));
+    let active =
+        options
+            .active_only
+            .then_some(parameter_grid(scene, options.parameter, options.channel));
     let spp = options.spp;
     let quantum = options
         .quantum
         .unwrap_or_else(|| quantum_for([adjoint], spp));
     // In f64: for a tiny δ, 1/quantum exceeds f32's range though δ/quantum does not.
     let per_quantum = 1.0 / (spp as f64 * quantum);
+    let channel_mask = match options.channel {
+        Some(c) => Vec3::AXES[c],
+        None => Vec3::ONE,
+    };
     let pass = GradientPass { scene, options };
     let stats = over_pixels(
         scene,
@@ -399,7 +440,7 @@ pub fn gradient_of(
             let index = y * w + x;
             let mut sink = SplatSink {
                 splats,
-                weight: (adjoint[index as usize].as_dvec3() * per_quantum).as_vec3(),
+                weight: (adjoint[index as usize].as_dvec3() * per_quantum).as_vec3() * channel_mask,
                 dropped: 0,
             };
             let mut sum = Vec3::ZERO;

@@ -132,10 +132,30 @@ pub mod ffi {
             threads: u32,
         ) -> Result<FloatGridData>;
 
+        /// Reads one grid as float components: a float or double grid as one (as
+        /// `read_float_grid`), a vec3s or vec3d grid (a colour) as three, its x, y and z, each
+        /// with the grid's name, transform and topology. Other value types are refused.
+        fn read_grid_components(
+            path: &str,
+            name: &str,
+            index: i32,
+            threads: u32,
+        ) -> Result<Vec<FloatGridData>>;
+
         /// Writes float grids to one file (pruned; stored as half when `save_half`), replacing it.
         /// A "level set" needs a background > 0 (its narrow-band half-width); its inside is
         /// signed-flood-filled, so leaves around the surface are enough.
         fn write_float_grids(path: &str, grids: &[FloatGridData], save_half: bool) -> Result<()>;
+
+        /// As `write_float_grids`, followed by vec3s grids (colours), each made of three float
+        /// components of `colours` in turn: every voxel active in a component is active, with
+        /// the name, transform and metadata of the first.
+        fn write_grids_with_colours(
+            path: &str,
+            grids: &[FloatGridData],
+            colours: &[FloatGridData],
+            save_half: bool,
+        ) -> Result<()>;
 
         /// Reads any image OpenImageIO can open, converted to f32 (no colour conversion).
         fn read_image(path: &str) -> Result<ImageData>;

@@ -9,7 +9,7 @@ use glam::IVec3;
 
 use crate::io::bridge::MetaEntry;
 use crate::io::colormap::write_signed_png;
-use crate::io::vdb::{self, meta, Grid, GridSelector};
+use crate::io::vdb::{self, meta, Grid};
 use crate::volume::brickmap::{BrickMap, BrickMapBuilder};
 use crate::volume::transform::IndexTransform;
 
@@ -33,6 +33,8 @@ pub struct Provenance {
     pub max_depth: u32,
     /// "per-path" or "per-segment".
     pub suffix: String,
+    /// The grid the gradient is with respect to: "extinction", "emission" or "albedo".
+    pub parameter: String,
 }
 
 impl Provenance {
@@ -56,13 +58,15 @@ impl Provenance {
             meta("volgrad_domain", "string", &self.domain),
             meta("volgrad_max_depth", "int64", self.max_depth),
             meta("volgrad_suffix", "string", &self.suffix),
+            meta("volgrad_parameter", "string", &self.parameter),
         ]
     }
 
     /// Every field that defines the computation, as (metadata name, value), in the order a
     /// mismatch is reported.
-    fn computation(&self) -> [(&'static str, String); 7] {
+    fn computation(&self) -> [(&'static str, String); 8] {
         [
+            ("volgrad_parameter", self.parameter.clone()),
             ("volgrad_scene_fingerprint", self.scene_fingerprint.clone()),
             (
                 "volgrad_target_fingerprint",
@@ -102,6 +106,8 @@ impl Provenance {
             );
         }
         Ok(Provenance {
+            // Files from before gradients had other parameters hold extinction gradients.
+            parameter: get("volgrad_parameter").unwrap_or_else(|_| "extinction".into()),
             estimator: get("volgrad_estimator")?,
             spp,
             seed: get("volgrad_seed")?,
@@ -173,29 +179,34 @@ pub fn write_projection_png(path: &Path, grid: &Grid) -> Result<Option<f32>> {
     }
 }
 
-/// Combines gradient VDBs from runs with different seeds, weighted by their spp.
-pub fn merge(inputs: &[&Path]) -> Result<Grid> {
+/// Combines gradient VDBs from runs with different seeds, weighted by their spp: one grid, or the
+/// three components of a colour gradient (an RGB albedo's), which then stay three.
+pub fn merge(inputs: &[&Path]) -> Result<Vec<Grid>> {
     if inputs.is_empty() {
         bail!("merge needs at least one input");
     }
-    let mut sums: HashMap<IVec3, f64> = HashMap::new();
-    let mut first: Option<(Grid, Provenance)> = None;
+    let mut sums: Vec<HashMap<IVec3, f64>> = Vec::new();
+    let mut first: Option<(Vec<Grid>, Provenance)> = None;
     let mut total_spp = 0u64;
     let mut seeds: Vec<(String, &Path)> = Vec::new();
     for &path in inputs {
-        let index = vdb::list_grid_names(path)?
-            .iter()
-            .position(|name| name.starts_with("grad_"))
+        let name = vdb::list_grid_names(path)?
+            .into_iter()
+            .find(|name| name.starts_with("grad_"))
             .with_context(|| format!("'{}' has no grad_* grid", path.display()))?;
-        let grid = vdb::read_grid(path, &GridSelector::Index(index))?;
-        let provenance = Provenance::from_metadata(&grid.metadata, path)?;
+        let components = vdb::read_components(path, &name)?;
+        let provenance = Provenance::from_metadata(&components[0].metadata, path)?;
         if let Some((f, p)) = &first {
-            if f.name != grid.name || f.transform != grid.transform {
+            let grid = &components[0];
+            if f[0].name != grid.name
+                || f[0].transform != grid.transform
+                || f.len() != components.len()
+            {
                 bail!(
-                    "'{}' holds {} with another transform or name than {}: not the same scene",
+                    "'{}' holds {} with another transform, name or number of channels than {}: not the same scene",
                     path.display(),
                     grid.name,
-                    f.name
+                    f[0].name
                 );
             }
             let mut differs = p.computation().into_iter().zip(provenance.computation());
@@ -217,32 +228,37 @@ pub fn merge(inputs: &[&Path]) -> Result<Grid> {
             }
             seeds.push((seed.to_string(), path));
         }
-        for leaf in grid.bricks.leaves() {
-            for (o, &v) in leaf.values.iter().enumerate() {
-                if v != 0.0 {
-                    let p = leaf.origin
-                        + IVec3::new((o >> 6) as i32, ((o >> 3) & 7) as i32, (o & 7) as i32);
-                    *sums.entry(p).or_insert(0.0) += v as f64 * provenance.spp as f64;
+        sums.resize_with(components.len(), HashMap::new);
+        for (grid, sums) in components.iter().zip(&mut sums) {
+            for leaf in grid.bricks.leaves() {
+                for (o, &v) in leaf.values.iter().enumerate() {
+                    if v != 0.0 {
+                        let p = leaf.origin
+                            + IVec3::new((o >> 6) as i32, ((o >> 3) & 7) as i32, (o & 7) as i32);
+                        *sums.entry(p).or_insert(0.0) += v as f64 * provenance.spp as f64;
+                    }
                 }
             }
         }
         total_spp += provenance.spp;
         if first.is_none() {
-            first = Some((grid, provenance));
+            first = Some((components, provenance));
         }
     }
-    let (mut grid, mut provenance) = first.expect("at least one input");
-    let mut b = BrickMapBuilder::new();
-    for (v, s) in sums {
-        b.set(v, (s / total_spp as f64) as f32, true);
-    }
-    grid.bricks = b.build();
+    let (mut grids, mut provenance) = first.expect("at least one input");
     provenance.spp = total_spp;
     provenance.seed = seeds
         .iter()
         .map(|(s, _)| s.as_str())
         .collect::<Vec<_>>()
         .join(",");
-    grid.metadata = provenance.metadata();
-    Ok(grid)
+    for (grid, sums) in grids.iter_mut().zip(sums) {
+        let mut b = BrickMapBuilder::new();
+        for (v, s) in sums {
+            b.set(v, (s / total_spp as f64) as f32, true);
+        }
+        grid.bricks = b.build();
+        grid.metadata = provenance.metadata();
+    }
+    Ok(grids)
 }

@@ -20,6 +20,9 @@ pub enum GridKind {
     /// and beside it a grid "temperature", 3 at the centre falling to 1 at the rim (× 1000 K with
     /// `blackbody = { scale = 1000 }`): a test fire with no download.
     Fireball,
+    /// The fireball's density ball, and beside it a vec3 grid "Cd", an RGB albedo from orange at
+    /// the bottom (y = 0) to blue at the top: coloured smoke with no download.
+    ColouredSmoke,
 }
 
 /// The OpenVDB class of the grid written.
@@ -116,7 +119,7 @@ pub fn make_grid(spec: &GridSpec) -> anyhow::Result<Grid> {
                             b.set(v, spec.value, true);
                         }
                     }
-                    GridKind::Fireball => {
+                    GridKind::Fireball | GridKind::ColouredSmoke => {
                         let r = fireball_radius(v, centre, n);
                         if r <= 1.0 {
                             b.set(v, spec.value * (1.0 - r * r) as f32, true);
@@ -160,6 +163,35 @@ pub fn fireball_temperature(spec: &GridSpec) -> anyhow::Result<Grid> {
         ..spec.clone()
     };
     finish(&spec, b.build(), centre)
+}
+
+/// The coloured smoke's "Cd" grid (`GridKind::ColouredSmoke`) as its three components (a vec3 grid
+/// when written with `vdb::write_grids_with_colours`): over the ball's voxels, an albedo blending
+/// from (0.95, 0.55, 0.2) at y = 0 to (0.2, 0.45, 0.95) at the top.
+pub fn coloured_smoke_albedo(spec: &GridSpec) -> anyhow::Result<[Grid; 3]> {
+    let n = spec.size as i32;
+    let centre = DVec3::splat((n - 1) as f64 * 0.5);
+    let (bottom, top) = (DVec3::new(0.95, 0.55, 0.2), DVec3::new(0.2, 0.45, 0.95));
+    let mut channels = [(); 3].map(|_| BrickMapBuilder::new());
+    for x in 0..n {
+        for y in 0..n {
+            for z in 0..n {
+                let v = IVec3::new(x, y, z);
+                if fireball_radius(v, centre, n) <= 1.0 {
+                    let colour = bottom.lerp(top, y as f64 / (n - 1).max(1) as f64);
+                    for (c, channel) in channels.iter_mut().enumerate() {
+                        channel.set(v, colour[c] as f32, true);
+                    }
+                }
+            }
+        }
+    }
+    let spec = GridSpec {
+        name: "Cd".into(),
+        ..spec.clone()
+    };
+    let [r, g, b] = channels.map(|c| finish(&spec, c.build(), centre));
+    Ok([r?, g?, b?])
 }
 
 /// Signed distances to the sphere of diameter `n` voxels around `centre`, in world units

@@ -125,6 +125,32 @@ fn read_data(path: &Path, selector: &GridSelector, to_fog: bool) -> Result<Float
     .map_err(|e| anyhow!("{}", e.what()))
 }
 
+/// Reads the grid named `name` as float components: one for a float grid, three (x, y, z) for a
+/// vec3 grid, each as it is stored (any background).
+pub fn read_components(path: &Path, name: &str) -> Result<Vec<Grid>> {
+    let threads = u32::try_from(rayon::current_num_threads()).unwrap_or(u32::MAX);
+    let data = ffi::read_grid_components(path_str(path)?, name, -1, threads)
+        .map_err(|e| anyhow!("{}", e.what()))?;
+    data.into_iter()
+        .map(|d| Grid::from_data(d).map_err(|e| anyhow!("grid in '{}': {e}", path.display())))
+        .collect()
+}
+
+/// Writes float grids and vec3 grids (colours, each made of three float components, with the
+/// first's name and transform) to `path`. Refuses to replace an existing file unless `overwrite`.
+pub fn write_grids_with_colours(
+    path: &Path,
+    grids: &[&Grid],
+    colours: &[[&Grid; 3]],
+    overwrite: bool,
+) -> Result<()> {
+    crate::io::output::refuse_overwrite(path, overwrite)?;
+    let data: Vec<FloatGridData> = grids.iter().map(|g| g.to_data()).collect();
+    let colours: Vec<FloatGridData> = colours.iter().flatten().map(|g| g.to_data()).collect();
+    ffi::write_grids_with_colours(path_str(path)?, &data, &colours, false)
+        .map_err(|e| anyhow!("{}", e.what()))
+}
+
 /// Writes grids to `path`. Refuses to replace an existing file unless `overwrite`.
 pub fn write_grids(path: &Path, grids: &[&Grid], save_half: bool, overwrite: bool) -> Result<()> {
     crate::io::output::refuse_overwrite(path, overwrite)?;

@@ -494,7 +494,7 @@ fn medium_like(
         m.filter,
         scene.settings.majorant(),
     );
-    medium.albedo = m.albedo;
+    medium.albedo = m.albedo.clone();
     medium.phase_g = m.phase_g;
     medium
 }

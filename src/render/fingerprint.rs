@@ -1,10 +1,13 @@
-//! A scene's fingerprint: everything that decides its images — camera, the grid's values and
-//! transform, the medium's optical constants, the lights — and nothing about where its files live,
+//! A scene's fingerprint: everything that decides its images — camera, the grids' values and
+//! transforms (density, and albedo and emission where the medium has them), the medium's optical
+//! constants, the lights — and nothing about where its files live,
 //! so the same scene loaded from a relative or an absolute path, or from a copy, has one
 //! fingerprint, and two different scenes that share a file name do not.
 
 use crate::io::fingerprint::Fingerprint;
 use crate::render::scene::Scene;
+use crate::volume::albedo::Albedo;
+use crate::volume::brickmap::BrickMap;
 
 /// 16 hex digits (see `io::fingerprint`).
 pub fn scene(scene: &Scene) -> String {
@@ -13,21 +16,22 @@ pub fn scene(scene: &Scene) -> String {
     // hash by value.
     f.text(&format!("{:?}", scene.camera));
     let m = &scene.medium;
+    // A constant albedo reads as it did before albedo grids, so fingerprints stay what they were.
+    let albedo = match &m.albedo {
+        Albedo::Constant(albedo) => albedo.to_string(),
+        Albedo::Grid(grid) => format!("grid {} {:?}", grid.background, grid.transform),
+    };
     f.text(&format!(
         "{:?} {:?} {} {} {} {}",
-        m.transform, m.bounds, m.density_scale, m.albedo, m.phase_g, m.filter
+        m.transform, m.bounds, m.density_scale, albedo, m.phase_g, m.filter
     ));
-    for leaf in m.grid.leaves() {
-        f.f32s(&leaf.origin.as_vec3().to_array()).f32s(&leaf.values);
-        for word in leaf.active {
-            f.bytes(&word.to_le_bytes());
-        }
+    bricks(&mut f, &m.grid);
+    if let Some(grid) = m.albedo.grid() {
+        grid.channels.iter().for_each(|c| bricks(&mut f, c));
     }
-    for tile in m.grid.tiles() {
-        f.text(&format!(
-            "tile {:?} {} {}",
-            tile.origin, tile.size, tile.value
-        ));
+    if let Some(e) = &m.emission {
+        f.text(&format!("emission {:?} {:?}", e.transform, e.kind));
+        bricks(&mut f, &e.grid);
     }
     let lights = &scene.lights;
     f.text(&format!(
@@ -39,4 +43,20 @@ pub fn scene(scene: &Scene) -> String {
         f.text(&format!("envmap {w}×{h}")).vec3s(texels);
     }
     f.hex()
+}
+
+/// A brick map's values, active masks and tiles.
+fn bricks(f: &mut Fingerprint, map: &BrickMap) {
+    for leaf in map.leaves() {
+        f.f32s(&leaf.origin.as_vec3().to_array()).f32s(&leaf.values);
+        for word in leaf.active {
+            f.bytes(&word.to_le_bytes());
+        }
+    }
+    for tile in map.tiles() {
+        f.text(&format!(
+            "tile {:?} {} {}",
+            tile.origin, tile.size, tile.value
+        ));
+    }
 }

@@ -37,6 +37,14 @@ pub struct RenderStats {
 }
 
 impl RenderStats {
+    /// Adds `other`'s passes to these: paths, time, counters.
+    pub fn merge(&mut self, other: &RenderStats) {
+        self.paths += other.paths;
+        self.wall += other.wall;
+        self.tracking += other.tracking;
+        self.non_finite += other.non_finite;
+    }
+
     pub fn paths_per_second(&self) -> f64 {
         self.paths as f64 / self.wall.as_secs_f64().max(1e-9)
     }

@@ -5,6 +5,7 @@ pub mod camera;
 pub mod fingerprint;
 pub mod image;
 pub mod lights;
+pub mod medium_grids;
 pub mod path;
 pub mod pixel_set;
 pub mod sampling;

@@ -100,12 +100,14 @@ pub enum SegmentEnd {
     /// A real collision at distance `at` that did not scatter (past the maximum depth, or
     /// absorbed with albedo 0): only the medium's emission there, (1 − α)·Le.
     Stopped { at: f32, emission: Vec3 },
-    /// A real collision at distance `at` that scattered: its emission, the light sample and the
-    /// NEE radiance (before the albedo), and Russian roulette's factor after it (1/q, or 0 where
-    /// the path ended).
+    /// A real collision at distance `at` that scattered: its emission, the albedo there, the light
+    /// sample and the NEE radiance (before the albedo), and Russian roulette's factor after it
+    /// (1/q, or 0 where the path ended).
     Scattered {
         at: f32,
         emission: Vec3,
+        /// α at the collision.
+        albedo: Vec3,
         light_sample: LightSample,
         nee: Vec3,
         continuation_weight: f32,
@@ -335,17 +337,19 @@ pub fn trace(
             // A collision past the maximum depth: the renderer does not scatter there, but the
             // medium's emission there is light that reached the camera after `depth` bounces.
             Some(t) if depth >= max_depth => {
-                let emission = emitted(medium, p + dir * t);
+                let at = p + dir * t;
+                let emission = emitted(medium, at, medium.albedo.at(at));
                 radiance += throughput * emission;
                 (SegmentEnd::Stopped { at: t, emission }, false)
             }
             Some(t) => {
                 depth += 1;
                 p += dir * t;
-                let emission = emitted(medium, p);
+                let albedo = medium.albedo.at(p);
+                let emission = emitted(medium, p, albedo);
                 radiance += throughput * emission;
                 // A real collision scatters with probability α; the albedo weights the throughput.
-                throughput *= medium.albedo;
+                throughput *= albedo;
                 if throughput == Vec3::ZERO {
                     // Absorbed (albedo 0): nothing more can reach the camera along this path.
                     (SegmentEnd::Stopped { at: t, emission }, false)
@@ -366,6 +370,7 @@ pub fn trace(
                     let end = SegmentEnd::Scattered {
                         at: t,
                         emission,
+                        albedo,
                         light_sample,
                         nee,
                         continuation_weight,
@@ -392,16 +397,17 @@ pub fn trace(
     radiance
 }
 
-/// What a real collision at world point `p` adds from the medium's emission, per unit throughput:
+/// What a real collision at world point `p`, where the albedo is `albedo`, adds from the medium's
+/// emission, per unit throughput:
 /// collisions are drawn with density σt·T, so (σa/σt)·Le = (1 − α)·Le there estimates the
 /// emission ∫ T·σa·Le dt along the flight. (An estimate at every tentative collision of the
 /// tracker would have lower variance, but the tracker's null collisions are shared with shadow
 /// rays and the gradients' replay; real collisions change the path loop in one place.)
 #[inline]
-pub fn emitted(medium: &crate::volume::medium::Medium, p: Vec3) -> Vec3 {
+pub fn emitted(medium: &crate::volume::medium::Medium, p: Vec3, albedo: Vec3) -> Vec3 {
     match &medium.emission {
         None => Vec3::ZERO,
-        Some(e) => (Vec3::ONE - medium.albedo) * e.radiance(p),
+        Some(e) => (Vec3::ONE - albedo) * e.radiance(p),
     }
 }
 

@@ -10,11 +10,10 @@ use crate::io::images;
 use crate::io::vdb::{self, GridSelector};
 use crate::render::camera::Camera;
 use crate::render::lights::{DirectionalLight, EnvMap, Environment, Lights};
+use crate::render::medium_grids;
 use crate::render::scene_check::{self, MAX_EXTINCTION, MAX_LIGHT};
-use crate::render::scene_file::EmissionFile;
-use crate::volume::emission::{Emission, EmissionKind};
 use crate::volume::majorant::{Majorant, MajorantGrid, MajorantMode};
-use crate::volume::medium::{Filter, Medium};
+use crate::volume::medium::Medium;
 
 // The file's structs are named here too: the layers above load a scene and its settings through
 // `render::scene` alone; they live in `scene_file`, below `scene_check`, which validates them.
@@ -102,10 +101,10 @@ impl Scene {
             filter,
             mode,
         );
-        medium.albedo = file.medium.albedo.rgb();
+        medium.albedo = medium_grids::load_albedo(&file.medium.albedo, dir, &vdb_path, filter)?;
         medium.phase_g = file.medium.phase_g;
         if let Some(e) = &file.medium.emission {
-            medium.emission = Some(load_emission(e, dir, &vdb_path, filter)?);
+            medium.emission = Some(medium_grids::load_emission(e, dir, &vdb_path, filter)?);
         }
         let lights = load_lights(&file.light, dir)?;
         Ok(Scene {
@@ -178,37 +177,6 @@ pub fn load_lights(files: &[LightFile], dir: &Path) -> Result<Lights> {
     }
     lights.environment = environment;
     Ok(lights)
-}
-
-/// The emission grid `file` names, from its own file or the medium's (`medium_vdb`).
-fn load_emission(
-    file: &EmissionFile,
-    dir: &Path,
-    medium_vdb: &Path,
-    filter: Filter,
-) -> Result<Emission> {
-    let kind = file.emission_kind()?;
-    let path = file
-        .vdb
-        .as_ref()
-        .map_or(medium_vdb.to_path_buf(), |v| dir.join(v));
-    let grid = vdb::read_grid(&path, &GridSelector::Name(file.grid.clone()))
-        .with_context(|| format!("medium.emission.grid '{}'", file.grid))?;
-    if matches!(kind, EmissionKind::Radiance(_)) && grid.bricks.min_value() < 0.0 {
-        bail!(
-            "medium.emission: grid '{}' in '{}' has negative values (min {}), and radiance = [r, g, b] × the grid's value must be ≥ 0",
-            grid.name,
-            path.display(),
-            grid.bricks.min_value()
-        );
-    }
-    Ok(Emission::new(
-        grid.name,
-        grid.bricks,
-        grid.transform,
-        kind,
-        filter,
-    ))
 }
 
 #[cfg(test)]

@@ -6,7 +6,7 @@
 use anyhow::{bail, Result};
 use glam::{DVec3, Vec3};
 
-use crate::render::scene_file::{CameraFile, EmissionFile, LightFile, SceneFile};
+use crate::render::scene_file::{AlbedoFile, CameraFile, EmissionFile, LightFile, SceneFile};
 use crate::volume::emission::EmissionKind;
 
 /// Largest |coordinate| of camera.position and camera.target. The renderer traces in f32: beyond
@@ -68,9 +68,11 @@ impl SceneFile {
                 m.density_scale
             );
         }
-        let albedo = m.albedo.rgb();
-        if !(albedo.cmpge(Vec3::ZERO).all() && albedo.cmple(Vec3::ONE).all()) {
-            bail!("medium.albedo must lie in [0, 1] (got {albedo})");
+        if let AlbedoFile::Constant(albedo) = m.albedo {
+            let albedo = albedo.rgb();
+            if !(albedo.cmpge(Vec3::ZERO).all() && albedo.cmple(Vec3::ONE).all()) {
+                bail!("medium.albedo must lie in [0, 1] (got {albedo})");
+            }
         }
         if m.phase_g.is_nan() || m.phase_g.abs() >= 1.0 {
             bail!("medium.phase_g must satisfy |g| < 1 (got {})", m.phase_g);

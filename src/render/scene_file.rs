@@ -67,7 +67,7 @@ pub struct MediumFile {
     #[serde(default = "one")]
     pub density_scale: f32,
     #[serde(default = "white")]
-    pub albedo: Spectrum,
+    pub albedo: AlbedoFile,
     #[serde(default)]
     pub phase_g: f32,
     #[serde(default)]
@@ -77,6 +77,19 @@ pub struct MediumFile {
     pub levelset: LevelSet,
     /// Light the medium gives off, from a grid of its own.
     pub emission: Option<EmissionFile>,
+}
+
+/// `albedo = 0.9`, `albedo = [r, g, b]`, or `albedo = { grid = "Cd" }`: a grid of its own, RGB
+/// (vec3) or grey (float), from `medium.vdb` or another file (`vdb = …`).
+#[derive(Debug, Clone, Deserialize)]
+#[serde(untagged)]
+pub enum AlbedoFile {
+    Constant(Spectrum),
+    Grid {
+        grid: String,
+        /// The file it is in (default: `medium.vdb`), relative to the scene file.
+        vdb: Option<String>,
+    },
 }
 
 /// `emission = { grid = "temperature", blackbody = { … }, strength = S }` or
@@ -112,8 +125,8 @@ fn one() -> f32 {
     1.0
 }
 
-fn white() -> Spectrum {
-    Spectrum::Grey(1.0)
+fn white() -> AlbedoFile {
+    AlbedoFile::Constant(Spectrum::Grey(1.0))
 }
 
 #[derive(Debug, Clone, PartialEq, Deserialize, Serialize)]

@@ -1,9 +1,11 @@
 //! The participating medium: a brick map of grid values, the grid's transform, and the optical
-//! properties a scene gives it. σt(x) = density_scale · grid(x); the albedo and phase function are
-//! constant over the medium; it may emit (`emission`: σa·Le from a grid of its own).
+//! properties a scene gives it. σt(x) = density_scale · grid(x); the albedo is a constant or a grid
+//! of its own (`albedo`), the phase function constant over the medium; it may emit (`emission`:
+//! σa·Le from a grid of its own).
 
 use glam::Vec3;
 
+use crate::volume::albedo::Albedo;
 use crate::volume::brickmap::BrickMap;
 use crate::volume::emission::Emission;
 use crate::volume::majorant::{Majorant, MajorantGrid};
@@ -22,7 +24,7 @@ pub struct Medium {
     pub bounds: (Vec3, Vec3),
     pub density_scale: f32,
     pub filter: Filter,
-    pub albedo: Vec3,
+    pub albedo: Albedo,
     pub phase_g: f32,
     pub majorant: MajorantGrid,
     /// Light the medium gives off, from its own grid (none: a medium that only scatters).
@@ -62,7 +64,7 @@ impl Medium {
             bounds,
             density_scale,
             filter,
-            albedo: Vec3::ONE,
+            albedo: Albedo::default(),
             phase_g: 0.0,
             majorant,
             emission: None,

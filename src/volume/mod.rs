@@ -9,6 +9,7 @@
 //! grid of emitted radiance; `medium` gathers grid, transform, majorant and emission; `refine`
 //! tightens a walk's segments along the ray and `tracking` samples them.
 
+pub mod albedo;
 pub mod blackbody;
 pub mod brickmap;
 pub mod emission;

@@ -11,6 +11,7 @@ use glam::{DMat3, DVec3, IVec3, Vec3};
 use volgrad::render::camera::Camera;
 use volgrad::render::lights::{DirectionalLight, Environment, Lights};
 use volgrad::render::scene::{RenderFile, Scene};
+use volgrad::volume::albedo::Albedo;
 use volgrad::volume::brickmap::BrickMap;
 use volgrad::volume::majorant::Majorant;
 use volgrad::volume::medium::{Filter, Medium};
@@ -75,7 +76,7 @@ impl SceneBuilder {
         majorant: Majorant,
     ) -> Scene {
         let mut medium = Medium::new(grid, transform, density_scale, filter, majorant);
-        medium.albedo = albedo;
+        medium.albedo = Albedo::Constant(albedo);
         medium.phase_g = g;
         Scene {
             path: PathBuf::from("test.toml"),
