@@ -22,9 +22,9 @@ use crate::cluster::images::{sum_image, sum_pixels};
 use crate::cluster::sparse_sum::{sum_over_ranks, Traffic};
 use crate::cluster::Cluster;
 use crate::gradient::adjoint::Estimator;
-use crate::gradient::grid::{GradientGrid, Quanta};
+use crate::gradient::grid::Quanta;
 use crate::gradient::objective::check_target;
-use crate::gradient::passes::{gradient_of, quantum_for, GradOptions};
+use crate::gradient::passes::{gradient_grid_for, gradient_of, quantum_for, GradOptions};
 use crate::optimize::problem::Problem;
 use crate::render::image::{render_pixels, RenderOptions};
 use crate::render::pixel_set::PixelSet;
@@ -82,12 +82,17 @@ pub fn images_gradient(
         deltas.push(delta);
     }
     let quantum = quantum_for(deltas.iter().map(|d| &d[..]), s.spp);
-    let mut total = GradientGrid::<Quanta>::for_medium(&scene.medium);
+    let pass = GradOptions {
+        quantum: Some(quantum),
+        parameter: problem.unknown.parameter(),
+        ..GradOptions::new(estimator, s.spp, 0, s.max_depth)
+    };
+    let mut total = gradient_grid_for::<Quanta>(scene, &pass);
     for (piece, delta) in pieces.iter().zip(&deltas) {
         problem.look_through(scene, &mut lit, &problem.views[piece.view]);
         let options = GradOptions {
-            quantum: Some(quantum),
-            ..GradOptions::new(estimator, s.spp, piece.seed, s.max_depth)
+            seed: piece.seed,
+            ..pass
         };
         let pixels = scene.camera.width * scene.camera.height;
         let run = gradient_of(scene, delta, &options, &piece.pixels(pixels, cluster));

@@ -1,4 +1,5 @@
-//! Inverse rendering: reconstructing the density grid from images. The unknown θ ≥ 0 with Adam's
+//! Inverse rendering: reconstructing the density grid (or, the density known, the emission grid)
+//! from images. The unknown θ ≥ 0 with Adam's
 //! state (sparse by brick), its coarse-to-fine resampling, orbit views, run files, the loop,
 //! checkpoints and the equal-time study of estimators. Uses `volume`, `io`, `render` and
 //! `gradient`.
@@ -24,4 +25,5 @@ pub mod smoothing;
 pub mod study;
 pub mod targets;
 pub mod transforms;
+pub mod unknown;
 pub mod views;

@@ -5,7 +5,7 @@
 use std::path::Path;
 
 use anyhow::{bail, Context, Result};
-use glam::{DAffine3, DQuat, DVec3, IVec3, Vec3};
+use glam::{DVec3, IVec3};
 
 use crate::cluster::Cluster;
 use crate::gradient::loss::Loss;
@@ -15,7 +15,7 @@ use crate::optimize::adam::Adam;
 use crate::optimize::parameters::{Parameters, MAX_VOXELS};
 use crate::optimize::prior::Prior;
 use crate::optimize::resample::Moments;
-use crate::optimize::run_file::{BoundsFile, RunFile, StartFile};
+use crate::optimize::run_file::{BoundsFile, RunFile, StartFile, UnknownGrid};
 use crate::optimize::scene_units::{self, SceneUnits};
 use crate::optimize::settings_toml;
 use crate::optimize::targets::{
@@ -24,103 +24,15 @@ use crate::optimize::targets::{
 use crate::render::camera::Camera;
 use crate::render::lights::Lights;
 use crate::render::scene::Scene;
-use crate::volume::brickmap::{floor_ivec3, BrickMap};
-use crate::volume::medium::Medium;
+use crate::volume::brickmap::BrickMap;
 use crate::volume::transform::IndexTransform;
 
 pub use crate::optimize::targets::View;
+pub use crate::optimize::unknown::Domain;
+use crate::optimize::unknown::{
+    check_scene, in_final_index_space, scene_with, start_parameters, without_unknown,
+};
 
-/// Where the unknown lives: the final level's transform and inclusive voxel box, and how many ×2
-/// upsamplings lead there. Level k (0 = coarsest) has voxels s = 2^(levels − k) times larger; its
-/// index c maps to the final index f = s·c + (s − 1)/2 (what `resample::upsample` inverts), so
-/// every level fills the same world box.
-#[derive(Debug, Clone)]
-pub struct Domain {
-    pub transform: IndexTransform,
-    pub lo: IVec3,
-    pub hi: IVec3,
-    pub levels: usize,
-}
-
-impl Domain {
-    /// Voxel size of level `level` over the final one.
-    pub fn scale(&self, level: usize) -> f64 {
-        f64::from(1u32 << (self.levels - level.min(self.levels)))
-    }
-
-    /// Level `level`'s index → world transform.
-    pub fn transform(&self, level: usize) -> IndexTransform {
-        let s = self.scale(level);
-        let coarse_to_fine = DAffine3::from_scale_rotation_translation(
-            DVec3::splat(s),
-            DQuat::IDENTITY,
-            DVec3::splat((s - 1.0) / 2.0),
-        );
-        IndexTransform::new(self.transform.index_to_world() * coarse_to_fine)
-            .expect("a scaled invertible transform stays invertible")
-    }
-
-    /// A final-level continuous index in level `level`'s index space.
-    pub fn to_level(&self, level: usize, fine: Vec3) -> Vec3 {
-        let s = self.scale(level) as f32;
-        (fine - (s - 1.0) / 2.0) / s
-    }
-
-    /// The continuous index box of level `level` (the final voxels' box grown by half a voxel).
-    pub fn bounds(&self, level: usize) -> (Vec3, Vec3) {
-        (
-            self.to_level(level, self.lo.as_vec3() - 0.5),
-            self.to_level(level, self.hi.as_vec3() + 0.5),
-        )
-    }
-
-    /// The voxels of level `level` whose centres lie in its bounds.
-    pub fn voxel_box(&self, level: usize) -> (IVec3, IVec3) {
-        let (lo, hi) = self.bounds(level);
-        (lo.ceil().as_ivec3(), floor_ivec3(hi))
-    }
-
-    /// The world-space box around the domain (the corners of the final box, transformed).
-    pub fn world_box(&self) -> (Vec3, Vec3) {
-        let (lo, hi) = self.bounds(self.levels);
-        let mut out = (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY));
-        for k in 0..8 {
-            let corner = Vec3::new(
-                if k & 1 == 0 { lo.x } else { hi.x },
-                if k & 2 == 0 { lo.y } else { hi.y },
-                if k & 4 == 0 { lo.z } else { hi.z },
-            );
-            let w = self.transform.point_to_world(corner);
-            out = (out.0.min(w), out.1.max(w));
-        }
-        out
-    }
-
-    /// The longest edge of the final box, in world units (along the grid's index axes).
-    pub fn longest_edge(&self) -> f64 {
-        let voxels = (self.hi - self.lo + IVec3::ONE).as_dvec3();
-        (voxels * self.transform.voxel_size()).max_element()
-    }
-
-    /// Voxels in the final box.
-    pub fn voxel_count(&self) -> u64 {
-        box_voxels(self.lo, self.hi)
-    }
-
-    /// Voxels of level `level` (`voxel_box`).
-    pub fn voxel_count_at(&self, level: usize) -> u64 {
-        let (lo, hi) = self.voxel_box(level);
-        box_voxels(lo, hi)
-    }
-}
-
-/// Voxels in the inclusive box `lo..=hi` (0 for an empty box).
-fn box_voxels(lo: IVec3, hi: IVec3) -> u64 {
-    let n = (hi - lo + IVec3::ONE).as_i64vec3().max(glam::I64Vec3::ZERO);
-    (n.x * n.y * n.z) as u64
-}
-
-/// The optimiser's settings, resolved.
 #[derive(Debug, Clone)]
 pub struct Settings {
     pub adam: Adam,
@@ -160,8 +72,10 @@ pub struct Problem {
     pub domain: Domain,
     /// θ at level 0.
     pub start: Parameters,
-    /// The name the written grids take (the scene's grid name).
+    /// The name the written grids take (the scene's grid name: its density's or emission's).
     pub grid_name: String,
+    /// Which of the scene's grids is unknown.
+    pub unknown: UnknownGrid,
     pub settings: Settings,
     /// What a checkpoint must match to be resumed: every setting that changes the computation.
     pub fingerprint: String,
@@ -185,7 +99,7 @@ impl Problem {
     ) -> Result<Problem> {
         let Inputs {
             mut file,
-            mut scene,
+            scene,
             grids,
             mut domain,
             training,
@@ -211,16 +125,11 @@ impl Problem {
             .truth
             .map(|t| in_final_index_space(t, &domain))
             .transpose()?;
+        let unknown = file.unknown.grid;
         let mut targets = TargetRenderer {
             truth: truth.as_ref().map(|grid| {
-                let mut s = scene.clone();
-                s.medium = medium_like(
-                    &scene,
-                    grid.clone(),
-                    domain.transform,
-                    domain.bounds(domain.levels),
-                );
-                s
+                let bounds = domain.bounds(domain.levels);
+                scene_with(&scene, unknown, grid.clone(), domain.transform, bounds)
             }),
             spp: file.target_spp,
             seed: file.target_seed.unwrap_or(file.seed),
@@ -240,11 +149,14 @@ impl Problem {
             );
         }
 
-        let units = SceneUnits::new(
-            scene.medium.density_scale,
-            domain.longest_edge(),
-            image_power(&views),
-        );
+        let units = match unknown {
+            UnknownGrid::Density => SceneUnits::new(
+                scene.medium.density_scale,
+                domain.longest_edge(),
+                image_power(&views),
+            ),
+            UnknownGrid::Emission => SceneUnits::for_emission(&scene, image_power(&views))?,
+        };
         file.optimizer.resolve(&units, views.len());
         let start_file = file.unknown.start.clone().unwrap_or(StartFile::Constant(
             units.theta(scene_units::START_OPTICAL_DEPTH),
@@ -252,19 +164,17 @@ impl Problem {
         let start = start_parameters(&domain, &start_file, grids.start.as_ref());
         file.unknown.start = Some(start_file);
         let settings = Settings::of(&file, &units, scene.settings.max_depth);
-        let notes = derivation_notes(&units, &settings, footprint);
+        let notes = derivation_notes(unknown, &units, &settings, footprint);
         let fingerprint = fingerprint(&file, &scene, views.iter().chain(&holdouts));
-        // The scene's own grid is not the unknown: drop it, so that the per-iteration scenes
-        // cloned from this one carry only the constants.
-        scene.medium = medium_like(
-            &scene,
-            BrickMap::new(Vec::new(), Vec::new()),
-            domain.transform,
-            (Vec3::ZERO, Vec3::ZERO),
-        );
+        let grid_name = match (unknown, &scene.medium.emission) {
+            (UnknownGrid::Emission, Some(emission)) => emission.name.clone(),
+            _ => scene.grid_name.clone(),
+        };
+        let scene = without_unknown(scene, unknown, &domain)?;
         Ok(Problem {
             settings_toml: settings_toml::resolved(&file, run_path, &notes)?,
-            grid_name: scene.grid_name.clone(),
+            grid_name,
+            unknown,
             scene,
             views,
             holdouts,
@@ -287,16 +197,10 @@ impl Problem {
         }
     }
 
-    /// The scene with `theta` (at level `level`) as its medium.
+    /// The scene with `theta` (at level `level`) as its unknown grid.
     pub fn scene_at(&self, theta: BrickMap, level: usize) -> Scene {
-        let mut scene = self.scene.clone();
-        scene.medium = medium_like(
-            &self.scene,
-            theta,
-            self.domain.transform(level),
-            self.domain.bounds(level),
-        );
-        scene
+        let (transform, bounds) = (self.domain.transform(level), self.domain.bounds(level));
+        scene_with(&self.scene, self.unknown, theta, transform, bounds)
     }
 }
 
@@ -323,6 +227,7 @@ impl Inputs {
                 scene.medium.density_scale
             );
         }
+        check_scene(&scene, file.unknown.grid).context("scene")?;
         let grids = KnownGrids::read(run_path, &file)?;
         let domain = final_domain(&file, &grids)?;
         let world_box = domain.world_box();
@@ -460,10 +365,21 @@ impl Settings {
 }
 
 /// What a run's settings.toml says of how its settings were derived.
-fn derivation_notes(units: &SceneUnits, settings: &Settings, footprint_voxels: f64) -> String {
+fn derivation_notes(
+    unknown: UnknownGrid,
+    units: &SceneUnits,
+    settings: &Settings,
+    footprint_voxels: f64,
+) -> String {
+    let unit = match unknown {
+        UnknownGrid::Density => {
+            "grid value of optical depth 1 along the unknown box's longest edge"
+        }
+        UnknownGrid::Emission => "emission grid value of 1/25 of the targets' brightness (√P)",
+    };
     let mut notes = format!(
         "Derived from the scene (see the README, \"Settings from the scene\"):\n\
-         grid value of optical depth 1 along the unknown box's longest edge: u = {:.6e}\n\
+         {unit}: u = {:.6e}\n\
          the targets' power (the L2 loss of a black image): P = {:.6e}\n\
          the finest view's pixel at the unknown's centre: {footprint_voxels:.2} final voxels\n\
          learning rate in grid values per step: lr = {:.6e}\n",
@@ -476,80 +392,6 @@ fn derivation_notes(units: &SceneUnits, settings: &Settings, footprint_voxels: f
         );
     }
     notes
-}
-
-/// A medium with `scene`'s optical constants and majorant settings over `grid`.
-fn medium_like(
-    scene: &Scene,
-    grid: BrickMap,
-    transform: IndexTransform,
-    bounds: (Vec3, Vec3),
-) -> Medium {
-    let m = &scene.medium;
-    let mut medium = Medium::with_bounds(
-        grid,
-        transform,
-        bounds,
-        m.density_scale,
-        m.filter,
-        scene.settings.majorant(),
-    );
-    medium.albedo = m.albedo.clone();
-    medium.phase_g = m.phase_g;
-    medium
-}
-
-/// θ at the first level: the constant, or the start grid's trilinear field at each voxel centre.
-fn start_parameters(domain: &Domain, start: &StartFile, grid: Option<&vdb::Grid>) -> Parameters {
-    let (lo, hi) = domain.voxel_box(0);
-    let transform = domain.transform(0);
-    let mut p = Parameters::default();
-    for x in lo.x..=hi.x {
-        for y in lo.y..=hi.y {
-            for z in lo.z..=hi.z {
-                let v = IVec3::new(x, y, z);
-                let value = match (start, grid) {
-                    (StartFile::Constant(c), _) => *c,
-                    (StartFile::Vdb(_), Some(g)) => {
-                        let world = transform.point_to_world(v.as_vec3());
-                        g.bricks.trilinear(g.transform.point_to_index(world))
-                    }
-                    (StartFile::Vdb(_), None) => 0.0,
-                };
-                if value > 0.0 {
-                    p.set(v, value);
-                }
-            }
-        }
-    }
-    p
-}
-
-/// The truth's values at the final level's voxels: the grid itself when it defines the domain's
-/// transform, else its trilinear field sampled at the voxel centres.
-fn in_final_index_space(truth: vdb::Grid, domain: &Domain) -> Result<BrickMap> {
-    if truth.transform.to_rows() == domain.transform.to_rows() {
-        return Ok(truth.bricks);
-    }
-    if domain.voxel_count() > MAX_VOXELS {
-        bail!("unknown.bounds: too many voxels to resample the truth onto");
-    }
-    let mut b = crate::volume::brickmap::BrickMapBuilder::new();
-    for x in domain.lo.x..=domain.hi.x {
-        for y in domain.lo.y..=domain.hi.y {
-            for z in domain.lo.z..=domain.hi.z {
-                let v = IVec3::new(x, y, z);
-                let world = domain.transform.point_to_world(v.as_vec3());
-                let value = truth
-                    .bricks
-                    .trilinear(truth.transform.point_to_index(world));
-                if value > 0.0 {
-                    b.set(v, value, true);
-                }
-            }
-        }
-    }
-    Ok(b.build())
 }
 
 /// Every run-file value that changes the computation (not the evaluation or checkpoint cadence,

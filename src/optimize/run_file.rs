@@ -152,6 +152,11 @@ impl OrbitFile {
 #[derive(Debug, Clone, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct UnknownFile {
+    /// Which of the scene's grids is unknown: "density" (the default), or "emission" (flame
+    /// tomography: the scene's density is known, and its `medium.emission` says what the unknown
+    /// emission grid's values mean).
+    #[serde(default)]
+    pub grid: UnknownGrid,
     /// "truth" (the truth's active box and transform), "start" (the start VDB's), or
     /// `{ min = [x, y, z], max = [x, y, z] }`, a world box.
     pub bounds: BoundsFile,
@@ -169,6 +174,15 @@ pub struct UnknownFile {
     /// Adam's moments after an upsampling: "reset" or "resample".
     #[serde(default = "default_moments")]
     pub moments: Moments,
+}
+
+/// The scene grid a run solves for.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Deserialize, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum UnknownGrid {
+    #[default]
+    Density,
+    Emission,
 }
 
 fn default_moments() -> Moments {

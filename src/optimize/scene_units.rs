@@ -20,6 +20,10 @@ use glam::Vec3;
 
 use crate::optimize::prior::{Prior, PriorKind};
 use crate::render::camera::Camera;
+use crate::render::lights::luminance;
+use crate::render::scene::Scene;
+use crate::volume::albedo::Albedo;
+use crate::volume::emission::EmissionKind;
 
 /// Optical depth along the box's longest edge that one Adam step may change (the learning rate).
 pub const STEP_OPTICAL_DEPTH: f32 = 0.5;
@@ -37,6 +41,8 @@ const TV_EPSILON_OPTICAL_DEPTH: f64 = 0.05;
 pub const DEFAULT_TV_WEIGHT: f32 = 1.03e-4;
 pub const DEFAULT_LOG_WEIGHT: f32 = 3.44e-3;
 pub const DEFAULT_LOG_SCALE: f32 = 0.5;
+/// An emission unknown's u is the glow unit over this (`SceneUnits::for_emission`).
+const EMISSION_UNITS_PER_GLOW: f64 = 25.0;
 /// The most upsamplings a run may do (each ×2 per axis).
 pub const MAX_LEVELS: usize = 6;
 
@@ -54,6 +60,30 @@ impl SceneUnits {
             theta_per_optical_depth: 1.0 / (f64::from(density_scale) * longest_edge).max(1e-30),
             image_power,
         }
+    }
+
+    /// The units of an emission unknown (flame tomography, `unknown.grid = "emission"` with
+    /// `radiance = [r, g, b]` × value): no optical depth there, so u is 1/25 of the glow unit
+    /// U = √P / (luminance(radiance) · (1 − α)), the value whose emission σa·Le, seen through a
+    /// thick medium, is as bright as the targets. A step is then 0.02·U and the start 0.1·U (the
+    /// images are linear in the emission, and the start need not seed anything: every voxel
+    /// with density has gradient).
+    pub fn for_emission(scene: &Scene, image_power: f64) -> anyhow::Result<Self> {
+        let medium = &scene.medium;
+        let Some(EmissionKind::Radiance(radiance)) = medium.emission.as_ref().map(|e| &e.kind)
+        else {
+            anyhow::bail!("an emission unknown needs radiance × value emission (checked on load)");
+        };
+        // The grid's albedo varies: its absorption is taken as the middle of its range.
+        let absorbed = match &medium.albedo {
+            Albedo::Constant(albedo) => luminance(Vec3::ONE - *albedo),
+            Albedo::Grid(_) => 0.5,
+        };
+        let glow = f64::from(luminance(*radiance) * absorbed).max(1e-30);
+        Ok(SceneUnits {
+            theta_per_optical_depth: image_power.sqrt() / glow / EMISSION_UNITS_PER_GLOW,
+            image_power,
+        })
     }
 
     /// The grid value of an optical depth τ along the box's longest edge.

@@ -1,0 +1,256 @@
+//! What a run solves for: where it lives (`Domain`, every level's transform and box), its start
+//! at the first level, the truth in the final level's index space, and the scene with the unknown
+//! in place — as the density (σt's grid, majorants built for it), or as the emission grid (flame
+//! tomography: the scene's density is known, and its `medium.emission` says what the values mean).
+
+use anyhow::{bail, Result};
+use glam::{DAffine3, DQuat, DVec3, IVec3, Vec3};
+
+use crate::gradient::passes::Parameter;
+use crate::io::vdb;
+use crate::optimize::parameters::{Parameters, MAX_VOXELS};
+use crate::optimize::run_file::{StartFile, UnknownGrid};
+use crate::render::scene::Scene;
+use crate::volume::albedo::Albedo;
+use crate::volume::brickmap::{floor_ivec3, BrickMap};
+use crate::volume::emission::EmissionKind;
+use crate::volume::medium::Medium;
+use crate::volume::transform::IndexTransform;
+
+/// Where the unknown lives: the final level's transform and inclusive voxel box, and how many ×2
+/// upsamplings lead there. Level k (0 = coarsest) has voxels s = 2^(levels − k) times larger; its
+/// index c maps to the final index f = s·c + (s − 1)/2 (what `resample::upsample` inverts), so
+/// every level fills the same world box.
+#[derive(Debug, Clone)]
+pub struct Domain {
+    pub transform: IndexTransform,
+    pub lo: IVec3,
+    pub hi: IVec3,
+    pub levels: usize,
+}
+
+impl Domain {
+    /// Voxel size of level `level` over the final one.
+    pub fn scale(&self, level: usize) -> f64 {
+        f64::from(1u32 << (self.levels - level.min(self.levels)))
+    }
+
+    /// Level `level`'s index → world transform.
+    pub fn transform(&self, level: usize) -> IndexTransform {
+        let s = self.scale(level);
+        let coarse_to_fine = DAffine3::from_scale_rotation_translation(
+            DVec3::splat(s),
+            DQuat::IDENTITY,
+            DVec3::splat((s - 1.0) / 2.0),
+        );
+        IndexTransform::new(self.transform.index_to_world() * coarse_to_fine)
+            .expect("a scaled invertible transform stays invertible")
+    }
+
+    /// A final-level continuous index in level `level`'s index space.
+    pub fn to_level(&self, level: usize, fine: Vec3) -> Vec3 {
+        let s = self.scale(level) as f32;
+        (fine - (s - 1.0) / 2.0) / s
+    }
+
+    /// The continuous index box of level `level` (the final voxels' box grown by half a voxel).
+    pub fn bounds(&self, level: usize) -> (Vec3, Vec3) {
+        (
+            self.to_level(level, self.lo.as_vec3() - 0.5),
+            self.to_level(level, self.hi.as_vec3() + 0.5),
+        )
+    }
+
+    /// The voxels of level `level` whose centres lie in its bounds.
+    pub fn voxel_box(&self, level: usize) -> (IVec3, IVec3) {
+        let (lo, hi) = self.bounds(level);
+        (lo.ceil().as_ivec3(), floor_ivec3(hi))
+    }
+
+    /// The world-space box around the domain (the corners of the final box, transformed).
+    pub fn world_box(&self) -> (Vec3, Vec3) {
+        let (lo, hi) = self.bounds(self.levels);
+        let mut out = (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY));
+        for k in 0..8 {
+            let corner = Vec3::new(
+                if k & 1 == 0 { lo.x } else { hi.x },
+                if k & 2 == 0 { lo.y } else { hi.y },
+                if k & 4 == 0 { lo.z } else { hi.z },
+            );
+            let w = self.transform.point_to_world(corner);
+            out = (out.0.min(w), out.1.max(w));
+        }
+        out
+    }
+
+    /// The longest edge of the final box, in world units (along the grid's index axes).
+    pub fn longest_edge(&self) -> f64 {
+        let voxels = (self.hi - self.lo + IVec3::ONE).as_dvec3();
+        (voxels * self.transform.voxel_size()).max_element()
+    }
+
+    /// Voxels in the final box.
+    pub fn voxel_count(&self) -> u64 {
+        box_voxels(self.lo, self.hi)
+    }
+
+    /// Voxels of level `level` (`voxel_box`).
+    pub fn voxel_count_at(&self, level: usize) -> u64 {
+        let (lo, hi) = self.voxel_box(level);
+        box_voxels(lo, hi)
+    }
+}
+
+/// Voxels in the inclusive box `lo..=hi` (0 for an empty box).
+fn box_voxels(lo: IVec3, hi: IVec3) -> u64 {
+    let n = (hi - lo + IVec3::ONE).as_i64vec3().max(glam::I64Vec3::ZERO);
+    (n.x * n.y * n.z) as u64
+}
+
+/// The optimiser's settings, resolved.
+impl UnknownGrid {
+    /// The gradient pass's parameter for this unknown.
+    pub fn parameter(self) -> Parameter {
+        match self {
+            UnknownGrid::Density => Parameter::Extinction,
+            UnknownGrid::Emission => Parameter::Emission,
+        }
+    }
+}
+
+/// Refuses a scene that cannot hold the unknown: an emission unknown needs the scene's emission to
+/// say what its values mean, linearly (`radiance = [r, g, b]` × value: a flames grid; a
+/// temperature grid's blackbody is not solved for), in a medium that absorbs somewhere.
+pub fn check_scene(scene: &Scene, unknown: UnknownGrid) -> Result<()> {
+    if unknown == UnknownGrid::Density {
+        return Ok(());
+    }
+    match &scene.medium.emission {
+        None => bail!(
+            "unknown.grid = \"emission\": the scene's medium has no emission (medium.emission = {{ grid = …, radiance = [r, g, b] }} says what the unknown's values mean)"
+        ),
+        Some(e) if !matches!(e.kind, EmissionKind::Radiance(_)) => bail!(
+            "unknown.grid = \"emission\" solves for a radiance grid (medium.emission = {{ grid = …, radiance = [r, g, b] }}); a temperature grid's blackbody emission is not solved for"
+        ),
+        Some(_) => {}
+    }
+    if let Albedo::Constant(albedo) = scene.medium.albedo {
+        if albedo.min_element() >= 1.0 {
+            bail!("unknown.grid = \"emission\": the medium's albedo is 1, so it absorbs nothing and emits nothing (σa·Le = σt·(1 − α)·Le)");
+        }
+    }
+    Ok(())
+}
+
+/// `scene` with `theta` (in `transform`, filling `bounds`) as its unknown grid.
+pub fn scene_with(
+    scene: &Scene,
+    unknown: UnknownGrid,
+    theta: BrickMap,
+    transform: IndexTransform,
+    bounds: (Vec3, Vec3),
+) -> Scene {
+    let mut filled = scene.clone();
+    match (unknown, &mut filled.medium.emission) {
+        (UnknownGrid::Emission, Some(emission)) => {
+            emission.grid = theta;
+            emission.transform = transform;
+        }
+        _ => filled.medium = medium_like(scene, theta, transform, bounds),
+    }
+    filled
+}
+
+/// The scene a run keeps, without the unknown's values (the per-iteration scenes cloned from it
+/// then carry only what is known); refused where the scene cannot hold the unknown.
+pub fn without_unknown(mut scene: Scene, unknown: UnknownGrid, domain: &Domain) -> Result<Scene> {
+    let empty = || BrickMap::new(Vec::new(), Vec::new());
+    match (unknown, &mut scene.medium.emission) {
+        (UnknownGrid::Density, _) => {
+            scene.medium = medium_like(&scene, empty(), domain.transform, (Vec3::ZERO, Vec3::ZERO));
+        }
+        (UnknownGrid::Emission, Some(emission)) => emission.grid = empty(),
+        (UnknownGrid::Emission, None) => bail!(
+            "unknown.grid = \"emission\": the scene's medium has no emission (medium.emission = {{ grid = …, radiance = [r, g, b] }} says what the unknown's values mean)"
+        ),
+    }
+    Ok(scene)
+}
+
+/// A medium with `scene`'s optical constants and majorant settings over `grid`.
+fn medium_like(
+    scene: &Scene,
+    grid: BrickMap,
+    transform: IndexTransform,
+    bounds: (Vec3, Vec3),
+) -> Medium {
+    let m = &scene.medium;
+    let mut medium = Medium::with_bounds(
+        grid,
+        transform,
+        bounds,
+        m.density_scale,
+        m.filter,
+        scene.settings.majorant(),
+    );
+    medium.albedo = m.albedo.clone();
+    medium.phase_g = m.phase_g;
+    medium
+}
+
+/// θ at the first level: the constant, or the start grid's trilinear field at each voxel centre.
+pub fn start_parameters(
+    domain: &Domain,
+    start: &StartFile,
+    grid: Option<&vdb::Grid>,
+) -> Parameters {
+    let (lo, hi) = domain.voxel_box(0);
+    let transform = domain.transform(0);
+    let mut p = Parameters::default();
+    for x in lo.x..=hi.x {
+        for y in lo.y..=hi.y {
+            for z in lo.z..=hi.z {
+                let v = IVec3::new(x, y, z);
+                let value = match (start, grid) {
+                    (StartFile::Constant(c), _) => *c,
+                    (StartFile::Vdb(_), Some(g)) => {
+                        let world = transform.point_to_world(v.as_vec3());
+                        g.bricks.trilinear(g.transform.point_to_index(world))
+                    }
+                    (StartFile::Vdb(_), None) => 0.0,
+                };
+                if value > 0.0 {
+                    p.set(v, value);
+                }
+            }
+        }
+    }
+    p
+}
+
+/// The truth's values at the final level's voxels: the grid itself when it defines the domain's
+/// transform, else its trilinear field sampled at the voxel centres.
+pub fn in_final_index_space(truth: vdb::Grid, domain: &Domain) -> Result<BrickMap> {
+    if truth.transform.to_rows() == domain.transform.to_rows() {
+        return Ok(truth.bricks);
+    }
+    if domain.voxel_count() > MAX_VOXELS {
+        bail!("unknown.bounds: too many voxels to resample the truth onto");
+    }
+    let mut b = crate::volume::brickmap::BrickMapBuilder::new();
+    for x in domain.lo.x..=domain.hi.x {
+        for y in domain.lo.y..=domain.hi.y {
+            for z in domain.lo.z..=domain.hi.z {
+                let v = IVec3::new(x, y, z);
+                let world = domain.transform.point_to_world(v.as_vec3());
+                let value = truth
+                    .bricks
+                    .trilinear(truth.transform.point_to_index(world));
+                if value > 0.0 {
+                    b.set(v, value, true);
+                }
+            }
+        }
+    }
+    Ok(b.build())
+}
