@@ -14,6 +14,7 @@ use volgrad::cluster::passes::{adjoint_shared, gradient_shared};
 use volgrad::cluster::Cluster;
 use volgrad::gradient::adjoint::Estimator;
 use volgrad::gradient::fd;
+use volgrad::gradient::grid::GradientGrid;
 use volgrad::gradient::loss::Loss;
 use volgrad::gradient::objective::{check_target, render_target};
 use volgrad::gradient::passes::{derivative_image, GradOptions, GradientRun, Parameter};
@@ -253,38 +254,34 @@ pub fn run(args: &Args, cluster: &Cluster) -> Result<()> {
         // What the report needs of the gradient, then the gradient itself goes, and the exported grid
         // goes as soon as its values are in the bridge's arrays: a large gradient is held twice at a
         // time, not four times.
-        let mut gradients = runs
+        let mut channels: Vec<GradientGrid<f32>> = runs
             .into_iter()
-            .map(|run| run.gradient.converted::<f32>(run.quantum));
-        let mut gradient = gradients.next().expect("one pass at least");
-        let mut colour = Vec::new();
-        for channel in gradients {
-            colour.push(std::mem::replace(&mut gradient, channel));
-        }
+            .map(|run| run.gradient.converted(run.quantum))
+            .collect();
         let (gradient_sum, gradient_blocks, gradient_bytes) = (
-            gradient.sum() + colour.iter().map(|g| g.sum()).sum::<f64>(),
-            gradient.block_count(),
-            gradient.memory_bytes() * (1 + colour.len()),
+            channels.iter().map(|g| g.sum()).sum::<f64>(),
+            channels[0].block_count(),
+            channels.iter().map(|g| g.memory_bytes()).sum::<usize>(),
         );
         let as_grid =
             |bricks| gradient_files::gradient_grid(bricks, &parameter_name, transform, &provenance);
         let png = vdb_out.with_extension("png");
-        let (scale, grid_name, voxels) = if colour.is_empty() {
+        let (scale, grid_name, voxels) = if let [r, g, b] = channels.as_slice() {
+            // An RGB parameter: one vec3 grid, as the input; the picture sums the channels.
+            let [r, g, b] = [r, g, b].map(|c| as_grid(c.to_brickmap()));
+            let mut total = channels[0].empty_like();
+            channels.iter().for_each(|c| total.merge(c, 1.0));
+            let scale = gradient_files::write_projection_png(&png, &as_grid(total.to_brickmap()))?;
+            vdb::write_grids_with_colours(&vdb_out, &[], &[[&r, &g, &b]], args.force)?;
+            (scale, r.name.clone(), r.bricks.active_voxel_count())
+        } else {
+            let gradient = channels.pop().expect("one pass at least");
             let grid = as_grid(gradient.to_brickmap());
             drop(gradient);
             let scale = gradient_files::write_projection_png(&png, &grid)?;
             let (grid_name, voxels) = (grid.name.clone(), grid.bricks.active_voxel_count());
             vdb::write_grid_consumed(&vdb_out, grid, false, args.force)?;
             (scale, grid_name, voxels)
-        } else {
-            // An RGB parameter: one vec3 grid, as the input; the picture sums the channels.
-            colour.push(gradient);
-            let [r, g, b] = [0, 1, 2].map(|c| as_grid(colour[c].to_brickmap()));
-            let mut total = colour[0].empty_like();
-            colour.iter().for_each(|c| total.merge(c, 1.0));
-            let scale = gradient_files::write_projection_png(&png, &as_grid(total.to_brickmap()))?;
-            vdb::write_grids_with_colours(&vdb_out, &[], &[[&r, &g, &b]], args.force)?;
-            (scale, r.name.clone(), r.bricks.active_voxel_count())
         };
         let picture = match scale {
             Some(scale) => format!(
