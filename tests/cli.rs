@@ -586,23 +586,3 @@ fn an_envmap_light_from_an_exr_file_passes_the_white_furnace() {
         &["light[0].file", "negative"],
     );
 }
-
-/// `volgrad info big.vdb | head -1`: the reader goes away early. The process must end quietly
-/// (killed by SIGPIPE, as `cat` would be), not panic in `println!`.
-#[test]
-fn a_closed_pipe_ends_the_process_quietly() {
-    use std::os::unix::process::ExitStatusExt;
-    use std::process::{Command, Stdio};
-    let mut child = Command::new(env!("CARGO_BIN_EXE_volgrad"))
-        .args(["info", &asset("wdas_cloud_sixteenth.vdb")])
-        .stdout(Stdio::piped())
-        .stderr(Stdio::piped())
-        .spawn()
-        .unwrap();
-    drop(child.stdout.take()); // close the read end before volgrad writes
-    let output = child.wait_with_output().unwrap();
-    let err = stderr(&output);
-    assert!(!err.contains("panicked"), "{err}");
-    const SIGPIPE: i32 = 13; // on Linux
-    assert_eq!(output.status.signal(), Some(SIGPIPE), "{err}");
-}

@@ -1,6 +1,7 @@
 //! Extreme but legal scenes, built in memory: whatever the renderer and the estimators are given
 //! within the documented ranges, they write finite numbers, and they stay correct where that can be
-//! checked in closed form. (Bad files and bad scene values are in tests/cli.rs and tests/bridge.rs.)
+//! checked in closed form; and a process whose output pipe closes early ends quietly. (Bad files and
+//! bad scene values are in tests/cli.rs and tests/bridge.rs.)
 
 mod common;
 
@@ -169,4 +170,30 @@ fn corrupted_copies_of_a_real_file_fail_cleanly_or_render_finitely() {
         rendered > 0 && refused > 0,
         "{rendered} rendered, {refused} refused"
     );
+}
+
+/// `volgrad info big.vdb | head -1`: the reader goes away early. The process must end quietly
+/// (killed by SIGPIPE, as `cat` would be), not panic in `println!`.
+#[test]
+fn a_closed_pipe_ends_the_process_quietly() {
+    use std::os::unix::process::ExitStatusExt;
+    use std::process::{Command, Stdio};
+    let mut child = Command::new(env!("CARGO_BIN_EXE_volgrad"))
+        .args([
+            "info",
+            concat!(
+                env!("CARGO_MANIFEST_DIR"),
+                "/scenes/assets/wdas_cloud_sixteenth.vdb"
+            ),
+        ])
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    drop(child.stdout.take()); // close the read end before volgrad writes
+    let output = child.wait_with_output().unwrap();
+    let err = stderr(&output);
+    assert!(!err.contains("panicked"), "{err}");
+    const SIGPIPE: i32 = 13; // on Linux
+    assert_eq!(output.status.signal(), Some(SIGPIPE), "{err}");
 }

@@ -1,0 +1,188 @@
+//! Images through the C++ bridge (OpenImageIO), checked with independent pure-Rust decoders
+//! (`exr`, `image`): EXR as float and half, 8-bit PNG, and errors that name the file.
+
+mod bridge_common;
+
+use std::path::Path;
+
+use bridge_common::*;
+use volgrad::io::bridge::ffi::{self, ImageData};
+
+// ------------------------------------------------------------------------------------------------
+// Images
+
+fn test_image(width: u32, height: u32, channels: u32, unit: bool) -> ImageData {
+    let pixels = (0..width * height * channels)
+        .map(|i| {
+            let v = (i as f32 * 0.618_034).fract();
+            if unit {
+                v
+            } else {
+                (v - 0.3) * 7.5
+            }
+        })
+        .collect();
+    ImageData {
+        width,
+        height,
+        channels,
+        pixels,
+    }
+}
+
+/// Reads an RGBA EXR with the pure-Rust `exr` crate: (width, height, interleaved RGBA).
+fn exr_rgba(path: &Path) -> (usize, usize, Vec<f32>) {
+    let image = exr::prelude::read_first_rgba_layer_from_file(
+        path,
+        |size, _| (size.width(), vec![0f32; size.width() * size.height() * 4]),
+        |(w, px): &mut (usize, Vec<f32>), pos, (r, g, b, a): (f32, f32, f32, f32)| {
+            let i = 4 * (pos.y() * *w + pos.x());
+            px[i..i + 4].copy_from_slice(&[r, g, b, a]);
+        },
+    )
+    .unwrap();
+    let size = image.layer_data.size;
+    (
+        size.width(),
+        size.height(),
+        image.layer_data.channel_data.pixels.1,
+    )
+}
+
+fn exr_sample_types(path: &Path) -> Vec<exr::meta::attribute::SampleType> {
+    let meta = exr::meta::MetaData::read_from_file(path, false).unwrap();
+    meta.headers[0]
+        .channels
+        .list
+        .iter()
+        .map(|c| c.sample_type)
+        .collect()
+}
+
+#[test]
+fn exr_float_round_trip() {
+    let img = test_image(7, 5, 4, false);
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("f.exr");
+    ffi::write_image(path_str(&out), &img, "float").unwrap();
+
+    let back = ffi::read_image(path_str(&out)).unwrap();
+    assert_eq!((back.width, back.height, back.channels), (7, 5, 4));
+    assert_eq!(back.pixels, img.pixels);
+
+    let (w, h, px) = exr_rgba(&out);
+    assert_eq!((w, h), (7, 5));
+    assert_eq!(px, img.pixels);
+    assert!(exr_sample_types(&out)
+        .iter()
+        .all(|t| *t == exr::meta::attribute::SampleType::F32));
+    let meta = exr::meta::MetaData::read_from_file(&out, false).unwrap();
+    assert_eq!(
+        meta.headers[0].compression,
+        exr::compression::Compression::ZIP16
+    );
+    let names: Vec<String> = std::fs::read_dir(dir.path())
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .collect();
+    assert_eq!(names, ["f.exr"], "no temporary file is left behind");
+}
+
+#[test]
+fn exr_half_round_trip() {
+    let img = test_image(6, 4, 4, false);
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("h.exr");
+    ffi::write_image(path_str(&out), &img, "half").unwrap();
+    let expect: Vec<f32> = img.pixels.iter().map(|&v| half(v)).collect();
+    assert_ne!(expect, img.pixels);
+
+    assert_eq!(ffi::read_image(path_str(&out)).unwrap().pixels, expect);
+    let (w, h, px) = exr_rgba(&out);
+    assert_eq!((w, h), (6, 4));
+    assert_eq!(px, expect);
+    assert!(exr_sample_types(&out)
+        .iter()
+        .all(|t| *t == exr::meta::attribute::SampleType::F16));
+}
+
+#[test]
+fn png_uint8_round_trip() {
+    let mut img = test_image(5, 3, 4, true);
+    // Exact halves and the ends of the range; alpha < 1 must not premultiply anything.
+    img.pixels[..8].copy_from_slice(&[0.5, 0.0, 1.0, 0.5, 0.8, 2.0 / 255.0, 1.5 / 255.0, 0.25]);
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("img.png");
+    ffi::write_image(path_str(&out), &img, "uint8").unwrap();
+
+    let decoded = image::open(&out).unwrap();
+    assert_eq!(decoded.color(), image::ColorType::Rgba8);
+    let bytes = decoded.to_rgba8().into_raw();
+    let expect: Vec<u8> = img
+        .pixels
+        .iter()
+        .map(|&v| (v * 255.0).round() as u8)
+        .collect();
+    assert_eq!(bytes, expect);
+    // OIIO rounds to nearest with halves up: 0.5 -> 127.5 -> 128.
+    assert_eq!(bytes[0], 128);
+    assert_eq!(&bytes[4..8], &[204, 2, 2, 64]);
+
+    let back = ffi::read_image(path_str(&out)).unwrap();
+    assert_eq!((back.width, back.height, back.channels), (5, 3, 4));
+    let expect_f: Vec<f32> = expect.iter().map(|&b| b as f32 / 255.0).collect();
+    for (a, b) in back.pixels.iter().zip(&expect_f) {
+        assert!((a - b).abs() < 1e-6, "{a} vs {b}");
+    }
+}
+
+#[test]
+fn image_errors_name_the_file() {
+    let e = err_text(ffi::read_image("/no/such/image.exr"));
+    assert_eq!(e, "cannot open '/no/such/image.exr': no such file");
+
+    let dir = tempfile::tempdir().unwrap();
+    let text = dir.path().join("notes.png");
+    std::fs::write(&text, b"this is not a png").unwrap();
+    let e = err_text(ffi::read_image(path_str(&text)));
+    assert!(
+        e.starts_with(&format!("cannot read image '{}'", path_str(&text))),
+        "{e}"
+    );
+
+    let img = test_image(2, 2, 3, true);
+    let unknown = dir.path().join("x.unknownext");
+    let e = err_text(ffi::write_image(path_str(&unknown), &img, "float"));
+    assert!(
+        e.contains("x.unknownext") && e.contains("unknown image format"),
+        "{e}"
+    );
+
+    let e = err_text(ffi::write_image(
+        path_str(&dir.path().join("y.exr")),
+        &img,
+        "int16",
+    ));
+    assert!(e.contains("unknown pixel type 'int16'"), "{e}");
+
+    let mut short = img.clone();
+    short.pixels.pop();
+    let e = err_text(ffi::write_image(
+        path_str(&dir.path().join("z.exr")),
+        &short,
+        "half",
+    ));
+    assert!(e.contains("11 values for 2x2x3"), "{e}");
+
+    // PNG cannot hold floats: an error rather than a silent fallback to 8 bits.
+    let png = dir.path().join("f.png");
+    let e = err_text(ffi::write_image(path_str(&png), &img, "float"));
+    assert!(
+        e.contains("cannot store float pixels (it would store uint8)"),
+        "{e}"
+    );
+    assert!(!png.exists());
+
+    let e = err_text(ffi::write_image("/nonexistent-dir/a.exr", &img, "half"));
+    assert!(e.contains("does not exist"), "{e}");
+}

@@ -1,0 +1,321 @@
+//! What `volgrad optimize` reads and writes, on the tiny reconstruction (`optimize_common`): views
+//! under their own lights and relit held-out views, a transforms file, the study's chart, table
+//! and summary, and bad run files.
+
+mod common;
+mod optimize_common;
+
+use common::{assert_clean_error, ok, stderr, stdout, volgrad_in};
+use optimize_common::*;
+use volgrad::cluster::Cluster;
+
+/// Views under their own lights: training views split over two suns (two orbits), held-out views
+/// under one of them and under a third sun no training view had. The targets are rendered under
+/// each view's lights, the third sun's held-out views count as relit, and the log and the summary
+/// report their PSNR apart.
+#[test]
+fn views_under_their_own_lights_and_relit_held_out_views() {
+    use volgrad::optimize::problem::Problem;
+    let sun = |d: &str| {
+        format!("light = [{{ type = \"directional\", direction = [{d}], irradiance = 4.0 }}]")
+    };
+    let orbit = |set: &str, count: u32, elevation: &str, offset: u32, light: &str| {
+        format!(
+            "[[{set}.orbit]]\ncount = {count}\nelevation_deg = [{elevation}]\ndistance = 12\nfov_deg = 40\nwidth = 24\nheight = 24\nazimuth_offset_deg = {offset}\n{light}\n"
+        )
+    };
+    let run = format!(
+        "scene = \"scene.toml\"\ntruth = \"ball.vdb\"\ntarget_spp = 64\neval_spp = 32\neval_every = 2\n\
+         {}{}{}{}\n[unknown]\nbounds = \"truth\"\nstart = 0.2\n[optimizer]\nspp = 1\niterations = 4\n",
+        orbit("views", 3, "-30, 70", 0, &sun("-0.5, -1.0, -0.3")),
+        orbit("views", 3, "-30, 70", 60, &sun("0.5, -1.0, 0.3")),
+        orbit("holdouts", 1, "20, 20", 30, &sun("-0.5, -1.0, -0.3")),
+        orbit("holdouts", 1, "20, 20", 30, &sun("0.0, 1.0, 0.0")),
+    );
+    let dir = fixture(&run);
+    let problem = Problem::load(
+        &dir.path().join("run.toml"),
+        None,
+        false,
+        &Cluster::single(),
+    )
+    .unwrap();
+    let sets: Vec<usize> = problem.views.iter().map(|v| v.light_set).collect();
+    assert_eq!(sets, vec![1, 1, 1, 2, 2, 2]);
+    let relit: Vec<bool> = problem.holdouts.iter().map(|v| v.relit).collect();
+    assert_eq!(relit, vec![false, true]);
+    // The same camera under two suns: the targets differ.
+    let (a, b) = (&problem.holdouts[0].target, &problem.holdouts[1].target);
+    let difference: f32 = a
+        .pixels
+        .iter()
+        .zip(&b.pixels)
+        .map(|(x, y)| (*x - *y).abs().max_element())
+        .sum();
+    assert!(difference > 1.0, "{difference}");
+
+    let out = ok(volgrad_in(
+        dir.path(),
+        &["optimize", "run.toml", "--out", "o", "-q"],
+    ));
+    assert!(stdout(&out).contains("relit"), "{}", stdout(&out));
+    let rows = log(&dir.path().join("o"));
+    let relit = evaluated(&rows, "relit_psnr");
+    assert!(
+        relit.len() >= 2 && relit.iter().all(|p| p.is_finite()),
+        "{relit:?}"
+    );
+    // settings.toml keeps the lights, and reads back.
+    let settings = std::fs::read_to_string(dir.path().join("o/settings.toml")).unwrap();
+    assert_eq!(settings.matches("[[views.orbit]]").count(), 2, "{settings}");
+    ok(volgrad_in(
+        dir.path(),
+        &[
+            "optimize",
+            "o/settings.toml",
+            "--out",
+            "again",
+            "--iterations",
+            "1",
+            "-q",
+        ],
+    ));
+}
+
+/// A `transforms.json` (NeRF / instant-ngp: camera-to-world rows, the camera looking down −z)
+/// written from an orbit's cameras gives those cameras back: the same positions and rays. A frame
+/// whose `file_path` has no extension finds its `.exr`, which becomes its target as written.
+#[test]
+fn a_transforms_file_gives_back_the_orbit_it_was_written_from() {
+    use volgrad::optimize::problem::Problem;
+    use volgrad::optimize::transforms::camera_to_world;
+    let dir = fixture(&run_file("0.2", ""));
+    let d = dir.path();
+    let orbit_problem =
+        Problem::load(&d.join("run.toml"), None, false, &Cluster::single()).unwrap();
+    let centre = {
+        let (lo, hi) = orbit_problem.domain.world_box();
+        (lo + hi) / 2.0
+    };
+    let frames: Vec<String> = orbit_problem
+        .views
+        .iter()
+        .enumerate()
+        .map(|(i, v)| {
+            let m = camera_to_world(v.camera.position, centre, glam::Vec3::Y);
+            let image = if i == 0 {
+                "\"file_path\": \"./first\", "
+            } else {
+                ""
+            };
+            format!("{{ {image}\"transform_matrix\": {m:?} }}")
+        })
+        .collect();
+    let json = format!(
+        "{{ \"camera_angle_x\": {}, \"w\": 24, \"h\": 24, \"frames\": [{}] }}",
+        40f32.to_radians(),
+        frames.join(", ")
+    );
+    std::fs::write(d.join("transforms.json"), json).unwrap();
+    let first = &orbit_problem.views[0].target;
+    volgrad::io::images::write_exr(&d.join("first.exr"), first, false).unwrap();
+    let run = run_file("0.2", "").replace(
+        "[views.orbit]\ncount = 6\nelevation_deg = [-30, 70]\ndistance = 12\nfov_deg = 40\nwidth = 24\nheight = 24\n",
+        "[views]\ntransforms = \"transforms.json\"\n",
+    );
+    assert!(run.contains("transforms.json"), "{run}");
+    std::fs::write(d.join("run.toml"), run).unwrap();
+    let json_problem = Problem::load(&d.join("run.toml"), None, false, &Cluster::single()).unwrap();
+    assert_eq!(json_problem.views.len(), orbit_problem.views.len());
+    for (a, b) in orbit_problem.views.iter().zip(&json_problem.views) {
+        assert!((a.camera.position - b.camera.position).length() < 1e-5);
+        for (x, y) in [(0.5, 0.5), (23.5, 0.5), (12.0, 12.0), (3.5, 20.5)] {
+            let (da, db) = (a.camera.direction(x, y), b.camera.direction(x, y));
+            assert!((da - db).length() < 1e-5, "pixel ({x}, {y}): {da} vs {db}");
+        }
+    }
+    assert_eq!(json_problem.views[0].target.pixels, first.pixels);
+}
+
+/// `--estimators` runs each estimator into its folder and writes the study's files.
+#[test]
+fn the_study_writes_its_chart_table_and_summary() {
+    let dir = fixture(
+        &run_file("0.2", "spp = 2\niterations = 4").replace("eval_every = 10", "eval_every = 2"),
+    );
+    let d = dir.path();
+    let out = ok(volgrad_in(
+        d,
+        &[
+            "optimize",
+            "run.toml",
+            "--estimators",
+            "joint,drt",
+            "--out",
+            "study",
+            "-q",
+        ],
+    ));
+    for f in [
+        "inverse.png",
+        "inverse.svg",
+        "inverse.csv",
+        "summary.md",
+        "renders.png",
+        "joint/final.vdb",
+        "drt/log.csv",
+    ] {
+        assert!(d.join("study").join(f).is_file(), "no {f}");
+    }
+    let csv = std::fs::read_to_string(d.join("study/inverse.csv")).unwrap();
+    // 3 evaluations (start, 2, 4) per estimator.
+    assert_eq!(
+        csv.lines().filter(|l| l.starts_with("joint,")).count(),
+        3,
+        "{csv}"
+    );
+    assert_eq!(
+        csv.lines().filter(|l| l.starts_with("drt,")).count(),
+        3,
+        "{csv}"
+    );
+    let summary = std::fs::read_to_string(d.join("study/summary.md")).unwrap();
+    assert!(
+        summary.contains("| joint") && summary.contains("| drt"),
+        "{summary}"
+    );
+    assert!(common::stdout(&out).contains("final PSNR"));
+    // The study's folder is not overwritten without --force.
+    assert_clean_error(
+        &volgrad_in(
+            d,
+            &[
+                "optimize",
+                "run.toml",
+                "--estimators",
+                "joint",
+                "--out",
+                "study",
+            ],
+        ),
+        &["not empty", "--force"],
+    );
+}
+
+/// Each class of bad run file or flag gets one clean error naming the key.
+#[test]
+fn bad_run_files_name_the_key() {
+    let dir = fixture(&run_file("0.1", "spp = 1\niterations = 2"));
+    let d = dir.path();
+    let good = std::fs::read_to_string(d.join("run.toml")).unwrap();
+    let image_view = |image: &str| {
+        format!(
+            "\n[[view]]\nposition = [0, 0, 12]\ntarget = [0, 0, 0]\nfov_deg = 40\nwidth = 24\nheight = 24\nimage = \"{image}\"\n"
+        )
+    };
+    std::fs::write(d.join("junk.exr"), b"not an image").unwrap();
+    // A 24x24 view with a 32x32 image: render one to have a real file of the wrong size.
+    ok(volgrad_in(
+        d,
+        &[
+            "render",
+            "scene.toml",
+            "-o",
+            "small.exr",
+            "--spp",
+            "1",
+            "-q",
+        ],
+    ));
+    // The training views' block cut out.
+    let (head, rest) = good.split_once("[views.orbit]").unwrap();
+    let no_views = format!(
+        "{head}[holdouts.orbit]{}",
+        rest.split_once("[holdouts.orbit]").unwrap().1
+    );
+    let (head, rest) = good.split_once("[holdouts.orbit]").unwrap();
+    let no_holdouts = format!("{head}[unknown]{}", rest.split_once("[unknown]").unwrap().1);
+    let cases: Vec<(String, Vec<&str>)> = vec![
+        (no_views.clone(), vec!["no views"]),
+        (no_holdouts, vec!["no held-out views"]),
+        (
+            good.replacen("distance = 12", "distance = 2", 1),
+            vec!["views.orbit", "inside"],
+        ),
+        (good.replace("lr = 0.1", "lr = 0"), vec!["optimizer.lr"]),
+        (good.replace("lr = 0.1", "lr = -2"), vec!["optimizer.lr"]),
+        (
+            good.replace("batch = 3", "batch = 3\nsmooth_gradient = 2"),
+            vec!["smooth_gradient"],
+        ),
+        (
+            good.replace("batch = 3", "batch = 3\nfit_scale = \"yes\""),
+            vec!["fit_scale"],
+        ),
+        (
+            good.replace("batch = 3", "batch = 3\nfit_brick_scales = 1"),
+            vec!["fit_brick_scales"],
+        ),
+        (
+            good.replace(
+                "start = 0.1",
+                "start = 0.1\nlevels = [0.5]\nstart_voxel_size = 3.0",
+            ),
+            vec!["unknown.levels", "final"],
+        ),
+        (
+            format!("{good}{}", image_view("missing.exr")),
+            vec!["view[0].image"],
+        ),
+        (
+            format!("{good}{}", image_view("junk.exr")),
+            vec!["view[0].image"],
+        ),
+        (
+            format!(
+                "{good}{}",
+                image_view("small.exr").replace("width = 24", "width = 32")
+            ),
+            vec!["view[0].image", "24×24"],
+        ),
+        // A vacuum scene: the images do not depend on the grid, and the settings derived from the
+        // optical depth would be infinite.
+        (
+            good.replace("scene = \"scene.toml\"", "scene = \"vacuum.toml\""),
+            vec!["density_scale", "0"],
+        ),
+        (
+            good.replace(
+                "[unknown]",
+                "[views]\ntransforms = \"missing.json\"\n[unknown]",
+            ),
+            vec!["views.transforms", "missing.json"],
+        ),
+        (
+            good.replace(
+                "[views.orbit]\n",
+                "[views.orbit]\nlight = [{ type = \"constant\", radiance = -1 }]\n",
+            ),
+            vec!["views.orbit[0]", "light[0].radiance"],
+        ),
+    ];
+    std::fs::write(
+        d.join("vacuum.toml"),
+        SCENE.replace("density_scale = 0.6", "density_scale = 0.0"),
+    )
+    .unwrap();
+    for (i, (text, needles)) in cases.iter().enumerate() {
+        let name = format!("bad{i}.toml");
+        std::fs::write(d.join(&name), text).unwrap();
+        let out = volgrad_in(d, &["optimize", &name, "--out", &format!("o{i}"), "-q"]);
+        assert_clean_error(&out, needles);
+    }
+    // Flags: a budget of 0, an unknown estimator.
+    assert_clean_error(
+        &volgrad_in(d, &["optimize", "run.toml", "--budget", "0s", "-q"]),
+        &["--budget"],
+    );
+    let out = volgrad_in(d, &["optimize", "run.toml", "--estimator", "magic", "-q"]);
+    assert!(!out.status.success());
+    assert!(stderr(&out).contains("magic"), "{}", stderr(&out));
+}
