@@ -355,6 +355,14 @@ openvdb::Vec3SGrid::Ptr build_vec3_grid(const std::string& path, const FloatGrid
     grid->setName(std::string(first.name));
     with_context("cannot write " + quoted(path), [&] {
         for (const auto& part : parts) grid->tree().topologyUnion(part->tree());
+        // Written voxel by voxel: a large active tile would be billions of them.
+        const Index64 tile_voxels = grid->tree().activeTileCount() == 0
+                                        ? 0
+                                        : grid->activeVoxelCount() - grid->tree().activeLeafVoxelCount();
+        if (tile_voxels > (Index64(1) << 24)) {
+            fail("a colour grid's components hold " + std::to_string(tile_voxels) +
+                 " voxels in active tiles; at most 2^24 are written voxel by voxel");
+        }
         grid->tree().voxelizeActiveTiles();
         std::array<FloatGrid::ConstAccessor, 3> values{parts[0]->getConstAccessor(),
                                                        parts[1]->getConstAccessor(),

@@ -57,7 +57,8 @@ fn flame_tomography_recovers_the_emission() {
 }
 
 /// An emission unknown needs the scene to say what its values mean, linearly: a scene without
-/// emission, or with a temperature grid's blackbody, is refused before any target is rendered.
+/// emission, with a temperature grid's blackbody, or with a radiance of 0 is refused before any
+/// target is rendered.
 #[test]
 fn an_emission_unknown_needs_a_radiance_emission() {
     let dir = tempfile::tempdir().unwrap();
@@ -90,4 +91,18 @@ fn an_emission_unknown_needs_a_radiance_emission() {
         &["unknown.grid", "medium.emission"],
     );
     refused("scenes/fire.toml", &["unknown.grid", "blackbody"]);
+    // A radiance of 0: the images say nothing of the grid (and its units would divide by 0).
+    let dark = std::fs::read_to_string(repo("scenes/inverse/flame-scene.toml"))
+        .unwrap()
+        .replace("radiance = [1.6, 0.7, 0.25]", "radiance = 0")
+        .replace(
+            "\"../analytic/fireball.vdb\"",
+            &format!("{:?}", repo("scenes/analytic/fireball.vdb")),
+        );
+    let dark_path = d.join("dark-scene.toml");
+    std::fs::write(&dark_path, dark).unwrap();
+    refused(
+        dark_path.to_str().unwrap(),
+        &["unknown.grid", "radiance is 0"],
+    );
 }

@@ -80,8 +80,11 @@ impl SceneUnits {
             Albedo::Grid(_) => 0.5,
         };
         let glow = f64::from(luminance(*radiance) * absorbed).max(1e-30);
+        // Black targets (P = 0) would make u = 0, and a prior's weight W·P/u 0/0: their emission
+        // is 0 everywhere, which a tiny unit still reaches.
+        let brightness = image_power.sqrt().max(1e-12);
         Ok(SceneUnits {
-            theta_per_optical_depth: image_power.sqrt() / glow / EMISSION_UNITS_PER_GLOW,
+            theta_per_optical_depth: brightness / glow / EMISSION_UNITS_PER_GLOW,
             image_power,
         })
     }

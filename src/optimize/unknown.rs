@@ -132,6 +132,9 @@ pub fn check_scene(scene: &Scene, unknown: UnknownGrid) -> Result<()> {
         Some(e) if !matches!(e.kind, EmissionKind::Radiance(_)) => bail!(
             "unknown.grid = \"emission\" solves for a radiance grid (medium.emission = {{ grid = …, radiance = [r, g, b] }}); a temperature grid's blackbody emission is not solved for"
         ),
+        Some(e) if e.kind == EmissionKind::Radiance(Vec3::ZERO) => bail!(
+            "unknown.grid = \"emission\": medium.emission.radiance is 0, so the images do not depend on the emission grid"
+        ),
         Some(_) => {}
     }
     if let Albedo::Constant(albedo) = scene.medium.albedo {
