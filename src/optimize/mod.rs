@@ -1,14 +1,14 @@
 //! Inverse rendering: reconstructing the density grid (or, the density known, the emission grid)
-//! from images. The unknown θ ≥ 0 with Adam's
-//! state (sparse by brick), its coarse-to-fine resampling, orbit views, run files, the loop,
-//! checkpoints and the equal-time study of estimators. Uses `volume`, `io`, `render` and
-//! `gradient`.
+//! from images. The unknown θ ≥ 0 with Adam's state (sparse by brick), its start (in the views'
+//! visual hull), its coarse-to-fine resampling, orbit views, run files, the loop, checkpoints and
+//! the equal-time study of estimators. Uses `volume`, `io`, `render` and `gradient`.
 
 pub mod adam;
 pub mod brick_gradient;
 pub mod checkpoint;
 pub mod descent;
 pub mod evaluate;
+pub mod hull;
 pub mod iteration;
 pub mod log;
 pub mod optimizer_file;

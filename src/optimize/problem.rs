@@ -12,6 +12,7 @@ use crate::gradient::loss::Loss;
 use crate::io::fingerprint::Fingerprint;
 use crate::io::vdb::{self, GridSelector, LevelSet};
 use crate::optimize::adam::Adam;
+use crate::optimize::hull::{self, Hull};
 use crate::optimize::parameters::{Parameters, MAX_VOXELS};
 use crate::optimize::prior::Prior;
 use crate::optimize::resample::Moments;
@@ -161,10 +162,31 @@ impl Problem {
         let start_file = file.unknown.start.clone().unwrap_or(StartFile::Constant(
             units.theta(scene_units::START_OPTICAL_DEPTH),
         ));
-        let start = start_parameters(&domain, &start_file, grids.start.as_ref());
+        let carve = *file.unknown.carve.get_or_insert(
+            unknown == UnknownGrid::Density && matches!(start_file, StartFile::Constant(_)),
+        );
+        let hull = carve.then(|| {
+            let tolerance = hull::BACKGROUND_TOLERANCE * units.image_power.sqrt();
+            let (voxels, transform) = (domain.voxel_box(0), domain.transform(0));
+            Hull::of(
+                voxels,
+                &transform,
+                &views,
+                &light_sets.lights,
+                tolerance as f32,
+            )
+        });
+        let start = start_parameters(&domain, &start_file, grids.start.as_ref(), hull.as_ref());
         file.unknown.start = Some(start_file);
         let settings = Settings::of(&file, &units, scene.settings.max_depth);
-        let notes = derivation_notes(unknown, &units, &settings, footprint);
+        let mut notes = derivation_notes(unknown, &units, &settings, footprint);
+        if let Some(hull) = &hull {
+            notes += &format!(
+                "the start's visual hull: {} of the first level's {} voxels seen through by a training view, their start 0\n",
+                hull.seen_through_count(),
+                domain.voxel_count_at(0)
+            );
+        }
         let fingerprint = fingerprint(&file, &scene, views.iter().chain(&holdouts));
         let grid_name = match (unknown, &scene.medium.emission) {
             (UnknownGrid::Emission, Some(emission)) => emission.name.clone(),

@@ -168,6 +168,10 @@ pub struct UnknownFile {
     /// voxels; default a constant of optical depth `scene_units::START_OPTICAL_DEPTH` along the
     /// box's longest edge.
     pub start: Option<StartFile>,
+    /// Clear a constant start where a training view sees only the background (`hull`); default
+    /// on for a density unknown. An emission unknown's scene keeps its density, so its
+    /// background is not the environment: there it must stay off.
+    pub carve: Option<bool>,
     /// Fractions of the budget at which the grid is upsampled ×2 per axis, increasing in (0, 1);
     /// default as many as make the coarsest voxel about a pixel (`scene_units::level_count`).
     pub levels: Option<Vec<f32>>,
@@ -344,6 +348,14 @@ impl UnknownFile {
                 bail!("unknown.start must be a value ≥ 0 or a VDB file (got {c})");
             }
         }
+        if self.carve == Some(true) {
+            if self.grid == UnknownGrid::Emission {
+                bail!("unknown.carve: an emission unknown's scene keeps its density, so a pixel's background is not the environment; leave carve out");
+            }
+            if matches!(self.start, Some(StartFile::Vdb(_))) {
+                bail!("unknown.carve clears a constant start; a start VDB is taken as it is");
+            }
+        }
         let levels = self.levels.as_deref().unwrap_or_default();
         for (i, f) in levels.iter().enumerate() {
             let previous = if i == 0 { 0.0 } else { levels[i - 1] };
@@ -455,6 +467,14 @@ mod tests {
                 "unknown.levels",
             ),
             (GOOD.replace("start = 0.1", "start = -1"), "unknown.start"),
+            (
+                GOOD.replace("start = 0.1", "start = 0.1\ncarve = true\ngrid = \"emission\""),
+                "unknown.carve",
+            ),
+            (
+                GOOD.replace("start = 0.1", "start = \"s.vdb\"\ncarve = true"),
+                "unknown.carve",
+            ),
             (
                 GOOD.replace("bounds = \"truth\"", "bounds = \"all\""),
                 "unknown.bounds",

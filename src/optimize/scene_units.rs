@@ -27,10 +27,13 @@ use crate::volume::emission::EmissionKind;
 
 /// Optical depth along the box's longest edge that one Adam step may change (the learning rate).
 pub const STEP_OPTICAL_DEPTH: f32 = 0.5;
-/// A constant start's optical depth along the box's longest edge: a thin haze everywhere, from
-/// which the gradients carve the volume (from nothing, density can only grow where light already
-/// scatters towards a camera).
-pub const START_OPTICAL_DEPTH: f32 = 2.5;
+/// A constant start's optical depth along the box's longest edge, in the views' visual hull
+/// (`hull`: cleared where a view sees the background). From nothing, density can only grow where
+/// light already scatters towards a camera; and what the views cannot see into, a thick volume's
+/// inside, keeps about the start. At 2.5, before the hull, the start filled the whole box as a thin
+/// haze; with the hull, 7.5 gave the smoke plume +3.7 dB held-out and a volume RMSE 0.82× at 1000
+/// iterations, and the cloud +0.26 dB, 0.95× at 500 (README, "Settings from the scene, measured").
+pub const START_OPTICAL_DEPTH: f32 = 7.5;
 /// Where total variation's kink at 0 is rounded off, as an optical depth.
 const TV_EPSILON_OPTICAL_DEPTH: f64 = 0.05;
 /// The default priors: light total variation (sharpens the boundary the pixels blur) and the log

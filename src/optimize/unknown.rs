@@ -8,6 +8,7 @@ use glam::{DAffine3, DQuat, DVec3, IVec3, Vec3};
 
 use crate::gradient::passes::Parameter;
 use crate::io::vdb;
+use crate::optimize::hull::Hull;
 use crate::optimize::parameters::{Parameters, MAX_VOXELS};
 use crate::optimize::run_file::{StartFile, UnknownGrid};
 use crate::render::scene::Scene;
@@ -201,11 +202,13 @@ fn medium_like(
     medium
 }
 
-/// θ at the first level: the constant, or the start grid's trilinear field at each voxel centre.
+/// θ at the first level: the constant (cleared where `hull` says a view sees through), or the
+/// start grid's trilinear field at each voxel centre.
 pub fn start_parameters(
     domain: &Domain,
     start: &StartFile,
     grid: Option<&vdb::Grid>,
+    hull: Option<&Hull>,
 ) -> Parameters {
     let (lo, hi) = domain.voxel_box(0);
     let transform = domain.transform(0);
@@ -215,6 +218,9 @@ pub fn start_parameters(
             for z in lo.z..=hi.z {
                 let v = IVec3::new(x, y, z);
                 let value = match (start, grid) {
+                    (StartFile::Constant(_), _) if hull.is_some_and(|h| h.is_seen_through(v)) => {
+                        0.0
+                    }
                     (StartFile::Constant(c), _) => *c,
                     (StartFile::Vdb(_), Some(g)) => {
                         let world = transform.point_to_world(v.as_vec3());

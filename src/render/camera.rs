@@ -47,6 +47,22 @@ impl Camera {
         (self.forward + self.right * sx + self.up * sy).normalize()
     }
 
+    /// The image position (pixels, (0, 0) the top-left corner) at which `point` is seen, as
+    /// `direction` maps positions to rays; `None` for a point not in front of the camera.
+    pub fn project(&self, point: Vec3) -> Option<(f32, f32)> {
+        let q = point - self.position;
+        let depth = q.dot(self.forward);
+        if depth.is_nan() || depth <= 0.0 {
+            return None;
+        }
+        let sx = q.dot(self.right) / depth / self.tan_half.0;
+        let sy = q.dot(self.up) / depth / self.tan_half.1;
+        Some((
+            (sx + 1.0) * 0.5 * self.width as f32,
+            (1.0 - sy) * 0.5 * self.height as f32,
+        ))
+    }
+
     /// The width of one pixel's footprint at the depth of `point` (world units): how finely the
     /// view samples a medium there.
     pub fn pixel_footprint(&self, point: Vec3) -> f32 {
@@ -65,5 +81,25 @@ impl Camera {
             height,
             ..*self
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// `project` inverts `direction`: a point along the ray through (x, y) is seen at (x, y).
+    #[test]
+    fn projection_inverts_the_rays() {
+        let camera = Camera::new(Vec3::new(3.0, 1.0, 9.0), Vec3::ZERO, Vec3::Y, 40.0, 64, 48);
+        for (x, y) in [(0.5, 0.5), (63.2, 10.0), (31.0, 47.9), (7.25, 30.5)] {
+            let point = camera.position + camera.direction(x, y) * 12.5;
+            let (px, py) = camera.project(point).unwrap();
+            assert!(
+                (px - x).abs() < 1e-3 && (py - y).abs() < 1e-3,
+                "{x},{y} → {px},{py}"
+            );
+        }
+        assert!(camera.project(camera.position - camera.forward).is_none());
     }
 }
