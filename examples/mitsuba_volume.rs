@@ -23,6 +23,9 @@ use volgrad::io::output::{write_bytes_whole, write_whole};
 use volgrad::render::scene::Scene;
 use volgrad::volume::ray::Filter;
 
+/// 2^27 voxels: 512 MiB of density, 1.5 GiB of albedo.
+const MAX_DENSE_VOXELS: i64 = 1 << 27;
+
 fn main() {
     if let Err(e) = run() {
         eprintln!("error: {e:#}");
@@ -56,6 +59,11 @@ fn run() -> Result<()> {
         })
     };
     let resolution = hi - lo + 1;
+    // The volumes are dense over the active box: refuse a wide sparse grid before allocating.
+    let voxels_in_box = resolution.as_i64vec3().element_product();
+    if voxels_in_box > MAX_DENSE_VOXELS {
+        bail!("the active box has {voxels_in_box} voxels; Mitsuba's volumes are dense, at most {MAX_DENSE_VOXELS} here");
+    }
     let density: Vec<f32> = voxels().map(|v| medium.grid.voxel(v)).collect();
     write_vol(&out.join("density.vol"), resolution, 1, &density)?;
     if medium.albedo.grid().is_some() {

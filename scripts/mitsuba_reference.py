@@ -139,7 +139,9 @@ def main():
     out.mkdir(parents=True, exist_ok=True)
     subprocess.run([args.exporter, str(args.scene), str(work)], check=True)
     volume = json.loads((work / "volume.json").read_text())
-    max_depth = args.max_depth or scene.get("render", {}).get("max_depth", 64)
+    max_depth = args.max_depth
+    if max_depth is None:
+        max_depth = scene.get("render", {}).get("max_depth", 64)
     reference = mi.load_dict(mitsuba_scene(mi, scene, work, volume, max_depth))
 
     means = {"volgrad": [], "mitsuba": []}
