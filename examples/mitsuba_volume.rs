@@ -96,8 +96,7 @@ fn run() -> Result<()> {
     );
     write_bytes_whole(&out.join("volume.json"), json)?;
     eprintln!(
-        "wrote {}³-ish volume ({} × {} × {}) to '{}'",
-        resolution.max_element(),
+        "wrote a {} × {} × {} volume to '{}'",
         resolution.x,
         resolution.y,
         resolution.z,
