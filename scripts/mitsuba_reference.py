@@ -32,6 +32,8 @@ import tomllib
 
 import numpy as np
 
+from reference_compare import block_means, report
+
 
 def spectrum(value):
     return [float(value)] * 3 if isinstance(value, (int, float)) else [float(v) for v in value]
@@ -107,15 +109,6 @@ def mitsuba_scene(mi, scene, volume_dir, volume, max_depth):
     }
 
 
-def block_means(image, blocks):
-    """Per-channel means of the whole image and of a blocks × blocks grid of tiles."""
-    h, w, _ = image.shape
-    rows = np.array_split(np.arange(h), blocks)
-    cols = np.array_split(np.arange(w), blocks)
-    tiles = [image[np.ix_(r, c)].reshape(-1, 3).mean(axis=0) for r in rows for c in cols]
-    return np.vstack([image.reshape(-1, 3).mean(axis=0)] + tiles)
-
-
 def main():
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("scene", type=pathlib.Path)
@@ -159,32 +152,7 @@ def main():
         means["mitsuba"].append(block_means(image, args.blocks))
         print(f"pass {seed}/{args.passes}", file=sys.stderr)
 
-    m = {k: np.array(v) for k, v in means.items()}  # passes × (1 + blocks²) × 3
-    mean = {k: v.mean(axis=0) for k, v in m.items()}
-    error = {k: v.std(axis=0, ddof=1) / np.sqrt(args.passes) for k, v in m.items()}
-    difference = mean["volgrad"] - mean["mitsuba"]
-    noise = np.sqrt(error["volgrad"] ** 2 + error["mitsuba"] ** 2)
-    # Blocks of background alone are exact in both (every path escapes at once): no noise, and
-    # equal values give z = 0; a difference there is infinitely significant.
-    with np.errstate(divide="ignore", invalid="ignore"):
-        z = np.where(noise > 0, difference / noise, np.where(difference == 0, 0.0, np.inf))
-        relative = np.where(mean["mitsuba"] != 0, difference / mean["mitsuba"], 0.0)
-    print(f"{args.scene}: {args.passes} passes of {args.spp} spp per renderer")
-    for c, name in enumerate("RGB"):
-        print(
-            f"  {name}: image mean volgrad {mean['volgrad'][0, c]:.5f} ± {error['volgrad'][0, c]:.5f}, "
-            f"mitsuba {mean['mitsuba'][0, c]:.5f} ± {error['mitsuba'][0, c]:.5f} "
-            f"({100 * relative[0, c]:+.2f} %, z = {z[0, c]:+.2f})"
-        )
-    print(
-        f"  {args.blocks}×{args.blocks} blocks × 3 channels: |z| ≤ {np.abs(z[1:]).max():.2f} "
-        f"(largest relative difference {100 * np.abs(relative[1:]).max():.2f} %)"
-    )
-    print("  z per block (channel of largest |z|):")
-    worst = np.abs(z[1:]).max(axis=1).reshape(args.blocks, args.blocks)
-    for row in worst:
-        print("   " + " ".join(f"{v:5.2f}" for v in row))
-
+    report(args.scene, args.spp, means, "volgrad", "mitsuba", args.blocks)
 
 if __name__ == "__main__":
     main()
