@@ -32,21 +32,12 @@ beyond the outermost active voxel, where volgrad's medium ends half a voxel out:
 at its edge shows a difference at its rim (the README, "An independent reference for emission").
 """
 
-import argparse
 import math
-import pathlib
-import subprocess
 import sys
-import tempfile
-import tomllib
 
 import numpy as np
 
-from reference_compare import block_means, report
-
-
-def spectrum(value):
-    return [float(value)] * 3 if isinstance(value, (int, float)) else [float(v) for v in value]
+from reference_compare import arguments, compare_passes, resolved, spectrum
 
 
 def look_at(position, target, up):
@@ -242,48 +233,23 @@ def read_exr(bpy, path):
 
 
 def main():
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("scene", type=pathlib.Path)
-    parser.add_argument("--spp", type=int, default=64, help="samples per pixel in each pass")
-    parser.add_argument("--passes", type=int, default=8, help="passes per renderer (seeds 1..N)")
-    parser.add_argument("--blocks", type=int, default=4, help="blocks per image side")
-    parser.add_argument("--max-depth", type=int, help="scattering events (default: the scene's)")
+    parser = arguments(__doc__.split("\n\n")[0])
     parser.add_argument("--step-rate", type=float, default=0.05, help="Cycles' step, in voxels")
-    parser.add_argument("--volgrad", default="target/release/volgrad")
-    parser.add_argument("--out", type=pathlib.Path, help="keep the EXRs here")
-    args = parser.parse_args()
-    if args.passes < 2:
-        sys.exit("error: --passes must be at least 2 (the noise is estimated from the passes)")
+    args, scene, out, max_depth = resolved(parser, "cycles")
+    if max_depth < 1:
+        sys.exit("error: --max-depth must be at least 1 (Cycles lights the first scattering at bounce 0)")
 
     import bpy
 
-    scene = tomllib.loads(args.scene.read_text())
-    out = args.out or pathlib.Path(tempfile.mkdtemp(prefix="cycles-reference-"))
-    out.mkdir(parents=True, exist_ok=True)
-    max_depth = args.max_depth
-    if max_depth is None:
-        max_depth = scene.get("render", {}).get("max_depth", 64)
-    if max_depth < 1:
-        sys.exit("error: --max-depth must be at least 1 (Cycles lights the first scattering at bounce 0)")
     blender = cycles_scene(bpy, args.scene, scene, max_depth, args.step_rate)
     blender.cycles.samples = args.spp
 
-    means = {"volgrad": [], "cycles": []}
-    for seed in range(1, args.passes + 1):
-        exr = out / f"volgrad-{seed}.exr"
-        subprocess.run(
-            [args.volgrad, "render", str(args.scene), "--spp", str(args.spp), "--seed", str(seed),
-             "--max-depth", str(max_depth), "--quiet", "--output", str(exr)],
-            check=True,
-        )
-        means["volgrad"].append(block_means(read_exr(bpy, exr), args.blocks))
-        exr = out / f"cycles-{seed}.exr"
+    def render(seed, exr):
         blender.cycles.seed = seed
         blender.render.filepath = str(exr)
         bpy.ops.render.render(write_still=True)
-        means["cycles"].append(block_means(read_exr(bpy, exr), args.blocks))
-        print(f"pass {seed}/{args.passes}", file=sys.stderr)
-    report(args.scene, args.spp, means, "volgrad", "cycles", args.blocks)
+
+    compare_passes(args, out, max_depth, "cycles", render, lambda exr: read_exr(bpy, exr))
 
 
 if __name__ == "__main__":

@@ -22,21 +22,15 @@ camera, the lights, the density scale, the phase function and the depth. What it
 Emission is not compared: Mitsuba 3's heterogeneous medium has none.
 """
 
-import argparse
 import json
 import pathlib
 import subprocess
 import sys
 import tempfile
-import tomllib
 
 import numpy as np
 
-from reference_compare import block_means, report
-
-
-def spectrum(value):
-    return [float(value)] * 3 if isinstance(value, (int, float)) else [float(v) for v in value]
+from reference_compare import arguments, compare_passes, resolved, spectrum
 
 
 def mitsuba_scene(mi, scene, volume_dir, volume, max_depth):
@@ -110,49 +104,28 @@ def mitsuba_scene(mi, scene, volume_dir, volume, max_depth):
 
 
 def main():
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("scene", type=pathlib.Path)
-    parser.add_argument("--spp", type=int, default=64, help="samples per pixel in each pass")
-    parser.add_argument("--passes", type=int, default=8, help="passes per renderer (seeds 1..N)")
-    parser.add_argument("--blocks", type=int, default=4, help="blocks per image side")
-    parser.add_argument("--max-depth", type=int, help="scattering events (default: the scene's)")
-    parser.add_argument("--volgrad", default="target/release/volgrad")
+    parser = arguments(__doc__.split("\n\n")[0])
     parser.add_argument("--exporter", default="target/release/examples/mitsuba_volume")
-    parser.add_argument("--out", type=pathlib.Path, help="keep the EXRs here")
-    args = parser.parse_args()
-    if args.passes < 2:
-        sys.exit("error: --passes must be at least 2 (the noise is estimated from the passes)")
+    args, scene, out, max_depth = resolved(parser, "mitsuba")
 
     import mitsuba as mi
 
     mi.set_variant("scalar_rgb")
-    scene = tomllib.loads(args.scene.read_text())
-    work = pathlib.Path(tempfile.mkdtemp(prefix="mitsuba-reference-"))
-    out = args.out or work
-    out.mkdir(parents=True, exist_ok=True)
-    subprocess.run([args.exporter, str(args.scene), str(work)], check=True)
+    work = pathlib.Path(tempfile.mkdtemp(prefix="mitsuba-volume-"))
+    if subprocess.run([args.exporter, str(args.scene), str(work)]).returncode != 0:
+        sys.exit(f"error: `{args.exporter}` failed (its message is above)")
     volume = json.loads((work / "volume.json").read_text())
-    max_depth = args.max_depth
-    if max_depth is None:
-        max_depth = scene.get("render", {}).get("max_depth", 64)
     reference = mi.load_dict(mitsuba_scene(mi, scene, work, volume, max_depth))
 
-    means = {"volgrad": [], "mitsuba": []}
-    for seed in range(1, args.passes + 1):
-        exr = out / f"volgrad-{seed}.exr"
-        subprocess.run(
-            [args.volgrad, "render", str(args.scene), "--spp", str(args.spp), "--seed", str(seed),
-             "--max-depth", str(max_depth), "--quiet", "--output", str(exr)],
-            check=True,
-        )
-        image = np.array(mi.Bitmap(str(exr)))[:, :, :3]
-        means["volgrad"].append(block_means(image, args.blocks))
+    def render(seed, exr):
         image = np.array(mi.render(reference, spp=args.spp, seed=seed))[:, :, :3]
-        mi.Bitmap(image).write(str(out / f"mitsuba-{seed}.exr"))
-        means["mitsuba"].append(block_means(image, args.blocks))
-        print(f"pass {seed}/{args.passes}", file=sys.stderr)
+        mi.Bitmap(image).write(str(exr))
 
-    report(args.scene, args.spp, means, "volgrad", "mitsuba", args.blocks)
+    def read_exr(exr):
+        return np.array(mi.Bitmap(str(exr)))[:, :, :3]
+
+    compare_passes(args, out, max_depth, "mitsuba", render, read_exr)
+
 
 if __name__ == "__main__":
     main()
