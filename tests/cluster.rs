@@ -169,6 +169,34 @@ fn results_do_not_depend_on_the_number_of_ranks() {
     assert_eq!(log.lines().count(), 1 + 7, "{log}");
 }
 
+/// A target cache filled by 2 ranks (rank 0 writes) serves one process and 3 ranks (rank 0 reads
+/// and sends the pixels): every run ends where a run without the cache ends, bit for bit.
+#[test]
+fn a_target_cache_serves_any_number_of_ranks() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    std::fs::write(d.join("run.toml"), run_file("batch = 3\niterations = 2")).unwrap();
+    let optimize = |n: usize, out: &str, cache: bool| {
+        let mut args = vec!["optimize", "run.toml", "--out", out];
+        if cache {
+            args.extend(["--target-cache", "cache"]);
+        }
+        ok(ranks(d, n, &args, LIMIT))
+    };
+    optimize(1, "plain", false);
+    optimize(2, "filled", true);
+    assert_eq!(std::fs::read_dir(d.join("cache")).unwrap().count(), 10);
+    for (n, out) in [(1, "one"), (3, "three")] {
+        let run = optimize(n, out, true);
+        let err = String::from_utf8_lossy(&run.stderr);
+        assert!(err.contains("10 of 10 targets read"), "{err}");
+    }
+    let plain = voxels(&d.join("plain/final.vdb"));
+    for out in ["filled", "one", "three"] {
+        assert!(voxels(&d.join(out).join("final.vdb")) == plain, "{out}");
+    }
+}
+
 /// A run resumed at 2 ranks from the checkpoint a 3-rank run wrote halfway ends where the
 /// uninterrupted one-process run ends.
 #[test]

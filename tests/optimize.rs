@@ -376,7 +376,7 @@ fn the_seed_leaves_the_targets_as_they_are() {
     let dir = fixture(&run_file("0.2", ""));
     let run = dir.path().join("run.toml");
     let targets = |seed: Option<u64>| -> Vec<Vec<glam::Vec3>> {
-        let problem = Problem::load(&run, seed, false, &Cluster::single()).unwrap();
+        let problem = Problem::load(&run, seed, false, None, &Cluster::single()).unwrap();
         let views = problem.views.iter().chain(&problem.holdouts);
         views.map(|v| v.target.pixels.clone()).collect()
     };

@@ -37,6 +37,7 @@ fn views_under_their_own_lights_and_relit_held_out_views() {
         &dir.path().join("run.toml"),
         None,
         false,
+        None,
         &Cluster::single(),
     )
     .unwrap();
@@ -92,7 +93,7 @@ fn a_transforms_file_gives_back_the_orbit_it_was_written_from() {
     let dir = fixture(&run_file("0.2", ""));
     let d = dir.path();
     let orbit_problem =
-        Problem::load(&d.join("run.toml"), None, false, &Cluster::single()).unwrap();
+        Problem::load(&d.join("run.toml"), None, false, None, &Cluster::single()).unwrap();
     let centre = {
         let (lo, hi) = orbit_problem.domain.world_box();
         (lo + hi) / 2.0
@@ -125,7 +126,8 @@ fn a_transforms_file_gives_back_the_orbit_it_was_written_from() {
     );
     assert!(run.contains("transforms.json"), "{run}");
     std::fs::write(d.join("run.toml"), run).unwrap();
-    let json_problem = Problem::load(&d.join("run.toml"), None, false, &Cluster::single()).unwrap();
+    let json_problem =
+        Problem::load(&d.join("run.toml"), None, false, None, &Cluster::single()).unwrap();
     assert_eq!(json_problem.views.len(), orbit_problem.views.len());
     for (a, b) in orbit_problem.views.iter().zip(&json_problem.views) {
         assert!((a.camera.position - b.camera.position).length() < 1e-5);
@@ -318,4 +320,85 @@ fn bad_run_files_name_the_key() {
     let out = volgrad_in(d, &["optimize", "run.toml", "--estimator", "magic", "-q"]);
     assert!(!out.status.success());
     assert!(stderr(&out).contains("magic"), "{}", stderr(&out));
+}
+
+/// `--target-cache`: the first run renders its 7 targets into the cache, later runs read them and
+/// reach the same bits as a run without the cache; another target_spp or another light makes new
+/// entries, another --seed none (targets depend on the run file only); an entry that is read is
+/// used (a changed one changes the run), and a damaged one is rendered again.
+#[test]
+fn a_target_cache_renders_each_target_once_and_changes_nothing() {
+    let dir = fixture(&run_file("0.2", "spp = 2\niterations = 4"));
+    let d = dir.path();
+    let run = |out: &str, cache: bool, extra: &[&str]| {
+        let mut args = vec!["optimize", "run.toml", "--out", out];
+        if cache {
+            args.extend(["--target-cache", "cache"]);
+        }
+        args.extend(extra);
+        ok(volgrad_in(d, &args))
+    };
+    let entries = || std::fs::read_dir(d.join("cache")).unwrap().count();
+    let results = |out: &str| -> Vec<(String, String)> {
+        log(&d.join(out))
+            .into_iter()
+            .map(|r| (r["loss"].clone(), r["heldout_psnr"].clone()))
+            .collect()
+    };
+
+    run("plain", false, &[]);
+    run("first", true, &[]);
+    assert_eq!(entries(), 7, "6 views and 1 held-out view");
+    let second = run("second", true, &[]);
+    assert!(
+        stderr(&second).contains("7 of 7 targets read from the target cache"),
+        "{}",
+        stderr(&second)
+    );
+    assert_eq!(results("first"), results("plain"));
+    assert_eq!(results("second"), results("plain"));
+    run("seed", true, &["--seed", "2"]);
+    assert_eq!(entries(), 7, "--seed does not change the targets");
+
+    // An entry read is used: every target made twice as bright changes the run.
+    let mut touched = false;
+    for entry in std::fs::read_dir(d.join("cache")).unwrap() {
+        let path = entry.unwrap().path();
+        let mut bytes = std::fs::read(&path).unwrap();
+        let header = bytes.iter().position(|&b| b == b'\n').unwrap() + 1;
+        for value in bytes[header..].chunks_exact_mut(4) {
+            let v = f32::from_le_bytes(value.try_into().unwrap()) * 2.0;
+            value.copy_from_slice(&v.to_le_bytes());
+        }
+        std::fs::write(&path, &bytes).unwrap();
+        touched = true;
+    }
+    assert!(touched);
+    run("doubled", true, &[]);
+    assert_ne!(results("doubled"), results("plain"));
+    // A damaged entry (cut short) is reported and rendered again.
+    let first = std::fs::read_dir(d.join("cache")).unwrap().next().unwrap();
+    let path = first.unwrap().path();
+    let bytes = std::fs::read(&path).unwrap();
+    std::fs::write(&path, &bytes[..bytes.len() / 2]).unwrap();
+    let again = run("damaged", true, &[]);
+    assert!(stderr(&again).contains("unusable"), "{}", stderr(&again));
+    assert_eq!(entries(), 7);
+
+    let text = std::fs::read_to_string(d.join("run.toml")).unwrap();
+    std::fs::write(
+        d.join("run.toml"),
+        text.replace("target_spp = 256", "target_spp = 128"),
+    )
+    .unwrap();
+    run("spp", true, &[]);
+    assert_eq!(entries(), 14, "another target_spp: new targets");
+    let scene = std::fs::read_to_string(d.join("scene.toml")).unwrap();
+    std::fs::write(
+        d.join("scene.toml"),
+        scene.replace("irradiance = 4.0", "irradiance = 3.0"),
+    )
+    .unwrap();
+    run("light", true, &[]);
+    assert_eq!(entries(), 21, "another light: new targets");
 }

@@ -48,7 +48,7 @@ primal_spp = 4
     );
     let path = dir.join(format!("{}.toml", batch.len()));
     std::fs::write(&path, run).unwrap();
-    Problem::load(&path, None, false, &Cluster::single()).unwrap()
+    Problem::load(&path, None, false, None, &Cluster::single()).unwrap()
 }
 
 /// Per iteration (fresh seeds and draws): ⟨g, 1⟩ and the sums over the box's two halves in x.

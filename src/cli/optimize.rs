@@ -51,6 +51,11 @@ pub struct Args {
     /// Continue from the latest checkpoint in this folder (same run file, estimator and seed).
     #[arg(long, conflicts_with = "estimators")]
     pub resume: Option<PathBuf>,
+    /// Keep the targets rendered from the truth in this folder, and read them back in later runs
+    /// whose targets would be the same bits (same scene, views, target_spp, target seed and
+    /// volgrad executable): runs of one run file then render their targets once.
+    #[arg(long, value_name = "DIR")]
+    pub target_cache: Option<PathBuf>,
     /// Overwrite the output folder's files.
     #[arg(long)]
     pub force: bool,
@@ -109,7 +114,13 @@ pub fn run(args: &Args, cluster: &Cluster) -> Result<()> {
         (None, None, None) => None,
     };
     let progress = !args.quiet && cluster.is_root();
-    let problem = cluster.agree(Problem::load(&args.run, args.seed, progress, cluster))?;
+    let problem = cluster.agree(Problem::load(
+        &args.run,
+        args.seed,
+        progress,
+        args.target_cache.as_deref(),
+        cluster,
+    ))?;
     ctrlc::set_handler(|| INTERRUPTED.store(true, Ordering::SeqCst))
         .context("cannot install the Ctrl-C handler")?;
     stop_on_sigusr1();

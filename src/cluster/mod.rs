@@ -188,6 +188,15 @@ impl Cluster {
         Err(AgreedError(String::from_utf8_lossy(&message).into_owned()).into())
     }
 
+    /// `write()` on rank 0; `Ok` on the others (whose result comes from `agree`).
+    pub fn on_root(&self, write: impl FnOnce() -> Result<()>) -> Result<()> {
+        if self.is_root() {
+            write()
+        } else {
+            Ok(())
+        }
+    }
+
     /// Ends every rank of the job at once (MPI_Abort): for an error only this rank met outside
     /// `agree`, or a panic, where the others may be waiting in a collective.
     pub fn abort(&self) {

@@ -23,6 +23,7 @@ pub mod schedule;
 pub mod settings_toml;
 pub mod smoothing;
 pub mod study;
+pub mod target_cache;
 pub mod targets;
 pub mod transforms;
 pub mod unknown;

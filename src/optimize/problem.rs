@@ -19,6 +19,7 @@ use crate::optimize::resample::Moments;
 use crate::optimize::run_file::{BoundsFile, RunFile, StartFile, UnknownGrid};
 use crate::optimize::scene_units::{self, SceneUnits};
 use crate::optimize::settings_toml;
+use crate::optimize::target_cache::TargetCache;
 use crate::optimize::targets::{
     image_power, read_views, view_specs, LightSets, ReadView, TargetRenderer,
 };
@@ -92,10 +93,12 @@ impl Problem {
     /// fit the same images.
     /// Reads the run file and what it names (every rank reads for itself, then the ranks agree),
     /// renders the targets no image gives (all ranks together), and resolves the settings.
+    /// Targets are read from and written to `target_cache` where given.
     pub fn load(
         run_path: &Path,
         seed: Option<u64>,
         progress: bool,
+        target_cache: Option<&Path>,
         cluster: &Cluster,
     ) -> Result<Problem> {
         let Inputs {
@@ -136,10 +139,22 @@ impl Problem {
             seed: file.target_seed.unwrap_or(file.seed),
             progress,
             rendered: 0,
+            cached: 0,
+            cache: target_cache
+                .map(|dir| cluster.agree(TargetCache::open(dir)))
+                .transpose()?,
             cluster,
         };
         let views = targets.complete(training, &light_sets)?;
         let mut holdouts = targets.complete(held_out, &light_sets)?;
+        if let Some(cache) = targets.cache.as_ref().filter(|_| progress) {
+            eprintln!(
+                "{} of {} targets read from the target cache '{}'",
+                targets.cached,
+                targets.rendered,
+                cache.dir().display()
+            );
+        }
         for holdout in &mut holdouts {
             holdout.relit = !views.iter().any(|v| v.light_set == holdout.light_set);
         }

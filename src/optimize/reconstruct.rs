@@ -123,7 +123,7 @@ impl<'a> Run<'a> {
             .or_else(|| position.stop.clone())
             .unwrap_or(Stop::Iterations(problem.settings.iterations.into()));
         position.stop = Some(stop.clone());
-        cluster.agree(on_root(cluster, || {
+        cluster.agree(cluster.on_root(|| {
             std::fs::create_dir_all(&options.out).with_context(|| {
                 format!(
                     "cannot create the output directory '{}'",
@@ -231,7 +231,7 @@ impl<'a> Run<'a> {
             self.evaluation = self.evaluate();
             row.record(&self.evaluation);
             if checkpoint_now {
-                cluster.agree(on_root(cluster, || self.write_checkpoint(&row)))?;
+                cluster.agree(cluster.on_root(|| self.write_checkpoint(&row)))?;
             }
             self.position.evaluation_seconds += started.elapsed().as_secs_f64();
             row.evaluation_seconds = self.position.evaluation_seconds;
@@ -247,9 +247,7 @@ impl<'a> Run<'a> {
             .set_position(self.stop.bar_position(p.iteration, p.optimisation_seconds));
         if evaluated {
             let log = self.options.out.join("log.csv");
-            cluster.agree(on_root(cluster, || {
-                write_bytes_whole(&log, LogRow::csv(&self.log))
-            }))?;
+            cluster.agree(cluster.on_root(|| write_bytes_whole(&log, LogRow::csv(&self.log))))?;
         }
         Ok(())
     }
@@ -330,7 +328,7 @@ impl<'a> Run<'a> {
             let out = &self.options.out;
             self.options
                 .cluster
-                .agree(on_root(self.options.cluster, || {
+                .agree(self.options.cluster.on_root(|| {
                     self.write_grid(&out.join("final.vdb"))?;
                     write_progress_chart(out, &self.log)
                 }))?;
@@ -365,15 +363,6 @@ fn step(
     let level_voxels = problem.domain.voxel_count_at(level);
     let loss = images.loss + parameters.descend(adam, &gradient, &s.priors, level_voxels);
     Ok((loss, images.traffic))
-}
-
-/// `write()` on rank 0; `Ok` on the others (whose result comes from `Cluster::agree`).
-fn on_root(cluster: &Cluster, write: impl FnOnce() -> Result<()>) -> Result<()> {
-    if cluster.is_root() {
-        write()
-    } else {
-        Ok(())
-    }
 }
 
 /// progress.png/.svg: held-out PSNR (top) and training loss (bottom) against optimisation time.

@@ -8,10 +8,11 @@ use std::path::{Path, PathBuf};
 use anyhow::{bail, Context, Result};
 use glam::Vec3;
 
-use crate::cluster::images::render_shared;
+use crate::cluster::images::{render_shared, sum_image};
 use crate::cluster::Cluster;
 use crate::io::images::{self, RgbImage};
 use crate::optimize::run_file::{RunFile, ViewFile, ViewSetFile, MAX_VIEWS};
+use crate::optimize::target_cache::TargetCache;
 use crate::optimize::transforms;
 use crate::render::camera::Camera;
 use crate::render::image::RenderOptions;
@@ -203,8 +204,11 @@ pub struct TargetRenderer<'a> {
     pub spp: u32,
     pub seed: u64,
     pub progress: bool,
-    /// Targets rendered so far (each gets its own random streams).
+    /// Targets rendered so far, or read from the cache (each has its own random streams).
     pub rendered: u64,
+    /// Of those, how many the cache held.
+    pub cached: u64,
+    pub cache: Option<TargetCache>,
     pub cluster: &'a Cluster,
 }
 
@@ -241,8 +245,38 @@ impl TargetRenderer<'_> {
             max_depth: truth.settings.max_depth,
             progress: self.progress,
         };
-        Ok(render_shared(self.cluster, truth, &options).0)
+        let key = self.cache.as_ref().map(|cache| cache.key(truth, &options));
+        if let Some(image) = cached(self.cache.as_ref(), self.cluster, key.as_deref(), camera) {
+            self.cached += 1;
+            return Ok(image);
+        }
+        let image = render_shared(self.cluster, truth, &options).0;
+        if let (Some(cache), Some(key)) = (&self.cache, &key) {
+            let cluster = self.cluster;
+            cluster.agree(cluster.on_root(|| cache.write(key, &image)))?;
+        }
+        Ok(image)
     }
+}
+
+/// The cache's entry `key`, if it holds one. Only rank 0 reads it (the folder need not be shared
+/// between machines) and sends its pixels to the others.
+fn cached(
+    cache: Option<&TargetCache>,
+    cluster: &Cluster,
+    key: Option<&str>,
+    camera: &Camera,
+) -> Option<RgbImage> {
+    let (cache, key) = (cache?, key?);
+    let mine = cluster.is_root().then(|| cache.read(key, camera)).flatten();
+    let [held] = cluster.max_each([f64::from(u8::from(mine.is_some()))]);
+    if held == 0.0 {
+        return None;
+    }
+    // x + 0 = x: the sum over ranks gives every rank rank 0's pixels, bit for bit.
+    let mut image = mine.unwrap_or_else(|| RgbImage::new(camera.width, camera.height));
+    sum_image(cluster, &mut image);
+    Some(image)
 }
 
 /// A target image from its file: the view's size, finite pixels.

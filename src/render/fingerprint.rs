@@ -5,9 +5,11 @@
 //! fingerprint, and two different scenes that share a file name do not.
 
 use crate::io::fingerprint::Fingerprint;
+use crate::render::lights::Lights;
 use crate::render::scene::Scene;
 use crate::volume::albedo::Albedo;
 use crate::volume::brickmap::BrickMap;
+use crate::volume::medium::Medium;
 
 /// 16 hex digits (see `io::fingerprint`).
 pub fn scene(scene: &Scene) -> String {
@@ -15,7 +17,13 @@ pub fn scene(scene: &Scene) -> String {
     // Debug output of floats is their shortest exact representation, so these small structs
     // hash by value.
     f.text(&format!("{:?}", scene.camera));
-    let m = &scene.medium;
+    medium(&mut f, &scene.medium);
+    lights(&mut f, &scene.lights);
+    f.hex()
+}
+
+/// The medium's grids and optical constants, fed to `f`.
+pub fn medium(f: &mut Fingerprint, m: &Medium) {
     // A constant albedo reads as it did before albedo grids, so fingerprints stay what they were.
     let albedo = match &m.albedo {
         Albedo::Constant(albedo) => albedo.to_string(),
@@ -25,15 +33,18 @@ pub fn scene(scene: &Scene) -> String {
         "{:?} {:?} {} {} {} {}",
         m.transform, m.bounds, m.density_scale, albedo, m.phase_g, m.filter
     ));
-    bricks(&mut f, &m.grid);
+    bricks(f, &m.grid);
     if let Some(grid) = m.albedo.grid() {
-        grid.channels.iter().for_each(|c| bricks(&mut f, c));
+        grid.channels.iter().for_each(|c| bricks(f, c));
     }
     if let Some(e) = &m.emission {
         f.text(&format!("emission {:?} {:?}", e.transform, e.kind));
-        bricks(&mut f, &e.grid);
+        bricks(f, &e.grid);
     }
-    let lights = &scene.lights;
+}
+
+/// The lights, fed to `f`.
+pub fn lights(f: &mut Fingerprint, lights: &Lights) {
     f.text(&format!(
         "{:?} {:?}",
         lights.environment.constant, lights.directional
@@ -42,7 +53,6 @@ pub fn scene(scene: &Scene) -> String {
         let (w, h, texels) = map.texels();
         f.text(&format!("envmap {w}×{h}")).vec3s(texels);
     }
-    f.hex()
 }
 
 /// A brick map's values, active masks and tiles.

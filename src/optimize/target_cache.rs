@@ -1,0 +1,139 @@
+//! Targets rendered from a truth, kept between runs (`optimize --target-cache DIR`). Many runs fit
+//! one run file's images — seeds, estimators, optimiser settings — and at the spp targets need
+//! those images take minutes to render. An entry is named by the fingerprint of everything that
+//! decides its pixels: the scene's (grids, optical constants, camera, lights), the spp, seed and
+//! path depth, and the volgrad executable itself, whose renderer decides how a seed becomes
+//! samples. An entry is therefore read back only by a render that would have made the same bits,
+//! and a run gives the same result with the cache as without it.
+
+use std::cell::OnceCell;
+use std::path::{Path, PathBuf};
+
+use anyhow::{bail, Context, Result};
+use glam::Vec3;
+
+use crate::io::fingerprint::Fingerprint;
+use crate::io::images::RgbImage;
+use crate::io::output::write_bytes_whole;
+use crate::render::camera::Camera;
+use crate::render::fingerprint;
+use crate::render::image::RenderOptions;
+use crate::render::scene::Scene;
+
+/// An entry's first bytes; the key, width and height follow on the same line, then the pixels
+/// as little-endian f32 RGB, row by row.
+const MAGIC: &str = "volgrad-target 1";
+
+pub struct TargetCache {
+    dir: PathBuf,
+    /// The fingerprint of the running executable's bytes.
+    renderer: String,
+    /// The truth's medium's fingerprint, computed once: all views share it, and it reads every
+    /// voxel.
+    medium: OnceCell<String>,
+}
+
+impl TargetCache {
+    /// The cache in `dir` (created by the first write).
+    pub fn open(dir: &Path) -> Result<TargetCache> {
+        let exe = std::env::current_exe().context("cannot locate the volgrad executable")?;
+        let bytes = std::fs::read(&exe)
+            .with_context(|| format!("cannot read '{}' to fingerprint it", exe.display()))?;
+        Ok(TargetCache {
+            dir: dir.to_path_buf(),
+            renderer: Fingerprint::default().bytes(&bytes).hex(),
+            medium: OnceCell::new(),
+        })
+    }
+
+    pub fn dir(&self) -> &Path {
+        &self.dir
+    }
+
+    /// The entry's name for `scene` (its camera and lights set) rendered with `options`; every
+    /// scene given to one cache has the same medium.
+    pub fn key(&self, scene: &Scene, options: &RenderOptions) -> String {
+        let medium = self.medium.get_or_init(|| {
+            let mut f = Fingerprint::default();
+            fingerprint::medium(&mut f, &scene.medium);
+            f.hex()
+        });
+        let mut f = Fingerprint::default();
+        f.text(&self.renderer).text(medium).text(&format!(
+            "{:?} spp {} seed {} max_depth {}",
+            scene.camera, options.spp, options.seed, options.max_depth
+        ));
+        fingerprint::lights(&mut f, &scene.lights);
+        f.hex()
+    }
+
+    fn path(&self, key: &str) -> PathBuf {
+        self.dir.join(format!("{key}.target"))
+    }
+
+    /// The entry `key` for a view of `camera`'s size, if the cache holds it. A damaged entry is
+    /// reported and read as missing: the target is rendered again and the entry replaced.
+    pub fn read(&self, key: &str, camera: &Camera) -> Option<RgbImage> {
+        let path = self.path(key);
+        let bytes = std::fs::read(&path).ok()?;
+        match decode(&bytes, key, camera) {
+            Ok(image) => Some(image),
+            Err(e) => {
+                eprintln!(
+                    "warning: the target cache's '{}' is unusable ({e}); rendering the target again",
+                    path.display()
+                );
+                None
+            }
+        }
+    }
+
+    /// Stores `image` as the entry `key`, written whole.
+    pub fn write(&self, key: &str, image: &RgbImage) -> Result<()> {
+        std::fs::create_dir_all(&self.dir)
+            .with_context(|| format!("cannot create the target cache '{}'", self.dir.display()))?;
+        let mut bytes = format!("{MAGIC} {key} {} {}\n", image.width, image.height).into_bytes();
+        for p in &image.pixels {
+            for c in p.to_array() {
+                bytes.extend_from_slice(&c.to_le_bytes());
+            }
+        }
+        write_bytes_whole(&self.path(key), bytes)
+            .with_context(|| format!("cannot write to the target cache '{}'", self.dir.display()))
+    }
+}
+
+/// An entry's pixels, checked against its key and the view's size.
+fn decode(bytes: &[u8], key: &str, camera: &Camera) -> Result<RgbImage> {
+    let header_end = bytes
+        .iter()
+        .position(|&b| b == b'\n')
+        .context("no header")?;
+    let header = std::str::from_utf8(&bytes[..header_end])?;
+    let expected = format!("{MAGIC} {key} {} {}", camera.width, camera.height);
+    if header != expected {
+        bail!("its header is '{header}', not '{expected}'");
+    }
+    let data = &bytes[header_end + 1..];
+    let count = camera.width as usize * camera.height as usize;
+    if data.len() != count * 12 {
+        bail!(
+            "{} bytes of pixels where {count} pixels take {}",
+            data.len(),
+            count * 12
+        );
+    }
+    let values: Vec<f32> = data
+        .chunks_exact(4)
+        .map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]]))
+        .collect();
+    let pixels: Vec<Vec3> = values.chunks_exact(3).map(Vec3::from_slice).collect();
+    if pixels.iter().any(|p| !p.is_finite()) {
+        bail!("non-finite pixels");
+    }
+    Ok(RgbImage {
+        width: camera.width,
+        height: camera.height,
+        pixels,
+    })
+}
