@@ -5,6 +5,7 @@ passes each with their own seeds, and compares the image means as `mitsuba_refer
 
     cargo build --release
     python3 scripts/cycles_reference.py scenes/inverse/flame-scene.toml --spp 64 --passes 8
+    python3 scripts/cycles_reference.py scenes/fire.toml --kelvin 800 3100 --spp 16 --passes 8
 
 Cycles reads the VDB file itself. What the script maps:
 
@@ -16,10 +17,13 @@ Cycles reads the VDB file itself. What the script maps:
   node material: σt = density_scale × `density`, `Volume Absorption` and `Volume Scatter` (its
   Henyey-Greenstein g) with colour = the albedo (a constant or the albedo grid's attribute), so
   that σa = (1 − α)·σt and σs = α·σt;
-- emission `radiance = [r, g, b]` × grid value: an `Emission` shader of colour (1 − α)·radiance and
-  strength σt × value. Cycles' volume emission is radiance per unit length, so this is volgrad's
-  σa·Le. A blackbody is refused: Cycles' blackbody colour has a normalisation of its own, not
-  pbrt-v4's that volgrad follows (volgrad's is checked against Planck's law by its unit tests);
+- emission: an `Emission` shader of colour (1 − α)·Le and strength σt. Cycles' volume emission is
+  radiance per unit length, so this is volgrad's σa·Le. Le is `radiance = [r, g, b]` × the grid
+  value, or for a blackbody, strength × volgrad's normalised blackbody (pbrt-v4's) at
+  T = (value − offset)·scale, 0 at or below the cutoff. Cycles' own Blackbody node normalises
+  otherwise, so the colour is volgrad's formula evaluated in numpy (`blackbody_ramp.py`) and put
+  into the node tree as a 32-stop table over 1/T; `--kelvin LO HI` gives the temperatures the grid
+  holds (T is clamped to them) and the script prints the table's largest error there;
 - depth: volgrad's max_depth counts scattering events. Cycles' bounces count the indirect ones:
   light reached from the first scattering (the sun's, or emission further along) is direct, its
   bounce 0. So Cycles' volume bounces are volgrad's max_depth − 1, and max_depth 0 (only the
@@ -54,7 +58,52 @@ def look_at(position, target, up):
     return m
 
 
-def node_material(bpy, medium, emission):
+def blackbody_radiance(nodes, links, math_node, value, emission, kelvin):
+    """Le = strength × the normalised blackbody at T = (value − offset)·scale, 0 at or below the
+    cutoff, through `blackbody_ramp`'s table over `kelvin` = (lo, hi); T is clamped to that range."""
+    from blackbody_ramp import STOPS, XYZ_TO_SRGB, ramp
+
+    blackbody = emission["blackbody"]
+    lo, hi = kelvin
+    t = math_node(
+        "MULTIPLY",
+        math_node("SUBTRACT", value, float(blackbody.get("offset", 0.0))),
+        float(blackbody.get("scale", 1.0)),
+    )
+    lit = math_node("GREATER_THAN", t, max(float(blackbody.get("cutoff", 0.0)), 0.0))
+    t = math_node("MINIMUM", math_node("MAXIMUM", t, lo), hi)
+    fac = math_node("MULTIPLY", math_node("SUBTRACT", math_node("DIVIDE", 1.0, t), 1.0 / hi), 1.0 / (1.0 / lo - 1.0 / hi))
+    positions, values, offset, span = ramp(lo, hi)
+    table = nodes.new("ShaderNodeValToRGB")
+    links.new(fac, table.inputs["Fac"])
+    stops = table.color_ramp
+    stops.interpolation = "LINEAR"
+    # Set each stop as it is made: a new stop re-sorts the list.
+    stops.elements[0].position, stops.elements[0].color = 0.0, (*values[0], 1.0)
+    stops.elements[1].position, stops.elements[1].color = 1.0, (*values[-1], 1.0)
+    for position, v in zip(positions[1:-1], values[1:-1]):
+        stops.elements.new(position).color = (*v, 1.0)
+    assert len(stops.elements) == STOPS
+    channels = nodes.new("ShaderNodeSeparateColor")
+    links.new(table.outputs["Color"], channels.inputs["Color"])
+    t_minus_5 = math_node("POWER", t, -5.0)
+    xyz = nodes.new("ShaderNodeCombineXYZ")
+    for c, name in enumerate(("Red", "Green", "Blue")):
+        log = math_node("ADD", math_node("MULTIPLY", channels.outputs[name], float(span[c])), float(offset[c]))
+        links.new(math_node("MULTIPLY", math_node("EXPONENT", log, 0.0), t_minus_5), xyz.inputs[c])
+    rgb = nodes.new("ShaderNodeCombineXYZ")
+    strength = float(emission.get("strength", 1.0))
+    for c, row in enumerate(XYZ_TO_SRGB):
+        dot = nodes.new("ShaderNodeVectorMath")
+        dot.operation = "DOT_PRODUCT"
+        links.new(xyz.outputs[0], dot.inputs[0])
+        dot.inputs[1].default_value = [float(r) for r in row]
+        channel = math_node("MULTIPLY", math_node("MAXIMUM", dot.outputs["Value"], 0.0), strength)
+        links.new(math_node("MULTIPLY", channel, lit), rgb.inputs[c])
+    return rgb.outputs[0]
+
+
+def node_material(bpy, medium, emission, kelvin):
     """The medium's volume shader; see the module doc for what each node is."""
     material = bpy.data.materials.new("medium")
     material.use_nodes = True
@@ -98,7 +147,7 @@ def node_material(bpy, medium, emission):
     links.new(scatter.outputs[0], total.inputs[1])
     volume = total.outputs[0]
     if emission is not None:
-        # Colour (1 − α)·radiance, strength σt × value: σa·Le per unit length.
+        # Colour (1 − α)·Le, strength σt: σa·Le per unit length.
         one_minus = nodes.new("ShaderNodeVectorMath")
         one_minus.operation = "SUBTRACT"
         one_minus.inputs[0].default_value = (1.0, 1.0, 1.0)
@@ -106,11 +155,18 @@ def node_material(bpy, medium, emission):
         colour = nodes.new("ShaderNodeVectorMath")
         colour.operation = "MULTIPLY"
         links.new(one_minus.outputs[0], colour.inputs[0])
-        colour.inputs[1].default_value = spectrum(emission["radiance"])
+        value = attribute(emission["grid"]).outputs["Fac"]
+        if "radiance" in emission:
+            le = nodes.new("ShaderNodeVectorMath")
+            le.operation = "SCALE"
+            le.inputs[0].default_value = spectrum(emission["radiance"])
+            links.new(value, le.inputs["Scale"])
+            links.new(le.outputs[0], colour.inputs[1])
+        else:
+            links.new(blackbody_radiance(nodes, links, math_node, value, emission, kelvin), colour.inputs[1])
         glow = nodes.new("ShaderNodeEmission")
         links.new(colour.outputs[0], glow.inputs["Color"])
-        value = attribute(emission["grid"]).outputs["Fac"]
-        links.new(math_node("MULTIPLY", sigma_t, value), glow.inputs["Strength"])
+        links.new(sigma_t, glow.inputs["Strength"])
         with_glow = nodes.new("ShaderNodeAddShader")
         links.new(volume, with_glow.inputs[0])
         links.new(glow.outputs[0], with_glow.inputs[1])
@@ -120,7 +176,7 @@ def node_material(bpy, medium, emission):
     return material
 
 
-def cycles_scene(bpy, scene_path, scene, max_depth, step_rate):
+def cycles_scene(bpy, scene_path, scene, max_depth, step_rate, kelvin):
     """Sets up Blender's scene for `scene` (parsed TOML of the file at `scene_path`)."""
     import mathutils
 
@@ -128,8 +184,8 @@ def cycles_scene(bpy, scene_path, scene, max_depth, step_rate):
     blender = bpy.context.scene
     camera, medium = scene["camera"], scene["medium"]
     emission = medium.get("emission")
-    if emission is not None and "radiance" not in emission:
-        sys.exit("error: only `radiance × value` emission is mapped (a Cycles blackbody has its own normalisation)")
+    if emission is not None and "blackbody" in emission and kelvin is None:
+        sys.exit("error: a blackbody needs --kelvin LO HI, the temperatures its grid holds (the colour table spans them)")
     albedo = medium.get("albedo")
     if "vdb" in (emission or {}) or (isinstance(albedo, dict) and "vdb" in albedo):
         sys.exit("error: grids from other files are not mapped; keep them in medium.vdb")
@@ -142,7 +198,7 @@ def cycles_scene(bpy, scene_path, scene, max_depth, step_rate):
     volume.filepath = str((scene_path.parent / medium["vdb"]).resolve())
     volume.render.precision = "FULL"
     volume.render.clipping = 0.0
-    volume.materials.append(node_material(bpy, medium, emission))
+    volume.materials.append(node_material(bpy, medium, emission, kelvin))
     medium_object = bpy.data.objects.new("medium", volume)
     volume.grids.load()
     names = [grid.name for grid in volume.grids]
@@ -235,13 +291,21 @@ def read_exr(bpy, path):
 def main():
     parser = arguments(__doc__.split("\n\n")[0])
     parser.add_argument("--step-rate", type=float, default=0.05, help="Cycles' step, in voxels")
+    parser.add_argument("--kelvin", type=float, nargs=2, metavar=("LO", "HI"), help="a blackbody's range")
     args, scene, out, max_depth = resolved(parser, "cycles")
+    if args.kelvin is not None:
+        from blackbody_ramp import ramp_error
+
+        lo, hi = args.kelvin
+        if not 0 < lo < hi:
+            sys.exit("error: --kelvin needs 0 < LO < HI")
+        print(f"blackbody table over {lo:g}–{hi:g} K: at most {100 * ramp_error(lo, hi):.3f} % from the formula")
     if max_depth < 1:
         sys.exit("error: --max-depth must be at least 1 (Cycles lights the first scattering at bounce 0)")
 
     import bpy
 
-    blender = cycles_scene(bpy, args.scene, scene, max_depth, args.step_rate)
+    blender = cycles_scene(bpy, args.scene, scene, max_depth, args.step_rate, args.kelvin)
     blender.cycles.samples = args.spp
 
     def render(seed, exr):
