@@ -401,4 +401,19 @@ fn a_target_cache_renders_each_target_once_and_changes_nothing() {
     .unwrap();
     run("light", true, &[]);
     assert_eq!(entries(), 21, "another light: new targets");
+    // A cache that cannot be written (a file where its folder should be) ends the run cleanly.
+    assert_clean_error(
+        &volgrad_in(
+            d,
+            &[
+                "optimize",
+                "run.toml",
+                "--out",
+                "bad",
+                "--target-cache",
+                "run.toml",
+            ],
+        ),
+        &["target cache", "run.toml"],
+    );
 }
