@@ -86,14 +86,12 @@ pub struct Problem {
 }
 
 impl Problem {
-    /// Reads the run file and everything it names, resolves what the scene decides
-    /// (`scene_units`: the levels, the learning rate, the start, the priors' weights) and renders
-    /// the targets a truth gives. `seed` overrides the run file's for the optimisation only: the
-    /// targets are the run file's data, rendered from its own seed, so that runs of several seeds
-    /// fit the same images.
-    /// Reads the run file and what it names (every rank reads for itself, then the ranks agree),
-    /// renders the targets no image gives (all ranks together), and resolves the settings.
-    /// Targets are read from and written to `target_cache` where given.
+    /// Reads the run file and everything it names (every rank reads for itself, then the ranks
+    /// agree), renders the targets no image gives (all ranks together; read from and written to
+    /// `target_cache` where given), and resolves what the scene decides (`scene_units`: the
+    /// levels, the learning rate, the start, the priors' weights). `seed` overrides the run
+    /// file's for the optimisation only: the targets are the run file's data, rendered from its
+    /// own seed, so that runs of several seeds fit the same images.
     pub fn load(
         run_path: &Path,
         seed: Option<u64>,
