@@ -385,20 +385,15 @@ fn a_target_cache_renders_each_target_once_and_changes_nothing() {
     assert!(stderr(&again).contains("unusable"), "{}", stderr(&again));
     assert_eq!(entries(), 7);
 
-    let text = std::fs::read_to_string(d.join("run.toml")).unwrap();
-    std::fs::write(
-        d.join("run.toml"),
-        text.replace("target_spp = 256", "target_spp = 128"),
-    )
-    .unwrap();
+    let edit = |file: &str, from: &str, to: &str| {
+        let text = std::fs::read_to_string(d.join(file)).unwrap();
+        assert!(text.contains(from), "{file} has no {from:?}");
+        std::fs::write(d.join(file), text.replace(from, to)).unwrap();
+    };
+    edit("run.toml", "target_spp = 256", "target_spp = 128");
     run("spp", true, &[]);
     assert_eq!(entries(), 14, "another target_spp: new targets");
-    let scene = std::fs::read_to_string(d.join("scene.toml")).unwrap();
-    std::fs::write(
-        d.join("scene.toml"),
-        scene.replace("irradiance = 4.0", "irradiance = 3.0"),
-    )
-    .unwrap();
+    edit("scene.toml", "irradiance = 4.0", "irradiance = 3.0");
     run("light", true, &[]);
     assert_eq!(entries(), 21, "another light: new targets");
     // A cache that cannot be written (a file where its folder should be) ends the run cleanly.

@@ -128,19 +128,23 @@ impl Problem {
             .map(|t| in_final_index_space(t, &domain))
             .transpose()?;
         let unknown = file.unknown.grid;
+        let truth_scene = truth.as_ref().map(|grid| {
+            let bounds = domain.bounds(domain.levels);
+            scene_with(&scene, unknown, grid.clone(), domain.transform, bounds)
+        });
+        // Only targets rendered from a truth are cached.
+        let cache = match (target_cache, &truth_scene) {
+            (Some(dir), Some(truth)) => Some(cluster.agree(TargetCache::open(dir, truth))?),
+            _ => None,
+        };
         let mut targets = TargetRenderer {
-            truth: truth.as_ref().map(|grid| {
-                let bounds = domain.bounds(domain.levels);
-                scene_with(&scene, unknown, grid.clone(), domain.transform, bounds)
-            }),
+            truth: truth_scene,
             spp: file.target_spp,
             seed: file.target_seed.unwrap_or(file.seed),
             progress,
             rendered: 0,
             cached: 0,
-            cache: target_cache
-                .map(|dir| cluster.agree(TargetCache::open(dir)))
-                .transpose()?,
+            cache,
             cluster,
         };
         let views = targets.complete(training, &light_sets)?;

@@ -6,7 +6,6 @@
 //! samples. An entry is therefore read back only by a render that would have made the same bits,
 //! and a run gives the same result with the cache as without it.
 
-use std::cell::OnceCell;
 use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context, Result};
@@ -28,21 +27,22 @@ pub struct TargetCache {
     dir: PathBuf,
     /// The fingerprint of the running executable's bytes.
     renderer: String,
-    /// The truth's medium's fingerprint, computed once: all views share it, and it reads every
-    /// voxel.
-    medium: OnceCell<String>,
+    /// The fingerprint of the truth's medium (every view shares it; it reads every voxel).
+    medium: String,
 }
 
 impl TargetCache {
-    /// The cache in `dir` (created by the first write).
-    pub fn open(dir: &Path) -> Result<TargetCache> {
+    /// The cache in `dir` (created by the first write) for the targets of `truth`.
+    pub fn open(dir: &Path, truth: &Scene) -> Result<TargetCache> {
         let exe = std::env::current_exe().context("cannot locate the volgrad executable")?;
         let bytes = std::fs::read(&exe)
             .with_context(|| format!("cannot read '{}' to fingerprint it", exe.display()))?;
+        let mut medium = Fingerprint::default();
+        fingerprint::medium(&mut medium, &truth.medium);
         Ok(TargetCache {
             dir: dir.to_path_buf(),
             renderer: Fingerprint::default().bytes(&bytes).hex(),
-            medium: OnceCell::new(),
+            medium: medium.hex(),
         })
     }
 
@@ -50,16 +50,11 @@ impl TargetCache {
         &self.dir
     }
 
-    /// The entry's name for `scene` (its camera and lights set) rendered with `options`; every
-    /// scene given to one cache has the same medium.
+    /// The entry's name for the truth given to `open` seen through `scene`'s camera and lights,
+    /// rendered with `options`.
     pub fn key(&self, scene: &Scene, options: &RenderOptions) -> String {
-        let medium = self.medium.get_or_init(|| {
-            let mut f = Fingerprint::default();
-            fingerprint::medium(&mut f, &scene.medium);
-            f.hex()
-        });
         let mut f = Fingerprint::default();
-        f.text(&self.renderer).text(medium).text(&format!(
+        f.text(&self.renderer).text(&self.medium).text(&format!(
             "{:?} spp {} seed {} max_depth {}",
             scene.camera, options.spp, options.seed, options.max_depth
         ));
