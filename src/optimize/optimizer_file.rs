@@ -80,7 +80,7 @@ impl Default for OptimizerFile {
             beta1: 0.9,
             beta2: 0.999,
             epsilon: 1e-8,
-            lr_decay: 0.1,
+            lr_decay: scene_units::LR_DECAY,
             level_lr: 0.5,
             loss: Loss::L2,
             batch: None,
