@@ -27,7 +27,7 @@ use crate::volume::emission::EmissionKind;
 
 /// Optical depth along the box's longest edge that one Adam step may change (the learning rate).
 /// 0.75 rather than the cloud's hand-tuned 0.5: with `LR_DECAY` 0.3, over three seeds of 10
-/// minutes, the smoke plume gained +0.8–1.1 dB held-out and the cloud +0.5–1.0 dB, with 0.74–0.84×
+/// minutes, the smoke plume gained +0.7–1.2 dB held-out and the cloud +0.5–1.0 dB, with 0.70–0.87×
 /// the haze on both (README, "The defaults now, three seeds").
 pub const STEP_OPTICAL_DEPTH: f32 = 0.75;
 /// The learning rate at the end of a run, as a fraction of the first (exponential decay in
