@@ -27,10 +27,13 @@ fn evaluations(log: &Path) -> Vec<(f64, Option<f64>)> {
 }
 
 /// The example reconstructs the fireball's emission from 8 views of 32²: the held-out views go
-/// from a black start's 10.7 dB to above 30 (35.6 measured), and the volume error at the final
-/// level falls to below 0.7 of the truth's magnitude (0.52 measured; 1.02 at the start). The
-/// written grid is the emission's ("temperature"), in the truth's transform. Were the unknown
-/// put in the density (or the gradient taken with respect to it), nothing would fit.
+/// from a black start's 13.1 dB to above 30 (37.3 measured), and the volume error falls below 0.4
+/// grid units and below half the start's (0.23 measured, from 0.82; the truth's values are 1 to
+/// 3). That error is the written emission grid's against the truth, voxel by voxel over the
+/// truth's box, as the test recomputes it from `final.vdb` (it once compared the known density
+/// instead, and stayed the same within a level: seen). The written grid is the emission's
+/// ("temperature"), in the truth's transform. Were the unknown put in the density (or the
+/// gradient taken with respect to it), nothing would fit.
 #[test]
 fn flame_tomography_recovers_the_emission() {
     let dir = tempfile::tempdir().unwrap();
@@ -48,12 +51,67 @@ fn flame_tomography_recovers_the_emission() {
     let (first, last) = (rows[0], rows[rows.len() - 1]);
     assert!(first.0 < 15.0, "the start is black: {first:?}");
     assert!(last.0 > 30.0, "held-out PSNR {:?} → {:?}", first.0, last.0);
-    let rmse = last.1.expect("the final level's volume error");
-    assert!(rmse < 0.7, "volume RMSE {rmse}");
+    let (start, rmse) = (first.1.unwrap(), last.1.unwrap());
+    assert!(
+        rmse < 0.4 && rmse < 0.5 * start,
+        "volume RMSE {start} → {rmse}"
+    );
     let written = vdb::list_grids(&out.join("final.vdb")).unwrap();
     assert_eq!(written[0].name, "temperature");
     let truth = vdb::list_grids(&repo("scenes/analytic/fireball.vdb")).unwrap();
     assert_eq!(written[0].index_to_world, truth[0].index_to_world);
+
+    let read = |path: &Path| {
+        let selector = vdb::GridSelector::Name("temperature".into());
+        vdb::read_grid(path, &selector).unwrap().bricks
+    };
+    let (found, truth) = (
+        read(&out.join("final.vdb")),
+        read(&repo("scenes/analytic/fireball.vdb")),
+    );
+    let (lo, hi) = truth.active_bounds().unwrap();
+    let (mut squares, mut count) = (0.0f64, 0.0f64);
+    for x in lo.x..=hi.x {
+        for y in lo.y..=hi.y {
+            for z in lo.z..=hi.z {
+                let v = glam::IVec3::new(x, y, z);
+                squares += (found.voxel(v) as f64 - truth.voxel(v) as f64).powi(2);
+                count += 1.0;
+            }
+        }
+    }
+    let recomputed = (squares / count).sqrt();
+    assert!(
+        (recomputed - rmse).abs() < 1e-4 * rmse,
+        "the log's volume RMSE {rmse} is not final.vdb's against the truth ({recomputed})"
+    );
+}
+
+/// The same on a real simulation (`scenes/inverse/pyro-flame.toml`: the Mantaflow bake's `flame`
+/// grid, its smoke known, an orbit about +z), cut to 60 iterations: the held-out views go from
+/// 22.5 dB to above 35 (38.2 measured), and the written grid is the bake's `flame`, in its
+/// transform.
+#[test]
+fn the_pyro_example_fits_its_views() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("pyro");
+    let run = repo("scenes/inverse/pyro-flame.toml");
+    ok(volgrad(&[
+        "optimize",
+        run.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+        "--iterations",
+        "60",
+    ]));
+    let rows = evaluations(&out.join("log.csv"));
+    let (first, last) = (rows[0], rows[rows.len() - 1]);
+    assert!(first.0 < 25.0 && last.0 > 35.0, "{first:?} → {last:?}");
+    let written = vdb::list_grids(&out.join("final.vdb")).unwrap();
+    assert_eq!(written[0].name, "flame");
+    let truth = vdb::list_grids(&repo("scenes/assets/mantaflow_fire.vdb")).unwrap();
+    let flame = truth.iter().find(|g| g.name == "flame").unwrap();
+    assert_eq!(written[0].index_to_world, flame.index_to_world);
 }
 
 /// An emission unknown needs the scene to say what its values mean, linearly: a scene without

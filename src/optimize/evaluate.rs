@@ -57,7 +57,7 @@ pub struct Evaluation {
     pub relative_rmse: f64,
     /// RMS difference to the truth over the final level's voxels (grid-value units).
     pub volume_rmse: Option<f64>,
-    /// Mean density where the truth is 0 over the mean where it is not.
+    /// The unknown's mean where the truth is 0 over its mean where it is not.
     pub haze: Option<f64>,
     pub renders: Vec<RgbImage>,
 }
@@ -105,7 +105,7 @@ fn volume_error(
     level: usize,
 ) -> (f64, f64) {
     let d = &problem.domain;
-    let grid = &scene.medium.grid;
+    let grid = problem.unknown.grid_in(scene);
     // (squared error, empty voxels, density in them, occupied voxels, density in them)
     let sums = (d.lo.x..=d.hi.x)
         .into_par_iter()

@@ -126,9 +126,12 @@ pub struct OrbitFile {
     pub fov_deg: f32,
     pub width: u32,
     pub height: u32,
-    /// Turns the whole spiral about +y, e.g. to put held-out views between the training views.
+    /// Turns the whole spiral about `up`, e.g. to put held-out views between the training views.
     #[serde(default)]
     pub azimuth_offset_deg: f32,
+    /// The orbit's pole and the cameras' up (default +y; +z for a z-up asset).
+    #[serde(default = "crate::render::scene::default_up")]
+    pub up: [f32; 3],
     /// The lights of these views, as a scene file's `[[light]]`s (default: the scene's).
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub light: Vec<LightFile>,
@@ -144,6 +147,7 @@ impl OrbitFile {
             width: self.width,
             height: self.height,
             azimuth_offset_deg: self.azimuth_offset_deg,
+            up: self.up,
         }
     }
 }

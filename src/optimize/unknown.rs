@@ -117,6 +117,14 @@ impl UnknownGrid {
             UnknownGrid::Emission => Parameter::Emission,
         }
     }
+
+    /// The unknown's values in a scene `scene_with` filled: its density, or its emission grid.
+    pub fn grid_in(self, scene: &Scene) -> &BrickMap {
+        match (self, &scene.medium.emission) {
+            (UnknownGrid::Emission, Some(emission)) => &emission.grid,
+            _ => &scene.medium.grid,
+        }
+    }
 }
 
 /// Refuses a scene that cannot hold the unknown: an emission unknown needs the scene's emission to

@@ -4,7 +4,7 @@
 //! golden angle apart), so no side is seen twice as often as another.
 
 use anyhow::{bail, Result};
-use glam::Vec3;
+use glam::{Quat, Vec3};
 
 use crate::render::camera::Camera;
 
@@ -12,18 +12,20 @@ use crate::render::camera::Camera;
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Orbit {
     pub count: u32,
-    /// Lowest and highest elevation above the xz plane, in degrees (y is up).
+    /// Lowest and highest elevation above the plane normal to `up`, in degrees.
     pub elevation_deg: (f32, f32),
     /// From the centre, in world units.
     pub distance: f32,
     pub fov_deg: f32,
     pub width: u32,
     pub height: u32,
-    /// Turns the spiral about +y (e.g. held-out views between the training views).
+    /// Turns the spiral about `up` (e.g. held-out views between the training views).
     pub azimuth_offset_deg: f32,
+    /// The orbit's pole and the cameras' up: +y, or +z for a z-up asset (Blender, Mantaflow).
+    pub up: [f32; 3],
 }
 
-/// Elevations this close to the poles would make +y (the cameras' up) parallel to the view.
+/// Elevations this close to the poles would make `up` parallel to the view.
 const MAX_ELEVATION_DEG: f32 = 89.0;
 
 impl Orbit {
@@ -39,8 +41,17 @@ impl Orbit {
             );
         }
         if lo.abs().max(hi.abs()) > MAX_ELEVATION_DEG {
-            bail!("views.orbit.elevation_deg must lie within ±{MAX_ELEVATION_DEG}° (got [{lo}, {hi}]): the cameras' up is +y");
+            bail!("views.orbit.elevation_deg must lie within ±{MAX_ELEVATION_DEG}° (got [{lo}, {hi}]): the pole is the cameras' up");
         }
+        let up = Vec3::from(self.up).normalize_or_zero();
+        if up == Vec3::ZERO {
+            bail!(
+                "views.orbit.up must be a non-zero, finite vector (got {:?})",
+                self.up
+            );
+        }
+        // The spiral is laid out about +y, then turned onto `up` (exactly the identity for +y).
+        let to_up = Quat::from_rotation_arc(Vec3::Y, up);
         if !(self.distance > 0.0 && self.distance.is_finite()) {
             bail!(
                 "views.orbit.distance must be a positive number (got {})",
@@ -63,9 +74,9 @@ impl Orbit {
                     elevation.cos() * azimuth.cos(),
                 );
                 Camera::new(
-                    centre + self.distance * offset,
+                    centre + self.distance * (to_up * offset),
                     centre,
-                    Vec3::Y,
+                    up,
                     self.fov_deg,
                     self.width,
                     self.height,
@@ -89,6 +100,7 @@ mod tests {
             width: 8,
             height: 8,
             azimuth_offset_deg: 0.0,
+            up: [0.0, 1.0, 0.0],
         };
         let centre = Vec3::new(1.0, -2.0, 3.0);
         let cameras = orbit.cameras(centre).unwrap();
@@ -129,6 +141,7 @@ mod tests {
             width: 4,
             height: 4,
             azimuth_offset_deg: 10.0,
+            up: [0.0, 1.0, 0.0],
         };
         for (orbit, key) in [
             (Orbit { count: 0, ..good }, "count"),
@@ -160,9 +173,58 @@ mod tests {
                 },
                 "distance",
             ),
+            (
+                Orbit {
+                    up: [0.0, 0.0, 0.0],
+                    ..good
+                },
+                "up",
+            ),
+            (
+                Orbit {
+                    up: [f32::INFINITY, 0.0, 0.0],
+                    ..good
+                },
+                "up",
+            ),
         ] {
             let err = orbit.cameras(Vec3::ZERO).unwrap_err().to_string();
             assert!(err.contains(key), "{err}");
         }
+    }
+
+    /// An orbit about +z is the +y orbit turned onto +z: the same spiral, elevations measured
+    /// from the xy plane, every camera's up +z; about +y it is the +y spiral itself.
+    #[test]
+    fn an_orbit_about_z_is_the_y_orbit_turned_onto_z() {
+        let about = |up: [f32; 3]| Orbit {
+            count: 6,
+            elevation_deg: (-20.0, 60.0),
+            distance: 10.0,
+            fov_deg: 30.0,
+            width: 8,
+            height: 8,
+            azimuth_offset_deg: 25.0,
+            up,
+        };
+        let centre = Vec3::new(2.0, 2.0, 1.5);
+        let y = about([0.0, 1.0, 0.0]).cameras(centre).unwrap();
+        let z = about([0.0, 0.0, 3.0]).cameras(centre).unwrap();
+        let turn = Quat::from_rotation_x(std::f32::consts::FRAC_PI_2);
+        for (a, b) in y.iter().zip(&z) {
+            let expected = centre + turn * (a.position - centre);
+            assert!(
+                (b.position - expected).length() < 1e-4,
+                "{} {expected}",
+                b.position
+            );
+            let elevation = ((b.position.z - centre.z) / 10.0).asin().to_degrees();
+            assert!((-20.0..=60.0).contains(&elevation), "{elevation}");
+            // The image's up is +z: a point above the centre projects above the image centre.
+            let (_, row) = b.project(centre + Vec3::Z).unwrap();
+            assert!(row < 4.0, "{row}");
+        }
+        let plain = about([0.0, 1.0, 0.0]).cameras(centre).unwrap();
+        assert!(y.iter().zip(&plain).all(|(a, b)| a.position == b.position));
     }
 }
