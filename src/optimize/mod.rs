@@ -27,4 +27,5 @@ pub mod target_cache;
 pub mod targets;
 pub mod transforms;
 pub mod unknown;
+pub mod view_files;
 pub mod views;

@@ -1,0 +1,136 @@
+//! The views of a run file: cameras listed with their images (`[[view]]`, `[[holdout]]`), orbits
+//! whose targets are rendered from a true grid, a `transforms.json`, each optionally under lights
+//! of its own; and the checks on their number and size, made before anything is allocated.
+
+use anyhow::{bail, Context, Result};
+use serde::{Deserialize, Serialize};
+
+use crate::optimize::optimizer_file::one_or_many;
+use crate::optimize::views::Orbit;
+use crate::render::scene_check::check_lights;
+use crate::render::scene_file::LightFile;
+
+/// The most views in a set (`[[view]]`s and the orbit's, or the held-out ones).
+pub const MAX_VIEWS: u64 = 10_000;
+
+/// The most target pixels of a run, all views together (2^28: 3 GiB of RGB f32).
+pub const MAX_TARGET_PIXELS: u64 = 1 << 28;
+
+/// A camera as in a scene file, with the image it sees.
+#[derive(Debug, Clone, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct ViewFile {
+    pub position: [f32; 3],
+    pub target: [f32; 3],
+    #[serde(default = "crate::render::scene::default_up")]
+    pub up: [f32; 3],
+    pub fov_deg: f32,
+    pub width: u32,
+    pub height: u32,
+    /// The target image (linear; any format OpenImageIO reads). Without it the view's target is
+    /// rendered from `truth`.
+    pub image: Option<String>,
+    /// The lights this view was taken under, as a scene file's `[[light]]`s (default: the
+    /// scene's).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub light: Vec<LightFile>,
+}
+
+#[derive(Debug, Clone, Default, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct ViewSetFile {
+    /// One orbit (`[views.orbit]`) or several (`[[views.orbit]]`), e.g. each under its own
+    /// lights.
+    #[serde(default, deserialize_with = "one_or_many")]
+    pub orbit: Vec<OrbitFile>,
+    /// A `transforms.json` (NeRF / instant-ngp convention, `transforms`), relative to the run
+    /// file: its frames' cameras, and their images as targets.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub transforms: Option<String>,
+    /// The lights of the transforms file's views (default: the scene's).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub light: Vec<LightFile>,
+}
+
+/// Cameras on a Fibonacci spiral around the unknown's box, targets rendered from `truth`.
+#[derive(Debug, Clone, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct OrbitFile {
+    pub count: u32,
+    pub elevation_deg: [f32; 2],
+    pub distance: f32,
+    pub fov_deg: f32,
+    pub width: u32,
+    pub height: u32,
+    /// Turns the whole spiral about `up`, e.g. to put held-out views between the training views.
+    #[serde(default)]
+    pub azimuth_offset_deg: f32,
+    /// The orbit's pole and the cameras' up (default +y; +z for a z-up asset).
+    #[serde(default = "crate::render::scene::default_up")]
+    pub up: [f32; 3],
+    /// The lights of these views, as a scene file's `[[light]]`s (default: the scene's).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub light: Vec<LightFile>,
+}
+
+impl OrbitFile {
+    pub fn orbit(&self) -> Orbit {
+        Orbit {
+            count: self.count,
+            elevation_deg: (self.elevation_deg[0], self.elevation_deg[1]),
+            distance: self.distance,
+            fov_deg: self.fov_deg,
+            width: self.width,
+            height: self.height,
+            azimuth_offset_deg: self.azimuth_offset_deg,
+            up: self.up,
+        }
+    }
+}
+
+/// One set of views as a run file gives it: its key ("view" or "holdout"), the listed views and
+/// the set's table (orbits, transforms file, lights).
+pub type ViewTables<'a> = (&'a str, &'a [ViewFile], &'a ViewSetFile);
+
+/// Every view's target is an image kept in memory for the whole run, and a truth renders it
+/// before the first iteration: the counts and pixels are checked before anything is
+/// allocated or rendered.
+pub fn check_sizes(sets: &[ViewTables]) -> Result<()> {
+    let mut pixels = 0u64;
+    for &(key, listed, set) in sets {
+        let listed_pixels = listed
+            .iter()
+            .map(|v| u64::from(v.width) * u64::from(v.height));
+        pixels += listed_pixels.sum::<u64>();
+        let mut count = listed.len() as u64;
+        for o in &set.orbit {
+            count += u64::from(o.count);
+            pixels += u64::from(o.count) * u64::from(o.width) * u64::from(o.height);
+        }
+        if count > MAX_VIEWS {
+            bail!(
+                "{key}s: {count} views (listed and on orbits): at most {MAX_VIEWS} per set (each is a target image held in memory, rendered before the first iteration when it comes from a truth)"
+            );
+        }
+    }
+    if pixels > MAX_TARGET_PIXELS {
+        bail!(
+            "the views and held-out views have {pixels} pixels in all: at most 2^28 = {MAX_TARGET_PIXELS} (3 GiB of target images); use fewer or smaller views"
+        );
+    }
+    Ok(())
+}
+
+/// Every view's and orbit's own lights, as a scene file's are checked.
+pub fn check_view_lights(sets: &[ViewTables]) -> Result<()> {
+    for &(key, listed, set) in sets {
+        for (i, v) in listed.iter().enumerate() {
+            check_lights(&v.light).with_context(|| format!("{key}[{i}]"))?;
+        }
+        for (i, o) in set.orbit.iter().enumerate() {
+            check_lights(&o.light).with_context(|| format!("{key}s.orbit[{i}]"))?;
+        }
+        check_lights(&set.light).with_context(|| format!("{key}s.light"))?;
+    }
+    Ok(())
+}
