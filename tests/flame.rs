@@ -26,6 +26,21 @@ fn evaluations(log: &Path) -> Vec<(f64, Option<f64>)> {
         .collect()
 }
 
+/// Runs `optimize` on a shipped run file into `out` (with `extra` options) and returns its
+/// evaluations.
+fn optimize(run: &str, out: &Path, extra: &[&str]) -> Vec<(f64, Option<f64>)> {
+    let run = repo(run);
+    let mut args = vec![
+        "optimize",
+        run.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+    ];
+    args.extend_from_slice(extra);
+    ok(volgrad(&args));
+    evaluations(&out.join("log.csv"))
+}
+
 /// The example reconstructs the fireball's emission from 8 views of 32²: the held-out views go
 /// from a black start's 13.1 dB to above 30 (37.3 measured), and the volume error falls below 0.4
 /// grid units and below half the start's (0.23 measured, from 0.82; the truth's values are 1 to
@@ -38,16 +53,7 @@ fn evaluations(log: &Path) -> Vec<(f64, Option<f64>)> {
 fn flame_tomography_recovers_the_emission() {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("flame");
-    let run = repo("scenes/inverse/flame.toml");
-    ok(volgrad(&[
-        "optimize",
-        run.to_str().unwrap(),
-        "--out",
-        out.to_str().unwrap(),
-        "--threads",
-        "2",
-    ]));
-    let rows = evaluations(&out.join("log.csv"));
+    let rows = optimize("scenes/inverse/flame.toml", &out, &["--threads", "2"]);
     let (first, last) = (rows[0], rows[rows.len() - 1]);
     assert!(first.0 < 15.0, "the start is black: {first:?}");
     assert!(last.0 > 30.0, "held-out PSNR {:?} → {:?}", first.0, last.0);
@@ -95,16 +101,11 @@ fn flame_tomography_recovers_the_emission() {
 fn the_pyro_example_fits_its_views() {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("pyro");
-    let run = repo("scenes/inverse/pyro-flame.toml");
-    ok(volgrad(&[
-        "optimize",
-        run.to_str().unwrap(),
-        "--out",
-        out.to_str().unwrap(),
-        "--iterations",
-        "60",
-    ]));
-    let rows = evaluations(&out.join("log.csv"));
+    let rows = optimize(
+        "scenes/inverse/pyro-flame.toml",
+        &out,
+        &["--iterations", "60"],
+    );
     let (first, last) = (rows[0], rows[rows.len() - 1]);
     assert!(first.0 < 25.0 && last.0 > 35.0, "{first:?} → {last:?}");
     let written = vdb::list_grids(&out.join("final.vdb")).unwrap();
