@@ -7,6 +7,7 @@ use anyhow::{bail, Result};
 use glam::{Quat, Vec3};
 
 use crate::render::camera::Camera;
+use crate::render::scene_check::unit;
 
 /// `[views.orbit]` of a run file.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -43,13 +44,7 @@ impl Orbit {
         if lo.abs().max(hi.abs()) > MAX_ELEVATION_DEG {
             bail!("views.orbit.elevation_deg must lie within ±{MAX_ELEVATION_DEG}° (got [{lo}, {hi}]): the pole is the cameras' up");
         }
-        let up = Vec3::from(self.up).normalize_or_zero();
-        if up == Vec3::ZERO {
-            bail!(
-                "views.orbit.up must be a non-zero, finite vector (got {:?})",
-                self.up
-            );
-        }
+        let up = unit("views.orbit.up", self.up)?;
         // The spiral is laid out about +y, then turned onto `up` (exactly the identity for +y).
         let to_up = Quat::from_rotation_arc(Vec3::Y, up);
         if !(self.distance > 0.0 && self.distance.is_finite()) {
@@ -223,6 +218,11 @@ mod tests {
             // The image's up is +z: a point above the centre projects above the image centre.
             let (_, row) = b.project(centre + Vec3::Z).unwrap();
             assert!(row < 4.0, "{row}");
+        }
+        // Lengths f32 cannot square (1e30, 1e-30) are poles all the same.
+        for pole in [[0.0, 0.0, 1e30], [0.0, 0.0, 1e-30]] {
+            let far = about(pole).cameras(centre).unwrap();
+            assert!(z.iter().zip(&far).all(|(a, b)| a.position == b.position));
         }
         let plain = about([0.0, 1.0, 0.0]).cameras(centre).unwrap();
         assert!(y.iter().zip(&plain).all(|(a, b)| a.position == b.position));
