@@ -56,6 +56,10 @@ ImageData read_image(rust::Str path_str) {
     img.width = uint32_t(spec.width);
     img.height = uint32_t(spec.height);
     img.channels = uint32_t(spec.nchannels);
+    img.color_space = std::string(spec.get_string_attribute("oiio:ColorSpace"));
+    img.stored_type = std::string(spec.format.c_str());
+    img.alpha_channel = spec.alpha_channel;
+    img.alpha_unassociated = spec.get_int_attribute("oiio:UnassociatedAlpha") != 0;
     std::vector<float> data(size_t(spec.width) * size_t(spec.height) * size_t(spec.nchannels));
     if (!in->read_image(0, 0, 0, spec.nchannels, OIIO::TypeDesc::FLOAT, data.data())) {
         fail("cannot read image " + quoted(path) + ": " + oiio_error(in->geterror()));

@@ -1,14 +1,15 @@
 //! volgrad: a differentiable volumetric path tracer for OpenVDB density grids.
 //!
 //! Layers, each using only those before it: `volume` (bricks, majorants, tracking) < `io` (files
-//! and the terminal) < `render` (scenes and the path tracer) < `gradient` (path replay, passes,
-//! finite differences) < `compare` (equal-time studies) < `optimize` (inverse rendering). The
-//! binary's `cli` sits on top.
+//! and the terminal) < `render` (scenes and the path tracer) < `capture` (pictures and cameras
+//! from elsewhere) < `gradient` (path replay, passes, finite differences) < `compare` (equal-time
+//! studies) < `optimize` (inverse rendering). The binary's `cli` sits on top.
 
 // Bad input gets an error, never a panic: outside tests an unwrap must say why it cannot fail
 // (`expect`). Tests (here and in tests/) may unwrap.
 #![cfg_attr(not(test), deny(clippy::unwrap_used))]
 
+pub mod capture;
 pub mod cluster;
 pub mod compare;
 pub mod gradient;

@@ -6,6 +6,7 @@ mod bridge_common;
 use std::path::Path;
 
 use bridge_common::*;
+use glam::Vec3;
 use volgrad::io::bridge::ffi::{self, ImageData};
 
 // ------------------------------------------------------------------------------------------------
@@ -27,6 +28,10 @@ fn test_image(width: u32, height: u32, channels: u32, unit: bool) -> ImageData {
         height,
         channels,
         pixels,
+        color_space: String::new(),
+        stored_type: String::new(),
+        alpha_channel: -1,
+        alpha_unassociated: false,
     }
 }
 
@@ -185,4 +190,46 @@ fn image_errors_name_the_file() {
 
     let e = err_text(ffi::write_image("/nonexistent-dir/a.exr", &img, "half"));
     assert!(e.contains("does not exist"), "{e}");
+}
+
+/// PNGs as other programs write them (the `image` crate here): 8- and 16-bit values are decoded
+/// from sRGB, straight alpha is read and the colour premultiplied by it; `color_space = linear`
+/// takes the stored values as they are.
+#[test]
+fn pngs_are_decoded_from_srgb_with_their_alpha() {
+    use volgrad::io::images::{read_picture, read_rgb, srgb_decode, ColorSpace, Decoding};
+    let dir = tempfile::tempdir().unwrap();
+    let rgba8 = dir.path().join("rgba8.png");
+    image::RgbaImage::from_raw(2, 1, vec![128, 64, 255, 255, 200, 100, 0, 64])
+        .unwrap()
+        .save(&rgba8)
+        .unwrap();
+    let picture = read_picture(&rgba8, None).unwrap();
+    assert_eq!(picture.decoded, Decoding::Srgb);
+    let alpha = picture.alpha.as_ref().expect("the PNG's alpha");
+    assert!((alpha[0] - 1.0).abs() < 1e-6 && (alpha[1] - 64.0 / 255.0).abs() < 1e-6);
+    let linear = |b: u8| srgb_decode(b as f32 / 255.0);
+    let first = picture.color.pixels[0];
+    assert!((first - Vec3::new(linear(128), linear(64), 1.0)).length() < 1e-5);
+    assert!(
+        (first.x - 0.2158).abs() < 1e-3,
+        "mid-grey is 0.22 in radiance, not 0.5"
+    );
+    let second = picture.color.pixels[1];
+    let a = 64.0 / 255.0;
+    assert!((second - Vec3::new(linear(200) * a, linear(100) * a, 0.0)).length() < 1e-5);
+    let raw = read_picture(&rgba8, Some(ColorSpace::Linear)).unwrap();
+    assert!((raw.color.pixels[0].x - 128.0 / 255.0).abs() < 1e-6);
+    assert_eq!(raw.decoded, Decoding::Linear);
+
+    let rgb16 = dir.path().join("rgb16.png");
+    image::ImageBuffer::<image::Rgb<u16>, _>::from_raw(1, 1, vec![32768u16, 0, 65535])
+        .unwrap()
+        .save(&rgb16)
+        .unwrap();
+    let picture = read_picture(&rgb16, None).unwrap();
+    assert!(picture.alpha.is_none());
+    let c = picture.color.pixels[0];
+    assert!((c - Vec3::new(srgb_decode(32768.0 / 65535.0), 0.0, 1.0)).length() < 1e-5);
+    assert_eq!(read_rgb(&rgb16).unwrap().pixels[0], c);
 }

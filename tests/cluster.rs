@@ -473,3 +473,31 @@ fn a_write_rank_0_cannot_make_ends_every_rank_with_one_error() {
     assert!(err.contains("output directory"), "{err}");
     assert!(!err.contains("error (rank"), "{err}");
 }
+
+/// Several processes that a launcher started but that cannot talk to each other (`srun
+/// --mpi=none`, or PMI's variables left in the environment without a launcher) would each run
+/// the whole job on the same outputs: each refuses with one error, before touching anything.
+#[test]
+fn processes_that_cannot_reach_each_other_refuse_to_run_as_copies() {
+    let dir = tempfile::tempdir().unwrap();
+    for env in [
+        &[("SLURM_STEP_NUM_TASKS", "3"), ("SLURM_PROCID", "1")][..],
+        &[("PMI_SIZE", "2"), ("PMI_RANK", "0")][..],
+    ] {
+        let mut command = Command::new(env!("CARGO_BIN_EXE_volgrad"));
+        command
+            .current_dir(dir.path())
+            .args(["make-grid", "box", "-o", "box.vdb"])
+            .envs(env.iter().copied());
+        let out = wait(command, LIMIT);
+        common::assert_clean_error(&out, &["the launcher started", "MPI sees only this one"]);
+        assert!(!dir.path().join("box.vdb").exists(), "{env:?}");
+    }
+    // One task of one is a plain run.
+    let mut command = Command::new(env!("CARGO_BIN_EXE_volgrad"));
+    command
+        .current_dir(dir.path())
+        .args(["make-grid", "box", "-o", "box.vdb"])
+        .env("SLURM_STEP_NUM_TASKS", "1");
+    ok(wait(command, LIMIT));
+}

@@ -197,3 +197,53 @@ fn a_closed_pipe_ends_the_process_quietly() {
     const SIGPIPE: i32 = 13; // on Linux
     assert_eq!(output.status.signal(), Some(SIGPIPE), "{err}");
 }
+
+/// A ray that is nowhere (NaN or infinite origin, direction or bounds) ends every tracker at
+/// once: no collision, transmittance 1 or a finite estimate, never a walk that steps from NaN to
+/// NaN forever. (A camera far from the origin used to give such rays.)
+#[test]
+fn trackers_end_on_rays_that_are_not_finite() {
+    use volgrad::volume::ray::IndexRay;
+    use volgrad::volume::tracking::{
+        sample_collision, sample_transmittance_distance, transmittance, TrackingStats,
+    };
+    let scene = lumpy_block_scene(Filter::Trilinear, false, 0.5);
+    let medium = &scene.medium;
+    let good = medium.to_index_ray(Vec3::new(0.0, 0.0, 20.0), Vec3::NEG_Z);
+    let nan = Vec3::splat(f32::NAN);
+    let cases = [
+        (good, f32::NAN, 40.0),
+        (good, 0.0, f32::NAN),
+        (good, f32::NEG_INFINITY, 40.0),
+        (IndexRay { o: nan, d: good.d }, 0.0, 40.0),
+        (IndexRay { o: good.o, d: nan }, 0.0, 40.0),
+        (
+            IndexRay {
+                o: Vec3::splat(f32::INFINITY),
+                d: good.d,
+            },
+            0.0,
+            40.0,
+        ),
+    ];
+    let mut rng = volgrad::render::sampling::pixel_rng(1, 0, 0);
+    let mut stats = TrackingStats::default();
+    let started = std::time::Instant::now();
+    for (ray, t0, t1) in cases {
+        for _ in 0..100 {
+            assert_eq!(
+                sample_collision(medium, &ray, t0, t1, &mut rng, &mut stats),
+                None
+            );
+            let tr = transmittance(medium, &ray, t0, t1, &mut rng, &mut stats);
+            assert!(tr.is_finite(), "{ray:?} {t0} {t1}: {tr}");
+            let _ = sample_transmittance_distance(medium, &ray, t0, t1, &mut rng, &mut stats);
+        }
+    }
+    assert!(started.elapsed().as_secs() < 10);
+    // The good ray through the block does collide: the guard is not a blanket refusal.
+    let hits = (0..100)
+        .filter(|_| sample_collision(medium, &good, 0.0, 40.0, &mut rng, &mut stats).is_some())
+        .count();
+    assert!(hits > 50, "{hits}");
+}

@@ -8,7 +8,7 @@ mod optimize_common;
 
 use std::path::{Path, PathBuf};
 
-use common::{assert_clean_error, ok, stderr, volgrad_in};
+use common::{assert_clean_error, ok, stderr, stdout, volgrad_in};
 use optimize_common::*;
 use volgrad::cluster::Cluster;
 use volgrad::io::vdb::{read_grid, GridSelector};
@@ -273,6 +273,23 @@ fn a_resumed_run_equals_the_uninterrupted_one_bit_for_bit() {
     assert_eq!(meta("volgrad_estimator"), "joint");
     assert_eq!(meta("volgrad_primal_spp"), "3");
     assert!(meta("volgrad_heldout_psnr").parse::<f64>().unwrap() > 10.0);
+    // A finished run resumed has nothing to do, but says its held-out PSNR (it once said
+    // 0.00 dB) and writes it with final.vdb.
+    let again = ok(volgrad_in(
+        d,
+        &[
+            "optimize", "run.toml", "--resume", "whole", "--out", "finished",
+        ],
+    ));
+    let said = format!("{}{}", stdout(&again), stderr(&again));
+    assert!(!said.contains("0.00 dB"), "{said}");
+    let finished = read(d.join("finished/final.vdb"));
+    let psnr = finished
+        .metadata
+        .iter()
+        .find(|m| m.name == "volgrad_heldout_psnr");
+    let psnr: f64 = psnr.expect("a held-out PSNR").value.parse().unwrap();
+    assert!(psnr > 10.0, "{psnr}");
 
     // The result is an ordinary grid: a scene pointing at it renders.
     std::fs::write(

@@ -88,8 +88,8 @@ fn views_under_their_own_lights_and_relit_held_out_views() {
 /// whose `file_path` has no extension finds its `.exr`, which becomes its target as written.
 #[test]
 fn a_transforms_file_gives_back_the_orbit_it_was_written_from() {
+    use volgrad::capture::transforms::camera_to_world;
     use volgrad::optimize::problem::Problem;
-    use volgrad::optimize::transforms::camera_to_world;
     let dir = fixture(&run_file("0.2", ""));
     let d = dir.path();
     let orbit_problem =
@@ -137,6 +137,98 @@ fn a_transforms_file_gives_back_the_orbit_it_was_written_from() {
         }
     }
     assert_eq!(json_problem.views[0].target.pixels, first.pixels);
+    // A pose changed in the file, under the same name, is another run: a checkpoint of this one
+    // would not be resumed by it.
+    let json = std::fs::read_to_string(d.join("transforms.json")).unwrap();
+    let mut moved: serde_json::Value = serde_json::from_str(&json).unwrap();
+    let x = &mut moved["frames"][1]["transform_matrix"][0][3];
+    *x = serde_json::json!(x.as_f64().unwrap() + 0.5);
+    std::fs::write(d.join("transforms.json"), moved.to_string()).unwrap();
+    let moved_problem = Problem::load(&d.join("run.toml"), None, false, None, &Cluster::single());
+    let moved_problem = moved_problem.unwrap();
+    assert_ne!(moved_problem.fingerprint, json_problem.fingerprint);
+}
+
+/// The same orbit as a COLMAP text model (world-to-camera quaternions, OpenCV axes) gives the
+/// same cameras back; the first view's image, an 8-bit sRGB PNG with alpha as Blender writes
+/// one over a transparent film, becomes its target decoded to radiance and composited over the
+/// scene's sky (radiance (0.03, 0.04, 0.06)).
+#[test]
+fn a_colmap_model_with_a_png_gives_back_the_orbit_and_its_picture_over_the_sky() {
+    use glam::{DMat3, DQuat, Vec3};
+    use volgrad::optimize::problem::Problem;
+    let dir = fixture(&run_file("0.2", ""));
+    let d = dir.path();
+    let orbit_problem =
+        Problem::load(&d.join("run.toml"), None, false, None, &Cluster::single()).unwrap();
+    let mut images = String::from("# IMAGE_ID, QW, QX, QY, QZ, TX, TY, TZ, CAMERA_ID, NAME\n");
+    for (i, v) in orbit_problem.views.iter().enumerate() {
+        let c = &v.camera;
+        // The camera's axes in the world, as COLMAP's: +x right, +y down, +z forward.
+        let forward = c.direction(12.0, 12.0).as_dvec3();
+        let down = (c.direction(12.0, 13.0) - c.direction(12.0, 11.0)).as_dvec3();
+        let down = (down - forward * down.dot(forward)).normalize();
+        let right = down.cross(forward);
+        let world_to_camera = DMat3::from_cols(right, down, forward).transpose();
+        let q = DQuat::from_mat3(&world_to_camera);
+        let t = -(world_to_camera * c.position.as_dvec3());
+        let name = if i == 0 { "first.png" } else { "other.png" };
+        images += &format!(
+            "{i} {} {} {} {} {} {} {} 3 {name}\n\n",
+            q.w, q.x, q.y, q.z, t.x, t.y, t.z
+        );
+    }
+    let focal = 12.0 / 20f64.to_radians().tan();
+    std::fs::create_dir_all(d.join("project/sparse/0")).unwrap();
+    std::fs::create_dir_all(d.join("project/images")).unwrap();
+    std::fs::write(
+        d.join("project/sparse/0/cameras.txt"),
+        format!("3 PINHOLE 24 24 {focal} {focal} 12 12\n"),
+    )
+    .unwrap();
+    std::fs::write(d.join("project/sparse/0/images.txt"), images).unwrap();
+    // Opaque red-ish in the top-left pixel, half-covered grey beside it, empty elsewhere.
+    let mut rgba = vec![0u8; 24 * 24 * 4];
+    rgba[..8].copy_from_slice(&[255, 128, 0, 255, 128, 128, 128, 128]);
+    image::RgbaImage::from_raw(24, 24, rgba.clone())
+        .unwrap()
+        .save(d.join("project/images/first.png"))
+        .unwrap();
+    image::RgbaImage::from_raw(24, 24, rgba)
+        .unwrap()
+        .save(d.join("project/images/other.png"))
+        .unwrap();
+    let run = run_file("0.2", "").replace(
+        "[views.orbit]\ncount = 6\nelevation_deg = [-30, 70]\ndistance = 12\nfov_deg = 40\nwidth = 24\nheight = 24\n",
+        "[views.colmap]\nmodel = \"project/sparse/0\"\n",
+    );
+    std::fs::write(d.join("run.toml"), run).unwrap();
+    let colmap_problem =
+        Problem::load(&d.join("run.toml"), None, false, None, &Cluster::single()).unwrap();
+    assert_eq!(colmap_problem.views.len(), orbit_problem.views.len());
+    for (a, b) in orbit_problem.views.iter().zip(&colmap_problem.views) {
+        assert!((a.camera.position - b.camera.position).length() < 1e-4);
+        for (x, y) in [(0.5, 0.5), (23.5, 0.5), (12.0, 12.0), (3.5, 20.5)] {
+            let (da, db) = (a.camera.direction(x, y), b.camera.direction(x, y));
+            assert!((da - db).length() < 1e-5, "pixel ({x}, {y}): {da} vs {db}");
+        }
+    }
+    // sRGB 128/255 is radiance 0.2158; alpha 128/255 lets 0.498 of the sky through.
+    let sky = Vec3::new(0.03, 0.04, 0.06);
+    let target = &colmap_problem.views[0].target.pixels;
+    assert!(
+        (target[0] - Vec3::new(1.0, 0.2158, 0.0)).length() < 1e-3,
+        "{}",
+        target[0]
+    );
+    let a = 128.0 / 255.0;
+    let grey = Vec3::splat(0.2158 * a) + (1.0 - a) * sky;
+    assert!(
+        (target[1] - grey).length() < 1e-3,
+        "{} vs {grey}",
+        target[1]
+    );
+    assert!((target[2] - sky).length() < 1e-6, "{}", target[2]);
 }
 
 /// `--estimators` runs each estimator into its folder and writes the study's files.

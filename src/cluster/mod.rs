@@ -37,6 +37,29 @@ fn launched_as_rank() -> bool {
         .any(|name| std::env::var_os(name).is_some())
 }
 
+/// How many processes the launcher says it started, by the variables it sets for each: MPI's
+/// (OpenMPI, PMI) and Slurm's for a job step (`srun`, with or without MPI).
+fn declared_size() -> Option<(String, usize)> {
+    ["OMPI_COMM_WORLD_SIZE", "PMI_SIZE", "SLURM_STEP_NUM_TASKS"]
+        .iter()
+        .find_map(|name| {
+            let value = std::env::var(name).ok()?;
+            Some((format!("{name}={value}"), value.trim().parse().ok()?))
+        })
+}
+
+/// A launcher that started several processes which cannot talk to each other (`srun
+/// --mpi=none`, PMI variables left in the environment without a launcher) would run that many
+/// copies of the same job on the same outputs: refuse it in every one.
+fn check_size(mpi_size: usize) -> Result<()> {
+    match declared_size() {
+        Some((variable, declared)) if declared > 1 && mpi_size == 1 => Err(anyhow!(
+            "the launcher started {declared} processes ({variable}) but MPI sees only this one: they would each run the whole job on the same outputs. Launch with `mpirun`, or `srun --mpi=pmix` (or your site's MPI plugin), or unset the launcher's variables to run one process"
+        )),
+        _ => Ok(()),
+    }
+}
+
 impl Cluster {
     /// One process, no MPI.
     pub fn single() -> Cluster {
@@ -51,6 +74,7 @@ impl Cluster {
     /// The job this process was launched in: MPI ranks under mpirun or srun, else one process.
     pub fn from_launcher() -> Result<(Cluster, Session)> {
         if !launched_as_rank() {
+            check_size(1)?;
             return Ok((
                 Cluster::single(),
                 Session {
@@ -78,6 +102,7 @@ impl Cluster {
                 size: world.size() as usize,
                 world: Some(world),
             };
+            check_size(cluster.size)?;
             Ok((
                 cluster,
                 Session {

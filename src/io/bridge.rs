@@ -85,6 +85,16 @@ pub mod ffi {
         pub height: u32,
         pub channels: u32,
         pub pixels: Vec<f32>,
+        /// Reading only (ignored on write): the colour space the file declares (OpenImageIO's
+        /// `oiio:ColorSpace`, e.g. "sRGB", "Linear", "Gamma2.2"; empty when it says none).
+        pub color_space: String,
+        /// Reading only: how the file stores its values ("uint8", "uint16", "half", "float", …).
+        pub stored_type: String,
+        /// Reading only: the alpha channel's index, or −1.
+        pub alpha_channel: i32,
+        /// Reading only: whether colour is stored unassociated with alpha ("straight", as PNG
+        /// stores it) rather than premultiplied (as EXR does).
+        pub alpha_unassociated: bool,
     }
 
     extern "Rust" {
@@ -157,7 +167,8 @@ pub mod ffi {
             save_half: bool,
         ) -> Result<()>;
 
-        /// Reads any image OpenImageIO can open, converted to f32 (no colour conversion).
+        /// Reads any image OpenImageIO can open, converted to f32 (no colour conversion; alpha
+        /// unassociated as stored), with the colour space and storage the file declares.
         fn read_image(path: &str) -> Result<ImageData>;
 
         /// Writes an image; the format follows the extension. `pixel_type` is "half", "float" or

@@ -1,9 +1,22 @@
-//! Images in and out through OpenImageIO: linear EXR (half or float) and 8-bit sRGB PNG.
+//! Images in and out through OpenImageIO: linear EXR (half or float) and 8-bit sRGB PNG out; in,
+//! any format OpenImageIO reads, decoded to linear radiance from the colour space it is encoded
+//! in, alpha kept.
+//!
+//! Which decoding applies: the caller's override (a view set's `color_space`) when given;
+//! otherwise what the file declares (OpenImageIO's `oiio:ColorSpace`: sRGB, linear, or a gamma);
+//! otherwise sRGB for integer-valued files (8 or 16 bits: what cameras, browsers and Blender's PNG
+//! output mean) and linear for float ones (EXR, HDR). An 8-bit PNG taken as linear would be fitted
+//! several times too bright: mid-grey 0.5 encodes radiance 0.21.
+//!
+//! Alpha: colour is made premultiplied (associated), as a renderer's image over a transparent
+//! background is. PNG and TIFF store colour unassociated ("straight"), so the decoded colour is
+//! multiplied by alpha; EXR stores it premultiplied already.
 
 use std::path::Path;
 
-use anyhow::{anyhow, Result};
+use anyhow::{anyhow, bail, Result};
 use glam::Vec3;
+use serde::{Deserialize, Serialize};
 
 use crate::io::bridge::ffi;
 use crate::io::bridge::ImageData;
@@ -40,6 +53,10 @@ impl RgbImage {
                 .flat_map(|c| c.to_array())
                 .map(encode)
                 .collect(),
+            color_space: String::new(),
+            stored_type: String::new(),
+            alpha_channel: -1,
+            alpha_unassociated: false,
         }
     }
 }
@@ -75,28 +92,160 @@ pub fn write_png(path: &Path, image: &RgbImage, exposure: f32) -> Result<()> {
     ffi::write_image(path_str(path)?, &data, "uint8").map_err(|e| anyhow!("{}", e.what()))
 }
 
-/// Reads any image OpenImageIO opens as RGB (grey images are spread to three channels). Values are
-/// taken as they are stored: EXR/HDR are linear; 8-bit formats are not decoded from sRGB.
+/// Reads any image OpenImageIO opens as linear RGB (grey images are spread to three channels),
+/// decoded as `read_picture` decodes it, colour premultiplied by any alpha.
 pub fn read_rgb(path: &Path) -> Result<RgbImage> {
+    Ok(read_picture(path, None)?.color)
+}
+
+/// How a picture's stored values map to linear radiance.
+#[derive(Debug, Clone, Copy, PartialEq, Deserialize, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum ColorSpace {
+    /// Stored values are radiance.
+    Linear,
+    /// The sRGB transfer curve (IEC 61966-2-1).
+    Srgb,
+}
+
+/// A decoded picture: linear colour, premultiplied by alpha where the picture has alpha.
+pub struct Picture {
+    pub color: RgbImage,
+    /// Coverage per pixel (1: opaque), rows top to bottom; `None` without an alpha channel.
+    pub alpha: Option<Vec<f32>>,
+    /// What the stored colour was decoded from.
+    pub decoded: Decoding,
+}
+
+/// The transfer curve a picture's colour was decoded with.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Decoding {
+    Linear,
+    Srgb,
+    /// value^gamma, as a file that declares "Gamma2.2" asks.
+    Gamma(f32),
+}
+
+impl Decoding {
+    fn linear(self, stored: f32) -> f32 {
+        match self {
+            Decoding::Linear => stored,
+            Decoding::Srgb => srgb_decode(stored),
+            Decoding::Gamma(g) => stored.max(0.0).powf(g),
+        }
+    }
+}
+
+/// The inverse of the sRGB transfer function (IEC 61966-2-1): the linear value of an encoded one.
+pub fn srgb_decode(encoded: f32) -> f32 {
+    let x = encoded.clamp(0.0, 1.0);
+    if x <= 0.040_45 {
+        x / 12.92
+    } else {
+        ((x + 0.055) / 1.055).powf(2.4)
+    }
+}
+
+/// The decoding `override_space` or, without one, the file's declaration and storage ask for.
+fn decoding(declared: &str, stored_type: &str, override_space: Option<ColorSpace>) -> Decoding {
+    match override_space {
+        Some(ColorSpace::Linear) => return Decoding::Linear,
+        Some(ColorSpace::Srgb) => return Decoding::Srgb,
+        None => {}
+    }
+    let declared = declared.to_ascii_lowercase();
+    if declared.contains("srgb") {
+        return Decoding::Srgb;
+    }
+    if declared.contains("linear") || declared.starts_with("lin_") || declared.contains("acescg") {
+        return Decoding::Linear;
+    }
+    if let Some(g) = declared
+        .strip_prefix("gamma")
+        .and_then(|g| g.trim().parse::<f32>().ok())
+        .filter(|g| g.is_finite() && *g > 0.0)
+    {
+        return Decoding::Gamma(g);
+    }
+    let integer = stored_type.starts_with("uint") || stored_type.starts_with("int");
+    if integer {
+        Decoding::Srgb
+    } else {
+        Decoding::Linear
+    }
+}
+
+/// Reads a picture: colour decoded to linear (see the module's documentation) and alpha.
+pub fn read_picture(path: &Path, override_space: Option<ColorSpace>) -> Result<Picture> {
     let data = ffi::read_image(path_str(path)?).map_err(|e| anyhow!("{}", e.what()))?;
     let c = data.channels as usize;
     if c == 0 {
-        anyhow::bail!("'{}' has no channels", path.display());
+        bail!("'{}' has no channels", path.display());
     }
+    let decoded = decoding(&data.color_space, &data.stored_type, override_space);
+    let alpha_at = usize::try_from(data.alpha_channel).ok().filter(|&a| a < c);
+    // The colour channels: the first three, or one grey channel (with or without alpha).
+    let grey = c < 3 || alpha_at.is_some_and(|a| a < 3);
+    let mut alpha = alpha_at.map(|_| Vec::with_capacity(data.pixels.len() / c));
     let pixels = data
         .pixels
         .chunks_exact(c)
         .map(|p| {
-            if c >= 3 {
-                Vec3::new(p[0], p[1], p[2])
-            } else {
+            let stored = if grey {
                 Vec3::splat(p[0])
+            } else {
+                Vec3::new(p[0], p[1], p[2])
+            };
+            let mut linear = Vec3::from_array(stored.to_array().map(|v| decoded.linear(v)));
+            if let (Some(a), Some(alpha)) = (alpha_at, alpha.as_mut()) {
+                let coverage = p[a].clamp(0.0, 1.0);
+                if data.alpha_unassociated {
+                    linear *= coverage;
+                }
+                alpha.push(coverage);
             }
+            linear
         })
         .collect();
-    Ok(RgbImage {
-        width: data.width,
-        height: data.height,
-        pixels,
+    Ok(Picture {
+        color: RgbImage {
+            width: data.width,
+            height: data.height,
+            pixels,
+        },
+        alpha,
+        decoded,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn srgb_decoding_inverts_the_encoding() {
+        for v in [0.0, 0.001, 0.003, 0.01, 0.2140, 0.5, 0.9, 1.0] {
+            assert!((srgb_decode(srgb_encode(v)) - v).abs() < 1e-6, "{v}");
+        }
+        // Mid-grey as stored in an 8-bit file is 0.214 in radiance, not 0.5.
+        assert!((srgb_decode(0.5) - 0.214_04).abs() < 1e-4);
+    }
+
+    #[test]
+    fn the_declared_space_then_the_storage_decide_the_decoding() {
+        let d = |declared, stored, over| decoding(declared, stored, over);
+        assert_eq!(d("", "uint8", None), Decoding::Srgb);
+        assert_eq!(d("", "uint16", None), Decoding::Srgb);
+        assert_eq!(d("", "half", None), Decoding::Linear);
+        assert_eq!(d("", "float", None), Decoding::Linear);
+        assert_eq!(d("sRGB", "float", None), Decoding::Srgb);
+        assert_eq!(d("Linear", "uint8", None), Decoding::Linear);
+        assert_eq!(d("lin_rec709", "uint16", None), Decoding::Linear);
+        assert_eq!(d("Gamma2.2", "uint8", None), Decoding::Gamma(2.2));
+        assert_eq!(
+            d("sRGB", "uint8", Some(ColorSpace::Linear)),
+            Decoding::Linear
+        );
+        assert_eq!(d("Linear", "float", Some(ColorSpace::Srgb)), Decoding::Srgb);
+    }
 }

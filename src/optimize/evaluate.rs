@@ -128,7 +128,11 @@ fn volume_error(
             }
             s
         })
-        .reduce(|| [0.0; 5], |a, b| std::array::from_fn(|i| a[i] + b[i]));
+        // Collected, then summed in x order: rayon's `reduce` would add the slices in an order
+        // that depends on how the work was split, and so on the number of threads.
+        .collect::<Vec<[f64; 5]>>()
+        .into_iter()
+        .fold([0.0; 5], |a, b| std::array::from_fn(|i| a[i] + b[i]));
     let rmse = (sums[0] / d.voxel_count().max(1) as f64).sqrt();
     let mean_empty = sums[2] / sums[1].max(1.0);
     let mean_occupied = sums[4] / sums[3].max(1.0);

@@ -25,7 +25,6 @@ pub mod smoothing;
 pub mod study;
 pub mod target_cache;
 pub mod targets;
-pub mod transforms;
 pub mod unknown;
 pub mod view_files;
 pub mod views;

@@ -23,6 +23,7 @@ use crate::optimize::target_cache::TargetCache;
 use crate::optimize::targets::{
     image_power, read_views, view_specs, LightSets, ReadView, TargetRenderer,
 };
+use crate::optimize::view_files::target_pixels;
 use crate::render::camera::Camera;
 use crate::render::lights::Lights;
 use crate::render::scene::Scene;
@@ -278,6 +279,11 @@ impl Inputs {
             &file.holdouts,
             world_box,
         )?;
+        let pixels = training.iter().chain(&held_out).map(|v| {
+            let c = &v.camera;
+            u64::from(c.width) * u64::from(c.height)
+        });
+        target_pixels(pixels.sum())?;
         let mut light_sets = LightSets::new(scene.lights.clone());
         let training = read_views(run_path, training, &mut light_sets)?;
         let held_out = read_views(run_path, held_out, &mut light_sets)?;
@@ -434,8 +440,9 @@ fn derivation_notes(
 }
 
 /// Every run-file value that changes the computation (not the evaluation or checkpoint cadence,
-/// nor the iteration count: a run may be resumed and extended), the scene's content and the
-/// target images' (an image file replaced under the same name is another run).
+/// nor the iteration count: a run may be resumed and extended), the scene's content, the views'
+/// cameras (a camera file changed under the same name is another run) and the target images'
+/// (so is an image file replaced).
 fn fingerprint<'a>(file: &RunFile, scene: &Scene, views: impl Iterator<Item = &'a View>) -> String {
     let mut optimizer = file.optimizer.clone();
     optimizer.iterations = 0;
@@ -453,7 +460,8 @@ fn fingerprint<'a>(file: &RunFile, scene: &Scene, views: impl Iterator<Item = &'
     ))
     .text(&crate::render::fingerprint::scene(scene));
     for view in views {
-        f.text(&crate::io::fingerprint::image(&view.target));
+        f.text(&format!("{:?}", view.camera))
+            .text(&crate::io::fingerprint::image(&view.target));
     }
     f.hex()
 }

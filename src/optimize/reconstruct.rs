@@ -83,8 +83,13 @@ pub fn run_fingerprint(problem: &Problem, estimator: Estimator) -> String {
 /// held-out pictures and `final.vdb` into `options.out`.
 pub fn reconstruct(problem: &Problem, options: &RunOptions) -> Result<Outcome> {
     let mut run = Run::start(problem, options)?;
+    let first = run.position.iteration;
     while run.fraction() < 1.0 {
+        let seconds = run.position.optimisation_seconds;
         run.iterate()?;
+        if run.position.iteration == first + 1 {
+            run.say_costs(run.position.optimisation_seconds - seconds);
+        }
         if run.interrupted {
             break;
         }
@@ -151,6 +156,10 @@ impl<'a> Run<'a> {
             let mut row = run.row(f64::NAN, 0.0);
             row.record(&run.evaluation);
             run.log = vec![row];
+        } else if run.fraction() >= 1.0 {
+            // A finished run resumed has nothing to iterate, but its final.vdb and summary carry
+            // an evaluation's held-out PSNR, as those of a run that ends here do.
+            run.evaluation = run.evaluate();
         }
         Ok(run)
     }
@@ -316,6 +325,31 @@ impl<'a> Run<'a> {
             m.push(meta("volgrad_heldout_psnr", "double", self.evaluation.psnr));
         }
         m
+    }
+
+    /// What one iteration (the first of this process, `seconds`) and one evaluation cost, and
+    /// what the stop rule then amounts to, on stderr: a run whose views are far larger than
+    /// the defaults assume says so in its first seconds, not after its budget.
+    fn say_costs(&self, seconds: f64) {
+        if !self.bar.is_hidden() {
+            let evaluations = self.log.iter().filter(|r| r.psnr.is_some()).count().max(1);
+            let evaluation = self.position.evaluation_seconds / evaluations as f64;
+            let total = match &self.stop {
+                Stop::Budget(budget) => format!(
+                    ": about {:.0} iterations in the budget",
+                    budget.as_secs_f64() / seconds.max(1e-9)
+                ),
+                Stop::Iterations(n) => format!(
+                    ": about {:.0} s for the {n} iterations",
+                    seconds * *n as f64
+                ),
+                Stop::Replay(_) => String::new(),
+            };
+            self.bar.println(format!(
+                "one iteration took {seconds:.2} s and one evaluation {evaluation:.2} s (every {} iterations){total}",
+                self.problem.settings.eval_every
+            ));
+        }
     }
 
     /// `final.vdb` and the progress chart, unless the run was interrupted.

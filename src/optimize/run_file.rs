@@ -149,13 +149,10 @@ impl RunFile {
 
     /// The checks that need no file: numbers in range, keys that go together.
     pub fn validate(&self) -> Result<()> {
-        if self.view.is_empty() && self.views.orbit.is_empty() && self.views.transforms.is_none() {
+        if !self.views.has_views(&self.view) {
             bail!("no views: give [[view]] entries or a [views.orbit]");
         }
-        if self.holdout.is_empty()
-            && self.holdouts.orbit.is_empty()
-            && self.holdouts.transforms.is_none()
-        {
+        if !self.holdouts.has_views(&self.holdout) {
             bail!("no held-out views: give [[holdout]] entries or a [holdouts.orbit] (quality is measured on views the gradients never see)");
         }
         for (key, spp) in [("target_spp", self.target_spp), ("eval_spp", self.eval_spp)] {

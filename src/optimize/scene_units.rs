@@ -105,12 +105,14 @@ impl SceneUnits {
     }
 
     /// A prior given with weight W (relative to P) and, for `log`, δ as an optical depth, in
-    /// grid units: w = W·P/u, δ·u, and total variation's ε·u.
+    /// grid units: w = W·P/u^k for a penalty of degree k in θ (k = 2 for `laplacian`'s squared
+    /// differences: W·P·(Δθ/u)² = (W·P/u²)·Δθ²; 1 for the others), δ·u, and total variation's ε·u.
     pub fn prior(&self, kind: PriorKind, weight: f32, scale: Option<f32>) -> Prior {
         let u = self.theta_per_optical_depth;
+        let degree = if kind == PriorKind::Laplacian { 2 } else { 1 };
         Prior {
             kind,
-            weight: (f64::from(weight) * self.image_power / u) as f32,
+            weight: (f64::from(weight) * self.image_power / u.powi(degree)) as f32,
             scale: scale.map_or(0.0, |d| self.theta(d)),
             tv_epsilon: TV_EPSILON_OPTICAL_DEPTH * u,
         }
@@ -166,6 +168,15 @@ mod tests {
         let brighter = SceneUnits::new(0.1, 500.0, 0.16);
         assert!((w(brighter).weight / w(cloud).weight - 4.0).abs() < 1e-4);
         assert!((w(cloud).scale - 0.01).abs() < 1e-7);
+        // The Laplacian squares differences of θ: its weight scales with 1/u².
+        let laplacian = |units: SceneUnits| units.prior(PriorKind::Laplacian, 1.0, None).weight;
+        assert!((laplacian(hundred) * 1e4 / laplacian(cloud) - 1.0).abs() < 1e-4);
+        assert!(
+            (laplacian(cloud) * cloud.theta(1.0).powi(2) / (w(cloud).weight * cloud.theta(1.0))
+                - 1.0)
+                .abs()
+                < 1e-4
+        );
     }
 
     #[test]

@@ -31,6 +31,10 @@ pub fn resolved(run_file: &RunFile, run_path: &Path, notes: &str) -> Result<Stri
     }
     for set in [&mut file.views, &mut file.holdouts] {
         set.transforms = set.transforms.as_ref().map(absolute);
+        if let Some(colmap) = &mut set.colmap {
+            colmap.model = absolute(&colmap.model);
+            colmap.images = colmap.images.as_ref().map(absolute);
+        }
         absolute_envmaps(&mut set.light, &absolute);
     }
     if let Some(StartFile::Vdb(name)) = &file.unknown.start {

@@ -8,16 +8,17 @@ use std::path::{Path, PathBuf};
 use anyhow::{bail, Context, Result};
 use glam::Vec3;
 
+use crate::capture::pictures;
+use crate::capture::{colmap, transforms};
 use crate::cluster::images::{render_shared, sum_image};
 use crate::cluster::Cluster;
-use crate::io::images::{self, RgbImage};
+use crate::io::images::{self, ColorSpace, RgbImage};
 use crate::optimize::run_file::RunFile;
 use crate::optimize::target_cache::TargetCache;
-use crate::optimize::transforms;
 use crate::optimize::view_files::{ViewFile, ViewSetFile, MAX_VIEWS};
 use crate::render::camera::Camera;
 use crate::render::image::RenderOptions;
-use crate::render::lights::Lights;
+use crate::render::lights::{Environment, Lights};
 use crate::render::sampling::TARGET_SEED_SALT;
 use crate::render::scene::{load_lights, CameraFile, Scene};
 use crate::render::scene_file::LightFile;
@@ -42,6 +43,8 @@ pub struct ViewSpec {
     pub light: Vec<LightFile>,
     /// The target image's file.
     pub image: Option<PathBuf>,
+    /// How its stored values decode to radiance (default: as the file says; see `io::images`).
+    pub color_space: Option<ColorSpace>,
 }
 
 /// The distinct sets of lights a run's views were taken under; set 0 is the scene's own.
@@ -100,24 +103,38 @@ pub fn view_specs(
             camera,
             light: v.light.clone(),
             image: v.image.as_ref().map(|i| RunFile::resolve(run_path, i)),
+            color_space: set.color_space,
         });
     }
+    let mut captured = Vec::new();
     if let Some(file) = &set.transforms {
         let path = RunFile::resolve(run_path, file);
         let views = transforms::read(&path).with_context(|| format!("{key}s.transforms"))?;
+        captured.push(("transforms", views));
+    }
+    if let Some(colmap) = &set.colmap {
+        let model = RunFile::resolve(run_path, &colmap.model);
+        let images = match &colmap.images {
+            Some(images) => RunFile::resolve(run_path, images),
+            None => model.join("../../images"),
+        };
+        let views = colmap::read(&model, &images).with_context(|| format!("{key}s.colmap"))?;
+        captured.push(("colmap", views));
+    }
+    for (source, views) in captured {
         if views.len() as u64 > MAX_VIEWS {
             bail!(
-                "{key}s.transforms: '{}' has {} frames; at most {MAX_VIEWS} views per set",
-                path.display(),
+                "{key}s.{source}: {} cameras; at most {MAX_VIEWS} views per set",
                 views.len()
             );
         }
         for (i, v) in views.into_iter().enumerate() {
             specs.push(ViewSpec {
-                name: format!("{key}s.transforms frame {i}"),
+                name: format!("{key}s.{source} camera {i}"),
                 camera: v.camera,
                 light: set.light.clone(),
                 image: v.image,
+                color_space: set.color_space,
             });
         }
     }
@@ -135,6 +152,7 @@ pub fn view_specs(
                 camera,
                 light: o.light.clone(),
                 image: None,
+                color_space: None,
             });
         }
     }
@@ -181,11 +199,13 @@ pub fn read_views(
         camera,
         light,
         image,
+        color_space,
     } in specs
     {
         let light_set = sets.index(&light, dir).with_context(|| name.clone())?;
+        let background = &sets.lights[light_set].environment;
         let target = image
-            .map(|file| read_target(&file, &camera, &name))
+            .map(|file| read_target(&file, color_space, background, &camera, &name))
             .transpose()?;
         views.push(ReadView {
             name,
@@ -280,9 +300,18 @@ fn cached(
     Some(image)
 }
 
-/// A target image from its file: the view's size, finite pixels.
-fn read_target(path: &Path, camera: &Camera, name: &str) -> Result<RgbImage> {
-    let image = images::read_rgb(path).with_context(|| format!("{name}.image"))?;
+/// A target image from its file, decoded to radiance and, where it has alpha, composited over the
+/// view's `background`: the view's size, finite pixels.
+fn read_target(
+    path: &Path,
+    color_space: Option<ColorSpace>,
+    background: &Environment,
+    camera: &Camera,
+    name: &str,
+) -> Result<RgbImage> {
+    let picture =
+        images::read_picture(path, color_space).with_context(|| format!("{name}.image"))?;
+    let image = pictures::over(&picture, background, camera);
     if (image.width, image.height) != (camera.width, camera.height) {
         bail!(
             "{name}.image: '{}' is {}×{} but the view is {}×{}",

@@ -5,6 +5,7 @@
 use anyhow::{bail, Context, Result};
 use serde::{Deserialize, Serialize};
 
+use crate::io::images::ColorSpace;
 use crate::optimize::optimizer_file::one_or_many;
 use crate::optimize::views::Orbit;
 use crate::render::scene_check::check_lights;
@@ -47,9 +48,38 @@ pub struct ViewSetFile {
     /// file: its frames' cameras, and their images as targets.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub transforms: Option<String>,
-    /// The lights of the transforms file's views (default: the scene's).
+    /// A COLMAP text model (`[views.colmap]`): its cameras, and their images as targets.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub colmap: Option<ColmapFile>,
+    /// The lights of the transforms file's and COLMAP model's views (default: the scene's).
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub light: Vec<LightFile>,
+    /// How the set's images (listed and the transforms file's) decode to radiance: "srgb" or
+    /// "linear" (default: as each file declares, else sRGB for 8/16-bit and linear for float).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub color_space: Option<ColorSpace>,
+}
+
+/// A COLMAP text model and the folder of its images.
+#[derive(Debug, Clone, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct ColmapFile {
+    /// The folder holding `cameras.txt` and `images.txt`, relative to the run file.
+    pub model: String,
+    /// The folder the images' names are relative to, relative to the run file (default: COLMAP's
+    /// project layout, `images` beside the model's `sparse` folder: `P/sparse/0` → `P/images`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub images: Option<String>,
+}
+
+impl ViewSetFile {
+    /// Whether the set has any view: listed in `listed`, on an orbit or in a camera file.
+    pub fn has_views(&self, listed: &[ViewFile]) -> bool {
+        !listed.is_empty()
+            || !self.orbit.is_empty()
+            || self.transforms.is_some()
+            || self.colmap.is_some()
+    }
 }
 
 /// Cameras on a Fibonacci spiral around the unknown's box, targets rendered from `truth`.
@@ -113,6 +143,12 @@ pub fn check_sizes(sets: &[ViewTables]) -> Result<()> {
             );
         }
     }
+    target_pixels(pixels)
+}
+
+/// The budget of all target pixels of a run: checked on the listed views and orbits when the run
+/// file is read, and again with the transforms files' frames once their cameras are known.
+pub fn target_pixels(pixels: u64) -> Result<()> {
     if pixels > MAX_TARGET_PIXELS {
         bail!(
             "the views and held-out views have {pixels} pixels in all: at most 2^28 = {MAX_TARGET_PIXELS} (3 GiB of target images); use fewer or smaller views"

@@ -7,7 +7,7 @@ use anyhow::{bail, Result};
 use glam::{Quat, Vec3};
 
 use crate::render::camera::Camera;
-use crate::render::scene_check::unit;
+use crate::render::scene_check::{image_size, unit, MAX_COORDINATE};
 
 /// `[views.orbit]` of a run file.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -47,12 +47,24 @@ impl Orbit {
         let up = unit("views.orbit.up", self.up)?;
         // The spiral is laid out about +y, then turned onto `up` (exactly the identity for +y).
         let to_up = Quat::from_rotation_arc(Vec3::Y, up);
-        if !(self.distance > 0.0 && self.distance.is_finite()) {
+        if !(self.distance > 0.0 && self.distance <= MAX_COORDINATE) {
             bail!(
-                "views.orbit.distance must be a positive number (got {})",
+                "views.orbit.distance must be a positive number of at most {MAX_COORDINATE:e} (got {})",
                 self.distance
             );
         }
+        if !(self.fov_deg > 0.0 && self.fov_deg < 180.0) {
+            bail!(
+                "views.orbit.fov_deg must be between 0 and 180 degrees, exclusive (got {})",
+                self.fov_deg
+            );
+        }
+        image_size(
+            "views.orbit.width",
+            "views.orbit.height",
+            self.width,
+            self.height,
+        )?;
         let golden_angle = std::f32::consts::PI * (3.0 - 5f32.sqrt());
         let (s_lo, s_hi) = (lo.to_radians().sin(), hi.to_radians().sin());
         Ok((0..self.count)
@@ -174,6 +186,51 @@ mod tests {
                     ..good
                 },
                 "up",
+            ),
+            (Orbit { width: 0, ..good }, "width"),
+            (Orbit { height: 0, ..good }, "height"),
+            (
+                Orbit {
+                    width: 1 << 16,
+                    height: 1 << 16,
+                    ..good
+                },
+                "too large",
+            ),
+            (
+                Orbit {
+                    fov_deg: 0.0,
+                    ..good
+                },
+                "fov_deg",
+            ),
+            (
+                Orbit {
+                    fov_deg: 180.0,
+                    ..good
+                },
+                "fov_deg",
+            ),
+            (
+                Orbit {
+                    fov_deg: f32::NAN,
+                    ..good
+                },
+                "fov_deg",
+            ),
+            (
+                Orbit {
+                    fov_deg: -30.0,
+                    ..good
+                },
+                "fov_deg",
+            ),
+            (
+                Orbit {
+                    distance: 1e30,
+                    ..good
+                },
+                "distance",
             ),
             (
                 Orbit {

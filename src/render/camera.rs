@@ -1,6 +1,32 @@
-//! A pinhole camera with a horizontal field of view.
+//! A pinhole camera: a frame in the world and intrinsics in pixels (focal lengths and principal
+//! point), as calibrated cameras (COLMAP, OpenCV, NeRF's `transforms.json`) describe them. The
+//! usual horizontal field of view is the case fx = fy = width / (2·tan(fov/2)) with the principal
+//! point at the image centre.
 
 use glam::Vec3;
+
+/// Pinhole intrinsics in pixels; (0, 0) is the top-left corner of the image, so a centred principal
+/// point is (width/2, height/2).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Intrinsics {
+    pub fx: f32,
+    pub fy: f32,
+    pub cx: f32,
+    pub cy: f32,
+}
+
+impl Intrinsics {
+    /// Square pixels, a centred principal point and a horizontal field of view of `fov_deg`.
+    pub fn from_fov(fov_deg: f32, width: u32, height: u32) -> Self {
+        let focal = width as f32 / (2.0 * (fov_deg.to_radians() * 0.5).tan());
+        Intrinsics {
+            fx: focal,
+            fy: focal,
+            cx: width as f32 * 0.5,
+            cy: height as f32 * 0.5,
+        }
+    }
+}
 
 #[derive(Debug, Clone, Copy)]
 pub struct Camera {
@@ -8,14 +34,14 @@ pub struct Camera {
     forward: Vec3,
     right: Vec3,
     up: Vec3,
-    /// tan(fov/2) horizontally and vertically.
-    tan_half: (f32, f32),
+    intrinsics: Intrinsics,
     pub width: u32,
     pub height: u32,
 }
 
 impl Camera {
-    /// `position != target` and `up` not parallel to the view direction (checked by the scene).
+    /// A camera at `position` looking at `target`: `position != target` and `up` not parallel to
+    /// the view direction (checked by the scene).
     pub fn new(
         position: Vec3,
         target: Vec3,
@@ -24,26 +50,50 @@ impl Camera {
         width: u32,
         height: u32,
     ) -> Self {
-        let forward = (target - position).normalize();
+        Camera::looking(
+            position,
+            (target - position).normalize(),
+            up,
+            Intrinsics::from_fov(fov_deg, width, height),
+            width,
+            height,
+        )
+    }
+
+    /// A camera at `position` looking along the unit vector `forward`, with `up` independent of it
+    /// (the image's up is `up` made orthogonal to `forward`). Built from a direction rather than a
+    /// target, so that a camera far from the origin keeps its direction exactly.
+    pub fn looking(
+        position: Vec3,
+        forward: Vec3,
+        up: Vec3,
+        intrinsics: Intrinsics,
+        width: u32,
+        height: u32,
+    ) -> Self {
         let right = forward.cross(up).normalize();
         let up = right.cross(forward);
-        let tan_x = (fov_deg.to_radians() * 0.5).tan();
         Camera {
             position,
             forward,
             right,
             up,
-            tan_half: (tan_x, tan_x * height as f32 / width as f32),
+            intrinsics,
             width,
             height,
         }
     }
 
+    pub fn intrinsics(&self) -> Intrinsics {
+        self.intrinsics
+    }
+
     /// Unit direction through image position (x, y) in pixels, (0, 0) the top-left corner.
     #[inline]
     pub fn direction(&self, x: f32, y: f32) -> Vec3 {
-        let sx = (2.0 * x / self.width as f32 - 1.0) * self.tan_half.0;
-        let sy = (1.0 - 2.0 * y / self.height as f32) * self.tan_half.1;
+        let k = &self.intrinsics;
+        let sx = (x - k.cx) / k.fx;
+        let sy = (k.cy - y) / k.fy;
         (self.forward + self.right * sx + self.up * sy).normalize()
     }
 
@@ -55,11 +105,10 @@ impl Camera {
         if depth.is_nan() || depth <= 0.0 {
             return None;
         }
-        let sx = q.dot(self.right) / depth / self.tan_half.0;
-        let sy = q.dot(self.up) / depth / self.tan_half.1;
+        let k = &self.intrinsics;
         Some((
-            (sx + 1.0) * 0.5 * self.width as f32,
-            (1.0 - sy) * 0.5 * self.height as f32,
+            k.cx + q.dot(self.right) / depth * k.fx,
+            k.cy - q.dot(self.up) / depth * k.fy,
         ))
     }
 
@@ -67,16 +116,24 @@ impl Camera {
     /// view samples a medium there.
     pub fn pixel_footprint(&self, point: Vec3) -> f32 {
         let depth = (point - self.position).dot(self.forward).abs();
-        depth * 2.0 * self.tan_half.0 / self.width as f32
+        depth / self.intrinsics.fx
     }
 
-    /// The same view at another resolution (the horizontal field of view is kept).
+    /// The same view at another resolution: the image plane's extent is kept, each axis scaled by
+    /// its own factor.
     pub fn with_resolution(&self, width: u32, height: u32) -> Camera {
+        let (sx, sy) = (
+            width as f32 / self.width as f32,
+            height as f32 / self.height as f32,
+        );
+        let k = self.intrinsics;
         Camera {
-            tan_half: (
-                self.tan_half.0,
-                self.tan_half.0 * height as f32 / width as f32,
-            ),
+            intrinsics: Intrinsics {
+                fx: k.fx * sx,
+                fy: k.fy * sy,
+                cx: k.cx * sx,
+                cy: k.cy * sy,
+            },
             width,
             height,
             ..*self
@@ -88,18 +145,47 @@ impl Camera {
 mod tests {
     use super::*;
 
-    /// `project` inverts `direction`: a point along the ray through (x, y) is seen at (x, y).
+    /// `project` inverts `direction`: a point along the ray through (x, y) is seen at (x, y), for a
+    /// centred camera and for one with non-square pixels and an off-centre principal point.
     #[test]
     fn projection_inverts_the_rays() {
-        let camera = Camera::new(Vec3::new(3.0, 1.0, 9.0), Vec3::ZERO, Vec3::Y, 40.0, 64, 48);
-        for (x, y) in [(0.5, 0.5), (63.2, 10.0), (31.0, 47.9), (7.25, 30.5)] {
-            let point = camera.position + camera.direction(x, y) * 12.5;
-            let (px, py) = camera.project(point).unwrap();
-            assert!(
-                (px - x).abs() < 1e-3 && (py - y).abs() < 1e-3,
-                "{x},{y} → {px},{py}"
-            );
+        let centred = Camera::new(Vec3::new(3.0, 1.0, 9.0), Vec3::ZERO, Vec3::Y, 40.0, 64, 48);
+        let skewed = Camera::looking(
+            Vec3::new(-2.0, 5.0, 1.0),
+            Vec3::new(0.6, -0.8, 0.0),
+            Vec3::Z,
+            Intrinsics {
+                fx: 70.0,
+                fy: 55.0,
+                cx: 20.0,
+                cy: 30.5,
+            },
+            64,
+            48,
+        );
+        for camera in [centred, skewed] {
+            for (x, y) in [(0.5, 0.5), (63.2, 10.0), (31.0, 47.9), (7.25, 30.5)] {
+                let point = camera.position + camera.direction(x, y) * 12.5;
+                let (px, py) = camera.project(point).unwrap();
+                assert!(
+                    (px - x).abs() < 1e-3 && (py - y).abs() < 1e-3,
+                    "{x},{y} → {px},{py}"
+                );
+            }
+            assert!(camera.project(camera.position - camera.forward).is_none());
         }
-        assert!(camera.project(camera.position - camera.forward).is_none());
+        // The principal point is where the camera looks; fy sets the vertical angle per pixel.
+        assert!((skewed.direction(20.0, 30.5) - Vec3::new(0.6, -0.8, 0.0)).length() < 1e-6);
+        let d = skewed.direction(20.0, 30.5 - 55.0);
+        assert!((d.dot(Vec3::Z) - std::f32::consts::FRAC_1_SQRT_2).abs() < 1e-6);
+    }
+
+    #[test]
+    fn a_field_of_view_is_a_centred_square_pixel_pinhole() {
+        let camera = Camera::new(Vec3::new(0.0, 0.0, 5.0), Vec3::ZERO, Vec3::Y, 60.0, 40, 20);
+        let edge = camera.direction(40.0, 10.0);
+        assert!((edge.x.atan2(-edge.z).to_degrees() - 30.0).abs() < 1e-4);
+        let half = camera.with_resolution(20, 10);
+        assert_eq!(half.direction(20.0, 0.0), camera.direction(40.0, 0.0));
     }
 }

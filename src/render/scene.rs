@@ -8,7 +8,7 @@ use glam::Vec3;
 
 use crate::io::images;
 use crate::io::vdb::{self, GridSelector};
-use crate::render::camera::Camera;
+use crate::render::camera::{Camera, Intrinsics};
 use crate::render::lights::{DirectionalLight, EnvMap, Environment, Lights};
 use crate::render::medium_grids;
 use crate::render::scene_check::{self, MAX_EXTINCTION, MAX_LIGHT};
@@ -39,13 +39,16 @@ impl CameraFile {
     /// The camera, after `validate`.
     pub fn camera(&self) -> Result<Camera> {
         let c = self;
-        // Camera::new normalises in f32: give it a target at a distance it resolves (|position|,
-        // at least 1) along the direction found in f64, and a unit up.
+        // The direction is found in f64: a target close to a distant position does not round
+        // onto it.
         let (forward, up) = scene_check::view_frame(c.position, c.target, c.up)?;
-        let position = Vec3::from(c.position);
-        let target = position + forward * position.length().max(1.0);
-        Ok(Camera::new(
-            position, target, up, c.fov_deg, c.width, c.height,
+        Ok(Camera::looking(
+            Vec3::from(c.position),
+            forward,
+            up,
+            Intrinsics::from_fov(c.fov_deg, c.width, c.height),
+            c.width,
+            c.height,
         ))
     }
 }

@@ -6,6 +6,7 @@
 use anyhow::{bail, Result};
 use glam::{DVec3, Vec3};
 
+use crate::render::camera::{Camera, Intrinsics};
 use crate::render::scene_file::{AlbedoFile, CameraFile, EmissionFile, LightFile, SceneFile};
 use crate::volume::emission::EmissionKind;
 
@@ -35,23 +36,71 @@ impl CameraFile {
                 c.fov_deg
             );
         }
-        if c.width == 0 || c.height == 0 {
-            bail!(
-                "camera.width and camera.height must be at least 1 (got {}×{})",
-                c.width,
-                c.height
-            );
-        }
-        if c.width as u64 * c.height as u64 > MAX_PIXELS {
-            bail!(
-                "camera.width × camera.height is too large ({}×{} = {} pixels; at most 2^28 = {MAX_PIXELS})",
-                c.width,
-                c.height,
-                c.width as u64 * c.height as u64
-            );
-        }
-        Ok(())
+        image_size("camera.width", "camera.height", c.width, c.height)
     }
+}
+
+/// An image size of at least one pixel and at most `MAX_PIXELS`; errors name the two keys.
+pub fn image_size(width_key: &str, height_key: &str, width: u32, height: u32) -> Result<()> {
+    if width == 0 || height == 0 {
+        bail!("{width_key} and {height_key} must be at least 1 (got {width}×{height})");
+    }
+    let pixels = u64::from(width) * u64::from(height);
+    if pixels > MAX_PIXELS {
+        bail!(
+            "{width_key} × {height_key} is too large ({width}×{height} = {pixels} pixels; at most 2^28 = {MAX_PIXELS})"
+        );
+    }
+    Ok(())
+}
+
+/// A camera given by its frame and intrinsics (a calibrated camera: `transforms.json`, COLMAP),
+/// passed through the checks a listed camera passes, in f64 before anything is rounded to f32:
+/// a finite position within `MAX_COORDINATE`, a non-zero view direction and up that are not
+/// parallel, finite positive focal lengths, a finite principal point, an image size in range.
+pub fn calibrated_camera(
+    position: DVec3,
+    forward: DVec3,
+    up: DVec3,
+    k: Intrinsics,
+    width: u32,
+    height: u32,
+) -> Result<Camera> {
+    if !position.is_finite() || position.abs().max_element() > f64::from(MAX_COORDINATE) {
+        bail!(
+            "the camera's position {position} must be finite and within ±{MAX_COORDINATE:e} of the origin in each coordinate"
+        );
+    }
+    if !(forward.is_finite() && up.is_finite()) || forward == DVec3::ZERO || up == DVec3::ZERO {
+        bail!("the camera's view direction and up must be finite and non-zero (got {forward} and {up})");
+    }
+    // Scaled to their largest component first: lengths of 1e-200 or 1e200 normalise in f64.
+    let forward = (forward / forward.abs().max_element()).normalize();
+    let up = (up / up.abs().max_element()).normalize();
+    if forward.cross(up).length() < 1e-6 {
+        bail!("the camera's up is parallel to its view direction");
+    }
+    image_size("width", "height", width, height)?;
+    for (key, focal) in [("fx", k.fx), ("fy", k.fy)] {
+        if !(focal > 0.0 && focal.is_finite()) {
+            bail!("the focal length {key} must be a finite number of pixels > 0 (got {focal})");
+        }
+    }
+    if !(k.cx.is_finite() && k.cy.is_finite()) {
+        bail!(
+            "the principal point must be finite (got {}, {})",
+            k.cx,
+            k.cy
+        );
+    }
+    Ok(Camera::looking(
+        position.as_vec3(),
+        forward.as_vec3(),
+        up.as_vec3(),
+        k,
+        width,
+        height,
+    ))
 }
 
 impl SceneFile {

@@ -55,6 +55,10 @@ fn walk_tentative<R: Rng>(
 ) -> Option<f32> {
     // One dispatch per walk: each layout gets its own specialised loop. Loose cells are refined
     // along the ray (`volume::refine`) except in the global mode, the plain baseline.
+    if !(ray.o.is_finite() && ray.d.is_finite() && t0.is_finite()) {
+        // Nothing to walk on a ray that is nowhere (t1 may be +∞: the walks clip it).
+        return None;
+    }
     let refine = medium.majorant.refine.then_some((medium, ray));
     match medium.majorant.walk(ray.o, ray.d, t0, t1) {
         Walk::Flat(segments) => walk_segments(segments, refine, rng, visit),
@@ -106,7 +110,9 @@ fn cross<R: Rng>(
     let mut t = seg.t0;
     loop {
         let reach = *budget / seg.sigma_max;
-        if t + reach >= seg.t1 {
+        // Not `t + reach >= t1`: a NaN anywhere (a ray whose origin or bounds are not finite)
+        // must end the segment, not step forever from NaN to NaN.
+        if (t + reach).partial_cmp(&seg.t1) != Some(std::cmp::Ordering::Less) {
             *budget = (*budget - (seg.t1 - t) * seg.sigma_max).max(0.0);
             return None;
         }

@@ -1,0 +1,217 @@
+//! Camera sets as COLMAP exports them in text: a model folder with `cameras.txt` and `images.txt`
+//! (`colmap model_converter --output_type TXT`, or the `sparse/0` folder of a text export).
+//!
+//! - `cameras.txt`: `CAMERA_ID MODEL WIDTH HEIGHT PARAMS…` per line. Pinhole models are read:
+//!   SIMPLE_PINHOLE (f, cx, cy), PINHOLE (fx, fy, cx, cy), and SIMPLE_RADIAL (f, cx, cy, k),
+//!   RADIAL (f, cx, cy, k1, k2), OPENCV (fx, fy, cx, cy, k1, k2, p1, p2) and FULL_OPENCV when
+//!   their distortion is zero (volgrad's cameras are pinholes: undistort first, e.g. with
+//!   `colmap image_undistorter`, which writes PINHOLE cameras). Other models are refused.
+//!   COLMAP's image coordinates put the top-left pixel's centre at (0.5, 0.5), as volgrad's do.
+//! - `images.txt`: two lines per image, `IMAGE_ID QW QX QY QZ TX TY TZ CAMERA_ID NAME` and its 2D
+//!   points (not read). The pose maps world to camera, x_cam = R(q)·x_world + t, with the
+//!   camera's +x right, +y down and +z forward (OpenCV's convention): the camera sits at −Rᵀt,
+//!   looks along Rᵀ·(0, 0, 1) with up Rᵀ·(0, −1, 0). `NAME` is the image's path in the images
+//!   folder.
+//!
+//! Lines starting with `#` are comments. Errors name the file and line.
+
+use std::collections::HashMap;
+use std::path::{Path, PathBuf};
+
+use anyhow::{bail, Context, Result};
+use glam::{DQuat, DVec3};
+
+use crate::capture::CapturedView;
+use crate::render::camera::Intrinsics;
+use crate::render::scene_check::calibrated_camera;
+
+/// A camera of `cameras.txt`: its size and intrinsics.
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct Sensor {
+    width: u32,
+    height: u32,
+    intrinsics: Intrinsics,
+}
+
+/// The views of the COLMAP text model in `model` (a folder with `cameras.txt` and `images.txt`),
+/// their images in the folder `images`.
+pub fn read(model: &Path, images: &Path) -> Result<Vec<CapturedView>> {
+    let cameras_path = model.join("cameras.txt");
+    let images_path = model.join("images.txt");
+    let read = |path: &Path| {
+        std::fs::read_to_string(path).with_context(|| {
+            format!(
+                "cannot read '{}' (a COLMAP text model: cameras.txt and images.txt)",
+                path.display()
+            )
+        })
+    };
+    let sensors =
+        sensors(&read(&cameras_path)?).with_context(|| format!("'{}'", cameras_path.display()))?;
+    views(&read(&images_path)?, &sensors, images)
+        .with_context(|| format!("'{}'", images_path.display()))
+}
+
+/// The lines of a COLMAP text file that are not comments, numbered from 1 as an editor does.
+fn data_lines(text: &str) -> impl Iterator<Item = (usize, &str)> {
+    text.lines()
+        .enumerate()
+        .map(|(i, line)| (i + 1, line))
+        .filter(|(_, line)| !line.trim_start().starts_with('#'))
+}
+
+fn sensors(text: &str) -> Result<HashMap<u32, Sensor>> {
+    let mut sensors = HashMap::new();
+    for (number, line) in data_lines(text).filter(|(_, l)| !l.trim().is_empty()) {
+        let sensor = sensor(line).with_context(|| format!("line {number}"))?;
+        let id = first_number(line)?;
+        if sensors.insert(id, sensor).is_some() {
+            bail!("line {number}: camera {id} is defined twice");
+        }
+    }
+    if sensors.is_empty() {
+        bail!("no cameras");
+    }
+    Ok(sensors)
+}
+
+fn first_number(line: &str) -> Result<u32> {
+    let word = line.split_whitespace().next().unwrap_or_default();
+    word.parse()
+        .with_context(|| format!("'{word}' is not an id (a whole number)"))
+}
+
+/// One line of `cameras.txt`: `CAMERA_ID MODEL WIDTH HEIGHT PARAMS…`.
+fn sensor(line: &str) -> Result<Sensor> {
+    let words: Vec<&str> = line.split_whitespace().collect();
+    if words.len() < 4 {
+        bail!("expected CAMERA_ID MODEL WIDTH HEIGHT PARAMS…");
+    }
+    let model = words[1];
+    let size = |i: usize, key: &str| -> Result<u32> {
+        words[i]
+            .parse()
+            .with_context(|| format!("{key} '{}' is not a whole number", words[i]))
+    };
+    let (width, height) = (size(2, "WIDTH")?, size(3, "HEIGHT")?);
+    let params = words[4..]
+        .iter()
+        .map(|w| {
+            w.parse::<f64>()
+                .ok()
+                .filter(|v| v.is_finite())
+                .with_context(|| format!("parameter '{w}' is not a finite number"))
+        })
+        .collect::<Result<Vec<f64>>>()?;
+    // (fx, fy, cx, cy) and the distortion terms, by model.
+    let (pinhole, distortion, expected): ([f64; 4], &[f64], usize) = match model {
+        "SIMPLE_PINHOLE" | "SIMPLE_RADIAL" | "RADIAL" if params.len() >= 3 => {
+            let n = match model {
+                "SIMPLE_PINHOLE" => 3,
+                "SIMPLE_RADIAL" => 4,
+                _ => 5,
+            };
+            let p = &params;
+            ([p[0], p[0], p[1], p[2]], &p[3..], n)
+        }
+        "PINHOLE" | "OPENCV" | "FULL_OPENCV" if params.len() >= 4 => {
+            let n = match model {
+                "PINHOLE" => 4,
+                "OPENCV" => 8,
+                _ => 12,
+            };
+            let p = &params;
+            ([p[0], p[1], p[2], p[3]], &p[4..], n)
+        }
+        "SIMPLE_PINHOLE" | "SIMPLE_RADIAL" | "RADIAL" | "PINHOLE" | "OPENCV" | "FULL_OPENCV" => {
+            bail!("{model} with {} parameters: too few", params.len())
+        }
+        _ => bail!(
+            "camera model {model} is not a pinhole: volgrad reads SIMPLE_PINHOLE, PINHOLE, and SIMPLE_RADIAL, RADIAL, OPENCV, FULL_OPENCV with zero distortion (undistort with `colmap image_undistorter`)"
+        ),
+    };
+    if params.len() != expected {
+        bail!("{model} takes {expected} parameters (got {})", params.len());
+    }
+    if let Some(k) = distortion.iter().find(|&&k| k != 0.0) {
+        bail!("{model} with distortion {k}: lens distortion is not modelled (volgrad's cameras are pinholes); undistort the images (`colmap image_undistorter`)");
+    }
+    let [fx, fy, cx, cy] = pinhole.map(|v| v as f32);
+    Ok(Sensor {
+        width,
+        height,
+        intrinsics: Intrinsics { fx, fy, cx, cy },
+    })
+}
+
+fn views(text: &str, sensors: &HashMap<u32, Sensor>, images: &Path) -> Result<Vec<CapturedView>> {
+    // Two lines per image: the pose, then its points (possibly empty, possibly missing at the end
+    // of the file).
+    let lines: Vec<(usize, &str)> = data_lines(text).collect();
+    let mut views = Vec::new();
+    for pair in lines.chunks(2) {
+        let (number, line) = pair[0];
+        if line.trim().is_empty() {
+            if pair.iter().all(|(_, l)| l.trim().is_empty()) {
+                continue; // blank lines at the end
+            }
+            bail!("line {number}: expected IMAGE_ID QW QX QY QZ TX TY TZ CAMERA_ID NAME, found an empty line");
+        }
+        let view = view(line, sensors, images).with_context(|| format!("line {number}"))?;
+        views.push(view);
+    }
+    if views.is_empty() {
+        bail!("no images");
+    }
+    Ok(views)
+}
+
+/// One pose line of `images.txt`.
+fn view(line: &str, sensors: &HashMap<u32, Sensor>, images: &Path) -> Result<CapturedView> {
+    let words: Vec<&str> = line.split_whitespace().collect();
+    if words.len() < 10 {
+        bail!("expected IMAGE_ID QW QX QY QZ TX TY TZ CAMERA_ID NAME");
+    }
+    let numbers = words[1..8]
+        .iter()
+        .map(|w| {
+            w.parse::<f64>()
+                .ok()
+                .filter(|v| v.is_finite())
+                .with_context(|| format!("'{w}' is not a finite number"))
+        })
+        .collect::<Result<Vec<f64>>>()?;
+    let q = DQuat::from_xyzw(numbers[1], numbers[2], numbers[3], numbers[0]);
+    let norm = q.length();
+    if norm <= 1e-12 {
+        bail!("the rotation quaternion is zero");
+    }
+    let world_to_camera = q / norm;
+    let t = DVec3::new(numbers[4], numbers[5], numbers[6]);
+    let camera_to_world = world_to_camera.inverse();
+    let position = -(camera_to_world * t);
+    let forward = camera_to_world * DVec3::Z;
+    let up = camera_to_world * DVec3::NEG_Y;
+    let id = first_number(words[8]).context("CAMERA_ID")?;
+    let sensor = sensors
+        .get(&id)
+        .with_context(|| format!("camera {id} is not in cameras.txt"))?;
+    // A name may hold spaces: it is the rest of the line.
+    let name = words[9..].join(" ");
+    let camera = calibrated_camera(
+        position,
+        forward,
+        up,
+        sensor.intrinsics,
+        sensor.width,
+        sensor.height,
+    )?;
+    Ok(CapturedView {
+        camera,
+        image: Some(images.join(PathBuf::from(name))),
+    })
+}
+
+#[cfg(test)]
+#[path = "colmap_tests.rs"]
+mod tests;

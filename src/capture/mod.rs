@@ -1,0 +1,18 @@
+//! Pictures and cameras from elsewhere: images as targets (alpha composited over the scene's
+//! background; their colour decoding is `io::images`'), and camera sets as other tools export
+//! them (`transforms.json`, COLMAP's text model). Uses `io` and `render` (cameras and their
+//! checks); `optimize` reads its views through it.
+
+use std::path::PathBuf;
+
+use crate::render::camera::Camera;
+
+pub mod colmap;
+pub mod pictures;
+pub mod transforms;
+
+/// A camera of an exported camera set, and its image if the set names one.
+pub struct CapturedView {
+    pub camera: Camera,
+    pub image: Option<PathBuf>,
+}

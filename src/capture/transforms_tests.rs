@@ -1,0 +1,170 @@
+use super::*;
+
+const IDENTITY_AT_5: &str =
+    r#"{ "transform_matrix": [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 5], [0, 0, 0, 1]] }"#;
+
+fn read_json(json: &str) -> Result<Vec<CapturedView>> {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("transforms.json");
+    std::fs::write(&path, json).unwrap();
+    read(&path)
+}
+
+fn error_of(json: &str) -> String {
+    match read_json(json) {
+        Ok(_) => panic!("accepted: {json}"),
+        Err(e) => format!("{e:#}"),
+    }
+}
+
+/// The convention, pinned by a matrix written by hand: the identity rotation at (0, 0, 5)
+/// looks down −z with +y up and +x to the right, as a Blender or OpenGL camera does.
+#[test]
+fn an_identity_camera_looks_down_minus_z() {
+    let json =
+        format!(r#"{{ "camera_angle_x": 0.5, "w": 20, "h": 10, "frames": [{IDENTITY_AT_5}] }}"#);
+    let camera = read_json(&json).unwrap()[0].camera;
+    assert_eq!(camera.position, Vec3::new(0.0, 0.0, 5.0));
+    assert!((camera.direction(10.0, 5.0) - Vec3::NEG_Z).length() < 1e-6);
+    assert!(camera.direction(10.0, 0.0).y > 0.0, "the top row looks up");
+    assert!(
+        camera.direction(20.0, 5.0).x > 0.0,
+        "the right column looks right"
+    );
+    // The horizontal field of view is camera_angle_x: the right edge is 0.25 rad off-axis.
+    let edge = camera.direction(20.0, 5.0);
+    assert!((edge.x.atan2(-edge.z) - 0.25).abs() < 1e-5);
+    let m = camera_to_world(Vec3::new(0.0, 0.0, 5.0), Vec3::ZERO, Vec3::Y);
+    assert_eq!(
+        m,
+        [
+            [1.0, 0.0, 0.0, 0.0],
+            [0.0, 1.0, 0.0, 0.0],
+            [0.0, 0.0, 1.0, 5.0],
+            [0.0, 0.0, 0.0, 1.0]
+        ]
+    );
+}
+
+/// fl_x, fl_y, cx and cy are used, not dropped: the principal point is where the camera looks,
+/// and one pixel away from it is 1/fx (1/fy) radians off-axis; a frame's own values win.
+#[test]
+fn full_pinhole_intrinsics_are_applied_per_file_and_per_frame() {
+    let json = format!(
+        r#"{{ "fl_x": 100, "fl_y": 50, "cx": 12, "cy": 3, "w": 20, "h": 10,
+            "frames": [{IDENTITY_AT_5}, {{ "fl_x": 40, "cx": 10, "cy": 5,
+            "transform_matrix": [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 5], [0, 0, 0, 1]] }}] }}"#
+    );
+    let views = read_json(&json).unwrap();
+    let c = views[0].camera;
+    assert!((c.direction(12.0, 3.0) - Vec3::NEG_Z).length() < 1e-6);
+    let right = c.direction(13.0, 3.0);
+    assert!((right.x / -right.z - 0.01).abs() < 1e-6, "{right}");
+    let up = c.direction(12.0, 2.0);
+    assert!((up.y / -up.z - 0.02).abs() < 1e-6, "{up}");
+    let f = views[1].camera;
+    assert!((f.direction(10.0, 5.0) - Vec3::NEG_Z).length() < 1e-6);
+    let right = f.direction(11.0, 5.0);
+    assert!((right.x / -right.z - 0.025).abs() < 1e-6, "{right}");
+    let up = f.direction(10.0, 4.0);
+    assert!((up.y / -up.z - 0.02).abs() < 1e-6, "fy is the file's: {up}");
+}
+
+/// instant-ngp's `scale` and `offset` map positions (p ↦ scale·p + offset); directions keep.
+#[test]
+fn scale_and_offset_move_the_cameras() {
+    let json = format!(
+        r#"{{ "camera_angle_x": 0.5, "w": 8, "h": 8, "scale": 0.5, "offset": [1, 2, 3],
+            "aabb_scale": 4, "frames": [{IDENTITY_AT_5}] }}"#
+    );
+    let camera = read_json(&json).unwrap()[0].camera;
+    assert_eq!(camera.position, Vec3::new(1.0, 2.0, 5.5));
+    assert!((camera.direction(4.0, 4.0) - Vec3::NEG_Z).length() < 1e-6);
+}
+
+/// A camera far away keeps its direction: the frame is read in f64 and the camera built from
+/// its direction, not from a target that rounds onto the position.
+#[test]
+fn a_distant_camera_keeps_its_direction() {
+    let json = r#"{ "camera_angle_x": 0.5, "w": 8, "h": 8, "frames": [{ "transform_matrix":
+        [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 1e8], [0, 0, 0, 1]] }] }"#;
+    let camera = read_json(json).unwrap()[0].camera;
+    assert!((camera.direction(4.0, 4.0) - Vec3::NEG_Z).length() < 1e-6);
+    // Axes of length 1e30 (a uniform scale f32 could not square) give the same camera at z = 5.
+    let json = r#"{ "camera_angle_x": 0.5, "w": 8, "h": 8, "frames": [{ "transform_matrix":
+        [[1e30, 0, 0, 0], [0, 1e30, 0, 0], [0, 0, 1e30, 5], [0, 0, 0, 1]] }] }"#;
+    let camera = read_json(json).unwrap()[0].camera;
+    assert!((camera.direction(4.0, 4.0) - Vec3::NEG_Z).length() < 1e-6);
+    assert_eq!(camera.position, Vec3::new(0.0, 0.0, 5.0));
+}
+
+#[test]
+fn what_a_pinhole_cannot_be_is_refused_naming_the_key() {
+    let with = |keys: &str| {
+        format!(
+            r#"{{ "camera_angle_x": 0.5, "w": 8, "h": 8, {keys} "frames": [{IDENTITY_AT_5}] }}"#
+        )
+    };
+    let matrix = |rows: &str| {
+        format!(
+            r#"{{ "camera_angle_x": 0.5, "w": 8, "h": 8, "frames": [{{ "transform_matrix": {rows} }}] }}"#
+        )
+    };
+    for (json, needle) in [
+        (with(r#""k1": 0.01,"#), "k1 = 0.01"),
+        (with(r#""p2": -0.001,"#), "p2"),
+        (
+            with(r#""camera_model": "OPENCV_FISHEYE","#),
+            "not a pinhole",
+        ),
+        (with(r#""is_fisheye": true,"#), "is_fisheye"),
+        (with(r#""fl_x": 30,"#), "disagree"),
+        (with(r#""camera_angle_y": 4,"#), "camera_angle_y"),
+        (with(r#""fl_y": 0,"#), "fy"),
+        (with(r#""cx": 1e40,"#), "principal point"),
+        (with(r#""scale": 0,"#), "scale"),
+        (with(r#""frobnicate": 1,"#), "unknown key \"frobnicate\""),
+        (with(r#""w": 65536, "h": 65536,"#), "too large"),
+        (with(r#""w": 0,"#), "at least 1"),
+        (
+            r#"{ "camera_angle_x": 0.5, "w": 8, "h": 8, "frames": [] }"#.to_string(),
+            "empty",
+        ),
+        (
+            format!(r#"{{ "w": 8, "h": 8, "frames": [{IDENTITY_AT_5}] }}"#),
+            "focal length is unknown",
+        ),
+        (
+            format!(r#"{{ "camera_angle_x": 0.5, "frames": [{IDENTITY_AT_5}] }}"#),
+            "size is unknown",
+        ),
+        (
+            matrix("[[0, 0, 0, 0], [0, 0, 0, 0], [0, 0, 0, 5], [0, 0, 0, 1]]"),
+            "degenerate",
+        ),
+        (
+            matrix("[[-1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 5], [0, 0, 0, 1]]"),
+            "left-handed",
+        ),
+        (
+            matrix("[[1, 0.5, 0, 0], [0, 1, 0, 0], [0, 0, 1, 5], [0, 0, 0, 1]]"),
+            "orthogonal",
+        ),
+        (
+            matrix("[[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 5], [0, 0, 1, 1]]"),
+            "last row",
+        ),
+        (
+            matrix("[[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 1e30], [0, 0, 0, 1]]"),
+            "within",
+        ),
+        ("{ not json".to_string(), "not a transforms.json"),
+    ] {
+        let err = error_of(&json);
+        assert!(err.contains(needle), "{needle}: {err}");
+    }
+    // A frame's unknown key is named with its frame.
+    let json =
+        r#"{ "camera_angle_x": 0.5, "w": 8, "h": 8, "frames": [{ "transform_matrx": [] }] }"#;
+    assert!(error_of(json).contains("frames[0]: unknown key \"transform_matrx\""));
+}
