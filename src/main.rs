@@ -8,6 +8,7 @@
 mod cli;
 
 use std::process::ExitCode;
+use std::sync::atomic::{AtomicBool, Ordering};
 
 use clap::{Parser, Subcommand};
 use volgrad::cluster::{AgreedError, Cluster};
@@ -56,6 +57,8 @@ fn main() -> ExitCode {
             return ExitCode::FAILURE;
         }
     };
+    // After the launcher: under mpirun its hook (MPI_Abort, ending every rank) runs inside ours.
+    end_on_panic();
     let result = match command {
         Command::Info(args) => cli::info::run(&args),
         Command::Render(args) => cli::render::run(&args, &cluster),
@@ -90,5 +93,76 @@ fn restore_sigpipe() {
     // SAFETY: called first thing in main, before any thread exists; SIG_DFL is a valid action.
     unsafe {
         libc::signal(libc::SIGPIPE, libc::SIG_DFL);
+    }
+}
+
+/// Ends the whole process at the first panic, on any thread, with status 101 (Rust's for a
+/// panic): the hook installed before (the default report, and under mpirun `Cluster`'s
+/// MPI_Abort) runs once, and any other thread that panics meanwhile waits for the end instead of
+/// printing. Without it a panic on a rayon worker unwinds while the other workers go on, each
+/// panicking and printing its own report: with RUST_BACKTRACE=1 set, that went on for minutes.
+fn end_on_panic() {
+    let report = std::panic::take_hook();
+    std::panic::set_hook(Box::new(move |info| {
+        static REPORTED: AtomicBool = AtomicBool::new(false);
+        if REPORTED.swap(true, Ordering::SeqCst) {
+            // Another thread is reporting the first panic, and then ends the process.
+            loop {
+                std::thread::park();
+            }
+        }
+        report(info);
+        // _exit, not std::process::exit (which the project denies: errors end through main):
+        // exit would run atexit handlers and flush streams other threads may hold locked, and
+        // this must end at once, whatever those threads are doing.
+        // SAFETY: _exit is async-signal-safe and takes no locks; nothing runs after it.
+        unsafe { libc::_exit(101) }
+    }));
+}
+
+#[cfg(test)]
+mod tests {
+    use std::process::Command;
+    use std::time::{Duration, Instant};
+
+    /// A panic on every rayon worker with RUST_BACKTRACE=1 set (once, rayon's workers printed
+    /// backtraces for minutes): the process reports the first panic once and ends at once, with
+    /// status 101. The test runs itself as a child process, which installs the hook and panics.
+    #[test]
+    fn a_panic_on_a_worker_ends_the_process_once() {
+        const CHILD: &str = "VOLGRAD_TEST_PANIC_CHILD";
+        if std::env::var_os(CHILD).is_some() {
+            use rayon::prelude::*;
+            super::end_on_panic();
+            let pool = rayon::ThreadPoolBuilder::new()
+                .num_threads(4)
+                .build()
+                .unwrap();
+            pool.install(|| {
+                (0..10_000).into_par_iter().for_each(|i| {
+                    std::thread::sleep(Duration::from_millis(1));
+                    panic!("worker {i} fails");
+                })
+            });
+            return;
+        }
+        let started = Instant::now();
+        let name = "tests::a_panic_on_a_worker_ends_the_process_once";
+        let out = Command::new(std::env::current_exe().unwrap())
+            .args(["--exact", name, "--nocapture", "--test-threads", "1"])
+            .env(CHILD, "1")
+            .env("RUST_BACKTRACE", "1")
+            .output()
+            .unwrap();
+        let (stdout, stderr) = (
+            String::from_utf8_lossy(&out.stdout),
+            String::from_utf8_lossy(&out.stderr),
+        );
+        assert_eq!(out.status.code(), Some(101), "{stdout}\n{stderr}");
+        assert_eq!(stderr.matches("panicked at").count(), 1, "{stderr}");
+        assert!(stderr.contains("fails"), "{stderr}");
+        // Ended by the hook, not by the test harness catching the panic.
+        assert!(!stdout.contains("test result"), "{stdout}");
+        assert!(started.elapsed() < Duration::from_secs(60));
     }
 }

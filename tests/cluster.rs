@@ -501,3 +501,48 @@ fn processes_that_cannot_reach_each_other_refuse_to_run_as_copies() {
         .env("SLURM_STEP_NUM_TASKS", "1");
     ok(wait(command, LIMIT));
 }
+
+/// `render --stats` and `grad --stats` count every rank's work: each pixel is traced as one
+/// process traces it, so the paths and lookups per path are those of one process, whatever the
+/// number of ranks (rank 0's counters over every rank's paths gave 3.08 → 1.55 → 1.12).
+#[test]
+fn stats_count_every_rank() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let scene = repo("scenes/inverse/quick-scene.toml");
+    let scene = scene.to_str().unwrap();
+    // The counting lines of `--stats` (render's paths and lookups, grad's lookups): not times,
+    // rates or memory.
+    let counts = |o: &Output| -> Vec<String> {
+        let text = String::from_utf8_lossy(&o.stdout).into_owned();
+        let lines: Vec<String> = (text.lines())
+            .filter(|l| l.starts_with("paths ") || l.starts_with("lookups per path"))
+            .map(str::to_string)
+            .collect();
+        assert!(lines.iter().any(|l| l.starts_with("lookups")), "{text}");
+        assert!(text.contains("wall time"), "{text}");
+        lines
+    };
+    let mut seen = Vec::new();
+    for n in 1..=3 {
+        let exr = format!("r{n}.exr");
+        let render = ok(ranks(
+            d,
+            n,
+            &["render", scene, "--spp", "4", "-o", &exr, "-q", "--stats"],
+            LIMIT,
+        ));
+        let grad = format!("g{n}.vdb");
+        let grad = ok(ranks(
+            d,
+            n,
+            &["grad", scene, "--spp", "2", "-o", &grad, "-q", "--stats"],
+            LIMIT,
+        ));
+        seen.push((counts(&render), counts(&grad)));
+    }
+    for n in 1..3 {
+        assert_eq!(seen[n].0, seen[0].0, "render at {} ranks", n + 1);
+        assert_eq!(seen[n].1, seen[0].1, "grad at {} ranks", n + 1);
+    }
+}

@@ -457,3 +457,69 @@ fn a_real_pyro_simulation_renders_by_its_own_light_and_is_differentiated() {
 
     assert_emission_gradient_matches_differences(&pyro, 64, 0.005);
 }
+
+/// Emission that could exceed the light cap (`scene_check::MAX_LIGHT`, 1e30: sums over millions
+/// of samples stay finite in f32) is refused: a strength above it (3e38 once gave 447 pixels above
+/// 1e30 and a gradient of dropped samples, exit 0), a strength × the blackbody's largest value up
+/// to the grid's hottest voxel above it (the blackbody peaks at 1.21, red, near 4550 K), a
+/// radiance × the grid's largest value above it. The same strength at a cooler temperature, and
+/// the same radiance on a grid of 1, render. An emission grid with a non-zero background is
+/// refused, as a density's is (the brick map reads 0 outside its voxels; it was ignored).
+#[test]
+fn emission_above_the_light_cap_or_on_a_background_is_refused() {
+    use glam::DVec3;
+    use volgrad::io::vdb::{self, Grid};
+    use volgrad::volume::brickmap::BrickMap;
+    use volgrad::volume::transform::IndexTransform;
+
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    write_box(d);
+    let grid = |name: &str, value: f32, background: f32| Grid {
+        name: name.into(),
+        grid_class: "fog volume".into(),
+        transform: IndexTransform::uniform(1.0, DVec3::splat(-3.5)),
+        bricks: BrickMap::block(8, |_| value),
+        background,
+        saved_as_half: false,
+        metadata: Vec::new(),
+    };
+    let (hot, glow) = (grid("hot", 4.0, 0.0), grid("glow", 1.0, 0.5));
+    vdb::write_grids(&d.join("more.vdb"), &[&hot, &glow], false, true).unwrap();
+    let render = |emission: &str| {
+        let text = format!(
+            "[camera]\nposition = [0, 0, 60]\ntarget = [0, 0, 0]\nfov_deg = 40\nwidth = 8\nheight = 8\n\
+             [medium]\nvdb = \"box.vdb\"\nemission = {emission}\n"
+        );
+        std::fs::write(d.join("e.toml"), text).unwrap();
+        volgrad_in(
+            d,
+            &[
+                "render", "e.toml", "-o", "e.exr", "--spp", "1", "-q", "--force",
+            ],
+        )
+    };
+    let blackbody = |scale: f32, strength: &str| {
+        format!(
+            "{{ grid = \"density\", blackbody = {{ scale = {scale} }}, strength = {strength} }}"
+        )
+    };
+    assert_clean_error(
+        &render(&blackbody(1000.0, "3e38")),
+        &["medium.emission.strength", "1e30"],
+    );
+    assert_clean_error(
+        &render(&blackbody(4550.0, "1e30")),
+        &["medium.emission", "'density'", "4550 K", "1e30"],
+    );
+    ok(render(&blackbody(1000.0, "1e30")));
+    assert_clean_error(
+        &render("{ grid = \"hot\", vdb = \"more.vdb\", radiance = 1e30 }"),
+        &["medium.emission", "'hot'", "4.000e30"],
+    );
+    ok(render("{ grid = \"density\", radiance = 1e30 }"));
+    assert_clean_error(
+        &render("{ grid = \"glow\", vdb = \"more.vdb\", radiance = 1 }"),
+        &["medium.emission", "'glow'", "background 0.5"],
+    );
+}

@@ -8,6 +8,7 @@ mod optimize_common;
 use common::{assert_clean_error, ok, stderr, stdout, volgrad_in};
 use optimize_common::*;
 use volgrad::cluster::Cluster;
+use volgrad::optimize::target_cache;
 
 /// Views under their own lights: training views split over two suns (two orbits), held-out views
 /// under one of them and under a third sun no training view had. The targets are rendered under
@@ -417,7 +418,8 @@ fn bad_run_files_name_the_key() {
 /// `--target-cache`: the first run renders its 7 targets into the cache, later runs read them and
 /// reach the same bits as a run without the cache; another target_spp or another light makes new
 /// entries, another --seed none (targets depend on the run file only); an entry that is read is
-/// used (a changed one changes the run), and a damaged one is rendered again.
+/// used (a valid changed one changes the run), and a damaged one (cut short, or pixels changed
+/// under an intact header: its checksum fails) is rendered again.
 #[test]
 fn a_target_cache_renders_each_target_once_and_changes_nothing() {
     let dir = fixture(&run_file("0.2", "spp = 2\niterations = 4"));
@@ -452,22 +454,50 @@ fn a_target_cache_renders_each_target_once_and_changes_nothing() {
     run("seed", true, &["--seed", "2"]);
     assert_eq!(entries(), 7, "--seed does not change the targets");
 
-    // An entry read is used: every target made twice as bright changes the run.
-    let mut touched = false;
-    for entry in std::fs::read_dir(d.join("cache")).unwrap() {
-        let path = entry.unwrap().path();
-        let mut bytes = std::fs::read(&path).unwrap();
-        let header = bytes.iter().position(|&b| b == b'\n').unwrap() + 1;
-        for value in bytes[header..].chunks_exact_mut(4) {
-            let v = f32::from_le_bytes(value.try_into().unwrap()) * 2.0;
-            value.copy_from_slice(&v.to_le_bytes());
+    // An entry read is used: every target made twice as bright (a valid entry) changes the run.
+    // Pixels changed under an intact header and length (scaled by 3, or zeroed) fail the
+    // entry's checksum: rendered again and the entry replaced, so the run is the plain one.
+    let rewrite = |change: &dyn Fn(&[u8], &str) -> Vec<u8>| {
+        for entry in std::fs::read_dir(d.join("cache")).unwrap() {
+            let path = entry.unwrap().path();
+            let key = path.file_stem().unwrap().to_str().unwrap().to_string();
+            let bytes = std::fs::read(&path).unwrap();
+            std::fs::write(&path, change(&bytes, &key)).unwrap();
         }
-        std::fs::write(&path, &bytes).unwrap();
-        touched = true;
-    }
-    assert!(touched);
+    };
+    let header_end = |bytes: &[u8]| bytes.iter().position(|&b| b == b'\n').unwrap() + 1;
+    rewrite(&|bytes, key| {
+        let header = std::str::from_utf8(&bytes[..header_end(bytes) - 1]).unwrap();
+        let size: Vec<u32> = (header.split(' ').skip(3).take(2))
+            .map(|n| n.parse().unwrap())
+            .collect();
+        let mut image = target_cache::decode(bytes, key, size[0], size[1]).unwrap();
+        image.pixels.iter_mut().for_each(|p| *p *= 2.0);
+        target_cache::encode(key, &image)
+    });
     run("doubled", true, &[]);
     assert_ne!(results("doubled"), results("plain"));
+    for (name, by) in [("tripled", 3.0f32), ("zeroed", 0.0)] {
+        rewrite(&|bytes, _| {
+            let mut bytes = bytes.to_vec();
+            let at = header_end(&bytes);
+            for value in bytes[at..].chunks_exact_mut(4) {
+                let v = f32::from_le_bytes(value.try_into().unwrap()) * by;
+                value.copy_from_slice(&v.to_le_bytes());
+            }
+            bytes
+        });
+        let changed = run(name, true, &[]);
+        let warned = stderr(&changed).matches("unusable").count();
+        assert_eq!(warned, 7, "{name}: {}", stderr(&changed));
+        assert_eq!(results(name), results("plain"), "{name}");
+    }
+    let again = run("rewritten", true, &[]);
+    assert!(
+        stderr(&again).contains("7 of 7 targets read from the target cache"),
+        "{}",
+        stderr(&again)
+    );
     // A damaged entry (cut short) is reported and rendered again.
     let first = std::fs::read_dir(d.join("cache")).unwrap().next().unwrap();
     let path = first.unwrap().path();

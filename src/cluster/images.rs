@@ -2,6 +2,8 @@
 //! (`PixelSet::share`), and the shares are summed. A pixel is non-zero on one rank only and
 //! x + 0 = x, so the sum is exact: every rank gets the image one process renders, bit for bit.
 
+use std::time::Duration;
+
 use glam::Vec3;
 
 use crate::cluster::Cluster;
@@ -23,10 +25,38 @@ pub fn render_shared(
     let set = PixelSet::share(pixels, cluster.rank(), cluster.size());
     let (mut image, mut stats) = render_pixels(scene, options, &set);
     sum_image(cluster, &mut image);
-    let mut counts = [stats.paths, stats.non_finite];
-    cluster.sum_in_place(&mut counts);
-    [stats.paths, stats.non_finite] = counts;
+    sum_stats(cluster, &mut stats);
     (image, stats)
+}
+
+/// This rank's `stats` made the job's, on every rank: paths, dropped samples and tracking
+/// counters summed over the ranks (so lookups per path are every rank's lookups over every
+/// rank's paths, not rank 0's over all), and the wall time the slowest rank's (the job ends
+/// with it). Integers, so the sums are exact: the counts of one process.
+pub fn sum_stats(cluster: &Cluster, stats: &mut RenderStats) {
+    if cluster.size() == 1 {
+        return;
+    }
+    let t = &mut stats.tracking;
+    let mut counts = [
+        stats.paths,
+        stats.non_finite,
+        t.lookups,
+        t.collisions,
+        t.shadow_lookups,
+        t.shadow_rays,
+    ];
+    cluster.sum_in_place(&mut counts);
+    [
+        stats.paths,
+        stats.non_finite,
+        t.lookups,
+        t.collisions,
+        t.shadow_lookups,
+        t.shadow_rays,
+    ] = counts;
+    let [wall] = cluster.max_each([stats.wall.as_secs_f64()]);
+    stats.wall = Duration::from_secs_f64(wall);
 }
 
 /// `image` summed over the ranks, in place (exact where each pixel is non-zero on one rank).

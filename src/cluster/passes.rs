@@ -4,7 +4,7 @@
 
 use anyhow::Result;
 
-use crate::cluster::images::render_shared;
+use crate::cluster::images::{render_shared, sum_stats};
 use crate::cluster::sparse_sum::sum_over_ranks;
 use crate::cluster::Cluster;
 use crate::gradient::loss::Loss;
@@ -54,8 +54,6 @@ pub fn gradient_shared(
     let set = PixelSet::share(pixels, cluster.rank(), cluster.size());
     let mut run = gradient_of(scene, adjoint, options, &set);
     run.gradient = sum_over_ranks(cluster, run.gradient).0;
-    let mut counts = [run.stats.paths, run.stats.non_finite];
-    cluster.sum_in_place(&mut counts);
-    [run.stats.paths, run.stats.non_finite] = counts;
+    sum_stats(cluster, &mut run.stats);
     run
 }

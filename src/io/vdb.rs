@@ -80,9 +80,26 @@ pub fn read_density(path: &Path, selector: &GridSelector, level_set: LevelSet) -
             "{what} is a level set (signed distances, not densities): set medium.levelset = \"fog\" to convert it with OpenVDB's sdfToFogVolume, or give a fog volume"
         );
     }
+    zero_outside(&what, "densities", &data)?;
+    Grid::from_data(data).map_err(|e| anyhow!("{what}: {e}"))
+}
+
+/// Reads a float grid that, as a density, must be 0 outside its voxels (an emission grid): a
+/// non-zero background and inactive tiles of another value are refused (`read_density` says
+/// why); any class.
+pub fn read_zero_outside(path: &Path, selector: &GridSelector, values: &str) -> Result<Grid> {
+    let data = read_data(path, selector, false)?;
+    let what = format!("grid '{}' in '{}'", data.name, path.display());
+    zero_outside(&what, values, &data)?;
+    Grid::from_data(data).map_err(|e| anyhow!("{what}: {e}"))
+}
+
+/// Refuses a grid (`what`, holding `values`) whose value outside its voxels is not 0: the brick
+/// map reads 0 wherever there is no leaf or active tile.
+fn zero_outside(what: &str, values: &str, data: &FloatGridData) -> Result<()> {
     if data.background != 0.0 {
         bail!(
-            "{what} has background {} (the value of all space outside its voxels): volgrad renders densities that are 0 outside the grid; rewrite it with background 0",
+            "{what} has background {} (the value of all space outside its voxels): volgrad renders {values} that are 0 outside the grid; rewrite it with background 0",
             data.background
         );
     }
@@ -92,7 +109,7 @@ pub fn read_density(path: &Path, selector: &GridSelector, level_set: LevelSet) -
             data.inactive_tiles_off_background
         );
     }
-    Grid::from_data(data).map_err(|e| anyhow!("{what}: {e}"))
+    Ok(())
 }
 
 fn read_data(path: &Path, selector: &GridSelector, to_fog: bool) -> Result<FloatGridData> {

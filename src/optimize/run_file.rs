@@ -13,6 +13,7 @@ use crate::optimize::optimizer_file::OptimizerFile;
 use crate::optimize::resample::Moments;
 use crate::optimize::scene_units::MAX_LEVELS;
 use crate::optimize::view_files::{check_sizes, check_view_lights, ViewFile, ViewSetFile};
+use crate::render::scene_file::{table_or_value, TableOr};
 
 #[derive(Debug, Clone, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
@@ -117,11 +118,28 @@ fn default_moments() -> Moments {
     Moments::Resample
 }
 
-#[derive(Debug, Clone, Deserialize, Serialize)]
+#[derive(Debug, Clone, Serialize)]
 #[serde(untagged)]
 pub enum BoundsFile {
     Named(String),
     Box { min: [f32; 3], max: [f32; 3] },
+}
+
+/// `BoundsFile`'s table form, its keys checked (`scene_file::table_or_value` says why).
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct BoxFile {
+    min: [f32; 3],
+    max: [f32; 3],
+}
+
+impl<'de> Deserialize<'de> for BoundsFile {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> std::result::Result<Self, D::Error> {
+        Ok(match table_or_value(d)? {
+            TableOr::Table(BoxFile { min, max }) => BoundsFile::Box { min, max },
+            TableOr::Value(name) => BoundsFile::Named(name),
+        })
+    }
 }
 
 #[derive(Debug, Clone, Deserialize, Serialize)]
@@ -433,6 +451,45 @@ mod tests {
         for (text, key) in cases {
             let err = format!("{:#}", check(&text).unwrap_err());
             assert!(err.contains(key), "expected '{key}' in: {err}");
+        }
+    }
+
+    /// A typo'd key in any table of a run file is refused with the key named: the top level,
+    /// views, an orbit, a listed view, its light, the unknown and its box, the optimizer and a
+    /// prior (a box with `mxa` was once read as the first form that fits, or as no form at all).
+    #[test]
+    fn a_typo_in_any_table_is_refused_by_name() {
+        let prior = "prior = { kind = \"tv\", weight = 1 }";
+        let light = "light = [{ type = \"constant\", radiance = 1 }]";
+        let cases = [
+            ("scene = ", "scen = 1\n        scene = ", "scen"),
+            ("[views.orbit]", "[views]\n        orbitt = 1\n        [views.orbit]", "orbitt"),
+            ("count = 4", "count = 4\n        cont = 4", "cont"),
+            ("[[holdout]]", "[[holdout]]\n        imge = \"x.exr\"", "imge"),
+            ("[[holdout]]", "[[holdout]]\n        light = [{ type = \"constant\", radiance = 1, scale = 2 }]", "scale"),
+            ("start = 0.1", "start = 0.1\n        strat = 0.2", "strat"),
+            ("bounds = \"truth\"", "bounds = { min = [0, 0, 0], max = [1, 1, 1], mxa = 2 }\n        voxel_size = 0.1", "mxa"),
+            ("levels = [0.5]", "levels = [0.5]\n        [optimizer]\n        lrr = 1", "lrr"),
+            ("levels = [0.5]", "levels = [0.5]\n        [optimizer]\n        prior = { kind = \"tv\", weight = 1, wieght = 2 }", "wieght"),
+        ];
+        check(&GOOD.replace(
+            "levels = [0.5]",
+            &format!("levels = [0.5]\n[optimizer]\n{prior}"),
+        ))
+        .unwrap();
+        check(&GOOD.replace("[[holdout]]", &format!("[[holdout]]\n{light}"))).unwrap();
+        check(&GOOD.replace(
+            "bounds = \"truth\"",
+            "bounds = { min = [0, 0, 0], max = [1, 1, 1] }\nvoxel_size = 0.1",
+        ))
+        .unwrap();
+        for (from, to, key) in cases {
+            assert!(GOOD.contains(from), "{from}");
+            let err = format!("{:#}", check(&GOOD.replacen(from, to, 1)).unwrap_err());
+            assert!(
+                err.contains(&format!("unknown field `{key}`")),
+                "{key}: {err}"
+            );
         }
     }
 

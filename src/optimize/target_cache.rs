@@ -19,9 +19,11 @@ use crate::render::fingerprint;
 use crate::render::image::RenderOptions;
 use crate::render::scene::Scene;
 
-/// An entry's first bytes; the key, width and height follow on the same line, then the pixels
-/// as little-endian f32 RGB, row by row.
-const MAGIC: &str = "volgrad-target 1";
+/// An entry's first bytes; the key, width, height and the pixels' checksum follow on the same
+/// line, then the pixels as little-endian f32 RGB, row by row. The checksum (FNV-1a of the pixel
+/// bytes, `Fingerprint`) catches pixels changed under an intact header and length: a bit flipped
+/// on disk, a zeroed block, an edited file. Version 1 had none; its entries are a miss.
+const MAGIC: &str = "volgrad-target 2";
 
 pub struct TargetCache {
     dir: PathBuf,
@@ -71,7 +73,7 @@ impl TargetCache {
     pub fn read(&self, key: &str, camera: &Camera) -> Option<RgbImage> {
         let path = self.path(key);
         let bytes = std::fs::read(&path).ok()?;
-        match decode(&bytes, key, camera) {
+        match decode(&bytes, key, camera.width, camera.height) {
             Ok(image) => Some(image),
             Err(e) => {
                 eprintln!(
@@ -87,35 +89,56 @@ impl TargetCache {
     pub fn write(&self, key: &str, image: &RgbImage) -> Result<()> {
         std::fs::create_dir_all(&self.dir)
             .with_context(|| format!("cannot create the target cache '{}'", self.dir.display()))?;
-        let mut bytes = format!("{MAGIC} {key} {} {}\n", image.width, image.height).into_bytes();
-        for p in &image.pixels {
-            for c in p.to_array() {
-                bytes.extend_from_slice(&c.to_le_bytes());
-            }
-        }
-        write_bytes_whole(&self.path(key), bytes)
+        write_bytes_whole(&self.path(key), encode(key, image))
             .with_context(|| format!("cannot write to the target cache '{}'", self.dir.display()))
     }
 }
 
-/// An entry's pixels, checked against its key and the view's size.
-fn decode(bytes: &[u8], key: &str, camera: &Camera) -> Result<RgbImage> {
+/// The entry `key` holding `image`: its header line, then its pixels.
+pub fn encode(key: &str, image: &RgbImage) -> Vec<u8> {
+    let pixels: Vec<u8> = (image.pixels.iter())
+        .flat_map(|p| p.to_array())
+        .flat_map(f32::to_le_bytes)
+        .collect();
+    let mut bytes = format!(
+        "{MAGIC} {key} {} {} {}\n",
+        image.width,
+        image.height,
+        checksum(&pixels)
+    )
+    .into_bytes();
+    bytes.extend_from_slice(&pixels);
+    bytes
+}
+
+fn checksum(pixels: &[u8]) -> String {
+    Fingerprint::default().bytes(pixels).hex()
+}
+
+/// An entry's pixels, checked against its key and the view's size (`width` × `height`).
+pub fn decode(bytes: &[u8], key: &str, width: u32, height: u32) -> Result<RgbImage> {
     let header_end = bytes
         .iter()
         .position(|&b| b == b'\n')
         .context("no header")?;
     let header = std::str::from_utf8(&bytes[..header_end])?;
-    let expected = format!("{MAGIC} {key} {} {}", camera.width, camera.height);
-    if header != expected {
-        bail!("its header is '{header}', not '{expected}'");
-    }
+    let expected = format!("{MAGIC} {key} {width} {height} ");
+    let Some(sum) = header.strip_prefix(&expected) else {
+        bail!("its header is '{header}', not '{expected}<checksum>'");
+    };
     let data = &bytes[header_end + 1..];
-    let count = camera.width as usize * camera.height as usize;
+    let count = width as usize * height as usize;
     if data.len() != count * 12 {
         bail!(
             "{} bytes of pixels where {count} pixels take {}",
             data.len(),
             count * 12
+        );
+    }
+    if checksum(data) != sum {
+        bail!(
+            "its pixels' checksum is {}, not the {sum} it was written with: changed on disk",
+            checksum(data)
         );
     }
     let values: Vec<f32> = data
@@ -127,8 +150,64 @@ fn decode(bytes: &[u8], key: &str, camera: &Camera) -> Result<RgbImage> {
         bail!("non-finite pixels");
     }
     Ok(RgbImage {
-        width: camera.width,
-        height: camera.height,
+        width,
+        height,
         pixels,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A 4×3 image of distinct pixels and its entry.
+    fn entry() -> (RgbImage, Vec<u8>) {
+        let image = RgbImage {
+            width: 4,
+            height: 3,
+            pixels: (0..12)
+                .map(|i| Vec3::new(i as f32, 0.5, 0.25 * i as f32))
+                .collect(),
+        };
+        let bytes = encode("k", &image);
+        (image, bytes)
+    }
+
+    /// Where an entry's pixels begin.
+    fn pixels_at(bytes: &[u8]) -> usize {
+        bytes.iter().position(|&b| b == b'\n').unwrap() + 1
+    }
+
+    /// An intact entry reads back; one whose pixels changed while its header and length stayed
+    /// intact is refused (a miss, so the target is rendered again): every pixel scaled by 3, one
+    /// bit flipped, every pixel zeroed.
+    #[test]
+    fn changed_pixels_are_a_miss() {
+        let (image, bytes) = entry();
+        assert_eq!(decode(&bytes, "k", 4, 3).unwrap().pixels, image.pixels);
+        let at = pixels_at(&bytes);
+        let mut tripled = bytes.clone();
+        for value in tripled[at..].chunks_exact_mut(4) {
+            let v = f32::from_le_bytes(value.try_into().unwrap()) * 3.0;
+            value.copy_from_slice(&v.to_le_bytes());
+        }
+        let mut flipped = bytes.clone();
+        flipped[at + 17] ^= 0x04;
+        let mut zeroed = bytes.clone();
+        zeroed[at..].fill(0);
+        let mut header = bytes.clone();
+        header[at - 2] ^= 0x01;
+        for (what, damaged) in [
+            ("tripled", tripled),
+            ("flipped", flipped),
+            ("zeroed", zeroed),
+            ("its checksum changed", header),
+        ] {
+            assert_eq!(damaged.len(), bytes.len());
+            let e = decode(&damaged, "k", 4, 3).unwrap_err().to_string();
+            assert!(e.contains("checksum"), "{what}: {e}");
+        }
+        // Every byte zeroed: no header at all.
+        assert!(decode(&vec![0; bytes.len()], "k", 4, 3).is_err());
+    }
 }

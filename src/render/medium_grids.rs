@@ -8,6 +8,7 @@ use anyhow::{bail, Context, Result};
 use glam::{IVec3, Vec3};
 
 use crate::io::vdb::{self, GridSelector};
+use crate::render::scene_check::MAX_LIGHT;
 use crate::render::scene_file::{AlbedoFile, EmissionFile};
 use crate::volume::albedo::{Albedo, AlbedoGrid};
 use crate::volume::brickmap::{BrickMap, Leaf, Tile};
@@ -115,7 +116,10 @@ fn shifted(map: &BrickMap, background: f32) -> BrickMap {
     BrickMap::new(leaves, tiles)
 }
 
-/// The emission grid `file` names, from its own file or the medium's (`medium_vdb`).
+/// The emission grid `file` names, from its own file or the medium's (`medium_vdb`). Its
+/// background must be 0, as a density's: the brick map reads 0 outside its voxels, as the
+/// density's does, and a background honoured would be emission from all space outside them
+/// (where the density is, too). Its largest possible radiance must be within the light cap.
 pub fn load_emission(
     file: &EmissionFile,
     dir: &Path,
@@ -124,8 +128,12 @@ pub fn load_emission(
 ) -> Result<Emission> {
     let kind = file.emission_kind()?;
     let path = grid_file(&file.vdb, dir, medium_vdb);
-    let grid = vdb::read_grid(&path, &GridSelector::Name(file.grid.clone()))
-        .with_context(|| format!("medium.emission.grid '{}'", file.grid))?;
+    let grid = vdb::read_zero_outside(
+        &path,
+        &GridSelector::Name(file.grid.clone()),
+        "emission grids",
+    )
+    .with_context(|| format!("medium.emission.grid '{}'", file.grid))?;
     if matches!(kind, EmissionKind::Radiance(_)) && grid.bricks.min_value() < 0.0 {
         bail!(
             "medium.emission: grid '{}' in '{}' has negative values (min {}), and radiance = [r, g, b] × the grid's value must be ≥ 0",
@@ -134,11 +142,32 @@ pub fn load_emission(
             grid.bricks.min_value()
         );
     }
-    Ok(Emission::new(
+    let what = format!(
+        "medium.emission: grid '{}' in '{}'",
         grid.name,
-        grid.bricks,
-        grid.transform,
-        kind,
-        filter,
-    ))
+        path.display()
+    );
+    let (largest_value, emission) = (
+        grid.bricks.max_value(),
+        Emission::new(grid.name, grid.bricks, grid.transform, kind, filter),
+    );
+    let (largest, kelvin) = emission.largest_radiance();
+    if largest > f64::from(MAX_LIGHT) {
+        let how = match emission.kind {
+            EmissionKind::Radiance(_) => {
+                format!("radiance × its largest value {largest_value}")
+            }
+            EmissionKind::Blackbody { .. } => {
+                format!("strength × the blackbody up to its hottest voxel's {kelvin:.0} K")
+            }
+        };
+        bail!(
+            "{what} emits up to {largest:.3e} ({how}); at most {MAX_LIGHT:e}: lower medium.emission.{}",
+            match emission.kind {
+                EmissionKind::Radiance(_) => "radiance",
+                EmissionKind::Blackbody { .. } => "strength",
+            }
+        );
+    }
+    Ok(emission)
 }

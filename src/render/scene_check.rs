@@ -169,6 +169,12 @@ impl EmissionFile {
                 if b.scale <= 0.0 || strength < 0.0 {
                     bail!("medium.emission.blackbody.scale must be > 0 and strength ≥ 0 (got {} and {strength})", b.scale);
                 }
+                // The blackbody is at most 1.21 (red, near 4550 K): a strength above the light
+                // cap exceeds it at some temperature. The grid's hottest voxel decides the rest
+                // (`medium_grids::load_emission`).
+                if strength > MAX_LIGHT {
+                    bail!("medium.emission.strength is too large (got {strength:e}; at most {MAX_LIGHT:e})");
+                }
                 Ok(EmissionKind::Blackbody {
                     scale: b.scale,
                     offset: b.offset,

@@ -81,8 +81,7 @@ pub struct MediumFile {
 
 /// `albedo = 0.9`, `albedo = [r, g, b]`, or `albedo = { grid = "Cd" }`: a grid of its own, RGB
 /// (vec3) or grey (float), from `medium.vdb` or another file (`vdb = …`).
-#[derive(Debug, Clone, Deserialize)]
-#[serde(untagged)]
+#[derive(Debug, Clone)]
 pub enum AlbedoFile {
     Constant(Spectrum),
     Grid {
@@ -90,6 +89,51 @@ pub enum AlbedoFile {
         /// The file it is in (default: `medium.vdb`), relative to the scene file.
         vdb: Option<String>,
     },
+}
+
+/// `AlbedoFile`'s table form, its keys checked.
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct AlbedoGridFile {
+    grid: String,
+    vdb: Option<String>,
+}
+
+impl<'de> Deserialize<'de> for AlbedoFile {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> std::result::Result<Self, D::Error> {
+        Ok(match table_or_value(d)? {
+            TableOr::Table(AlbedoGridFile { grid, vdb }) => AlbedoFile::Grid { grid, vdb },
+            TableOr::Value(spectrum) => AlbedoFile::Constant(spectrum),
+        })
+    }
+}
+
+/// A key that is a table or a value of another form, e.g. `{ grid = "Cd" }` or `0.9`.
+pub enum TableOr<T, U> {
+    Table(T),
+    Value(U),
+}
+
+/// Reads a key that is a table (as `T`, whose struct denies unknown keys) or any other value (as
+/// `U`). Not `#[serde(untagged)]`: an untagged enum's struct variant reads a typo'd key as if it
+/// were absent (`albedo = { grid = "Cd", vbd = "x.vdb" }` rendered `Cd` from the medium's file),
+/// and with the struct denying it, answers only "did not match any variant"; here the table's
+/// own error names the key.
+pub fn table_or_value<'de, D, T, U>(d: D) -> std::result::Result<TableOr<T, U>, D::Error>
+where
+    D: serde::Deserializer<'de>,
+    T: serde::de::DeserializeOwned,
+    U: serde::de::DeserializeOwned,
+{
+    use serde::de::Error;
+    match toml::Value::deserialize(d)? {
+        table @ toml::Value::Table(_) => T::deserialize(table)
+            .map(TableOr::Table)
+            .map_err(D::Error::custom),
+        value => U::deserialize(value)
+            .map(TableOr::Value)
+            .map_err(D::Error::custom),
+    }
 }
 
 /// `emission = { grid = "temperature", blackbody = { … }, strength = S }` or
@@ -215,5 +259,69 @@ impl SceneFile {
         let text = std::fs::read_to_string(path)
             .with_context(|| format!("cannot read scene file '{}'", path.display()))?;
         Self::parse(&text, path)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const GOOD: &str = r#"
+        [camera]
+        position = [0, 0, 10]
+        target = [0, 0, 0]
+        fov_deg = 40
+        width = 8
+        height = 8
+        [medium]
+        vdb = "m.vdb"
+        albedo = { grid = "Cd", vdb = "c.vdb" }
+        emission = { grid = "t", blackbody = { scale = 1000 }, strength = 2 }
+        [[light]]
+        type = "constant"
+        radiance = 1
+        [render]
+        spp = 4
+    "#;
+
+    /// A typo'd key in any table of a scene file is refused with the key named, never read as
+    /// if it were absent: `albedo = { grid = "Cd", vbd = "x.vdb" }` once rendered `Cd` from the
+    /// medium's file.
+    #[test]
+    fn a_typo_in_any_table_is_refused_by_name() {
+        let parse = |text: &str| SceneFile::parse(text, Path::new("s.toml"));
+        parse(GOOD).unwrap();
+        let cases = [
+            ("[camera]", "[camera]\n        fovdeg = 1", "fovdeg"),
+            (
+                "[medium]",
+                "[medium]\n        densty_scale = 1",
+                "densty_scale",
+            ),
+            (
+                "vdb = \"c.vdb\" }",
+                "vdb = \"c.vdb\", vbd = \"x.vdb\" }",
+                "vbd",
+            ),
+            ("strength = 2 }", "strength = 2, strenght = 3 }", "strenght"),
+            ("scale = 1000 }", "scale = 1000, ofset = 1 }", "ofset"),
+            (
+                "radiance = 1",
+                "radiance = 1\n        radiance_scale = 2",
+                "radiance_scale",
+            ),
+            ("[render]", "[render]\n        sp = 4", "sp"),
+            ("[camera]", "sceen = 1\n        [camera]", "sceen"),
+        ];
+        for (from, to, key) in cases {
+            assert!(GOOD.contains(from), "{from}");
+            let e = format!("{:#}", parse(&GOOD.replacen(from, to, 1)).unwrap_err());
+            assert!(e.contains(&format!("unknown field `{key}`")), "{key}: {e}");
+        }
+        // The albedo's other forms still parse.
+        for albedo in ["0.5", "[0.1, 0.2, 0.3]", "{ grid = \"Cd\" }"] {
+            let text = GOOD.replace("{ grid = \"Cd\", vdb = \"c.vdb\" }", albedo);
+            parse(&text).unwrap();
+        }
     }
 }

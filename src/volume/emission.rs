@@ -73,6 +73,35 @@ impl Emission {
         self.radiance_of(self.value(self.transform.point_to_index(p)))
     }
 
+    /// The largest channel of Le anywhere, in f64 (so that a product beyond f32 is seen), with
+    /// the hottest temperature for a blackbody (kelvin; 0 for radiance). A lookup interpolates
+    /// stored values and the 0 read outside them, so v ≤ max(the grid's largest value, 0), and T
+    /// grows with v (scale > 0). For a blackbody, the largest table entry up to the one past that
+    /// T bounds every interpolated value up to it (the cutoff is left out: a bound, not the value).
+    pub fn largest_radiance(&self) -> (f64, f64) {
+        let v = f64::from(self.grid.max_value().max(0.0));
+        match self.kind {
+            EmissionKind::Radiance(rgb) => (f64::from(rgb.max_element()) * v, 0.0),
+            EmissionKind::Blackbody {
+                scale,
+                offset,
+                strength,
+                ..
+            } => {
+                let kelvin = (v - f64::from(offset)) * f64::from(scale);
+                if kelvin <= 0.0 {
+                    return (0.0, kelvin);
+                }
+                let step = f64::from(TABLE_KELVIN_STEP);
+                let last = ((kelvin / step).ceil() as usize).min(TABLE_ENTRIES - 1);
+                let peak = (self.table[..=last].iter())
+                    .map(|c| c.max_element())
+                    .fold(0.0, f32::max);
+                (f64::from(strength) * f64::from(peak), kelvin)
+            }
+        }
+    }
+
     /// The grid's value at index point `index`, through the medium's filter.
     fn value(&self, index: Vec3) -> f32 {
         match self.filter {
