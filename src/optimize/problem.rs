@@ -177,7 +177,11 @@ impl Problem {
             ),
             UnknownGrid::Emission => SceneUnits::for_emission(&scene, image_power(&views))?,
         };
-        file.optimizer.resolve(&units, views.len());
+        let view_pixels: Vec<u64> = views
+            .iter()
+            .map(|v| u64::from(v.camera.width) * u64::from(v.camera.height))
+            .collect();
+        file.optimizer.resolve(&units, &view_pixels);
         let start_file = file.unknown.start.clone().unwrap_or(StartFile::Constant(
             units.theta(scene_units::START_OPTICAL_DEPTH),
         ));
