@@ -165,3 +165,57 @@ fn an_emission_unknown_needs_a_radiance_emission() {
         &["unknown.grid", "radiance is 0"],
     );
 }
+
+/// An emission unknown started empty (`start = 0`) grows, and only inside its box: its gradient
+/// is taken over the unknown's whole domain, not over its current bricks (none, for an empty
+/// start: the run once stayed black) and their apron (outside the box at the first level).
+#[test]
+fn an_empty_emission_start_grows_inside_its_box_only() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let run = std::fs::read_to_string(repo("scenes/inverse/flame.toml"))
+        .unwrap()
+        .replace(
+            "\"flame-scene.toml\"",
+            &format!("{:?}", repo("scenes/inverse/flame-scene.toml")),
+        )
+        .replace(
+            "\"../analytic/fireball.vdb\"",
+            &format!("{:?}", repo("scenes/analytic/fireball.vdb")),
+        )
+        .replace("bounds = \"truth\"", "bounds = \"truth\"\nstart = 0")
+        .replace("iterations = 150", "iterations = 20");
+    std::fs::write(d.join("run.toml"), run).unwrap();
+    let out = d.join("out");
+    ok(volgrad(&[
+        "optimize",
+        d.join("run.toml").to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+        "-q",
+    ]));
+    let rows = evaluations(&out.join("log.csv"));
+    let (first, last) = (rows[0].0, rows[rows.len() - 1].0);
+    assert!(last > first + 5.0, "held-out PSNR {first} → {last}");
+    let selector = vdb::GridSelector::Name("temperature".into());
+    let found = vdb::read_grid(&out.join("final.vdb"), &selector).unwrap();
+    let truth = vdb::read_grid(&repo("scenes/analytic/fireball.vdb"), &selector).unwrap();
+    let (lo, hi) = truth.bricks.active_bounds().unwrap();
+    // Whole bricks are stored: every voxel outside the truth's box is 0.
+    let (flo, fhi) = found.bricks.active_bounds().expect("the emission grew");
+    let mut inside = 0.0f64;
+    for x in flo.x..=fhi.x {
+        for y in flo.y..=fhi.y {
+            for z in flo.z..=fhi.z {
+                let v = glam::IVec3::new(x, y, z);
+                let value = found.bricks.voxel(v);
+                if v.cmpge(lo).all() && v.cmple(hi).all() {
+                    inside += f64::from(value);
+                } else {
+                    assert_eq!(value, 0.0, "voxel {v} outside the box {lo}..{hi}");
+                }
+            }
+        }
+    }
+    assert!(inside > 0.0);
+}

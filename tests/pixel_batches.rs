@@ -65,6 +65,7 @@ fn projections(problem: &Problem, iterations: u64) -> [Vec<f64>; 3] {
             Estimator::Joint,
             iteration,
             1.0,
+            problem.domain.voxel_box(0),
         )
         .unwrap();
         let sum = |keep: &dyn Fn(i32) -> bool| -> f64 {

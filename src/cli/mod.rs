@@ -115,6 +115,7 @@ impl AdjointArgs {
             quantum: None,
             parameter: self.parameter,
             channel: None,
+            domain: None,
         })
     }
 }

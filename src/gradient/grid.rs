@@ -157,6 +157,11 @@ impl<T: Accumulator> GradientGrid<T> {
         }
     }
 
+    /// Covers the voxels from `lo` to `hi` (inclusive), and whatever else their blocks hold.
+    pub fn for_box(lo: IVec3, hi: IVec3) -> Self {
+        Self::with_flat_budget(lo, hi, Self::budget(0))
+    }
+
     /// Covers every voxel a lookup inside `medium`'s bounds can weight (the same as `for_grid` for
     /// a medium that ends at its active voxels; an optimisation's fixed domain otherwise).
     pub fn for_medium(medium: &Medium) -> Self {

@@ -39,6 +39,10 @@ pub struct GradOptions {
     /// One colour channel of a colour parameter (an RGB albedo grid's red, green or blue): the
     /// pass weights only that channel of the adjoint image, and its grid is that channel's.
     pub channel: Option<usize>,
+    /// The voxels (inclusive index box) whose gradient is wanted, when they are not the grid's
+    /// own: an optimisation's unknown has a fixed domain, which its current bricks (none, for an
+    /// empty start) do not cover. `None`: every voxel the pass's lookups can weight.
+    pub domain: Option<(IVec3, IVec3)>,
 }
 
 /// The grid a gradient is taken with respect to.
@@ -73,6 +77,7 @@ impl GradOptions {
             quantum: None,
             parameter: Parameter::Extinction,
             channel: None,
+            domain: None,
         }
     }
 }
@@ -391,9 +396,12 @@ fn channel_of(grid: &AlbedoGrid, channel: Option<usize>) -> usize {
 
 /// An empty gradient grid over every voxel the pass's lookups can weight.
 pub fn gradient_grid_for<T: Accumulator>(scene: &Scene, options: &GradOptions) -> GradientGrid<T> {
-    match options.parameter {
-        Parameter::Extinction => GradientGrid::for_medium(&scene.medium),
-        _ => GradientGrid::for_grid(parameter_grid(scene, options.parameter, options.channel)),
+    match (options.domain, options.parameter) {
+        (Some((lo, hi)), _) => GradientGrid::for_box(lo, hi),
+        (None, Parameter::Extinction) => GradientGrid::for_medium(&scene.medium),
+        (None, _) => {
+            GradientGrid::for_grid(parameter_grid(scene, options.parameter, options.channel))
+        }
     }
 }
 

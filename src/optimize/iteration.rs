@@ -14,7 +14,7 @@
 //! gradient as the same sum of the pixels' gradients (a pixel drawn twice counts twice).
 
 use anyhow::Result;
-use glam::Vec3;
+use glam::{IVec3, Vec3};
 use rand::seq::SliceRandom;
 use rand::{Rng, RngCore};
 
@@ -24,7 +24,9 @@ use crate::cluster::Cluster;
 use crate::gradient::adjoint::Estimator;
 use crate::gradient::grid::Quanta;
 use crate::gradient::objective::check_target;
-use crate::gradient::passes::{gradient_grid_for, gradient_of, quantum_for, GradOptions};
+use crate::gradient::passes::{
+    gradient_grid_for, gradient_of, quantum_for, GradOptions, Parameter,
+};
 use crate::io::images::RgbImage;
 use crate::optimize::problem::Problem;
 use crate::render::image::{render_pixels, RenderOptions};
@@ -69,8 +71,9 @@ impl Piece {
     }
 }
 
-/// The images' gradient at iteration `iteration` of the scene `scene` (θ at the current level),
-/// its renders scaled by the exposure factor `exposure` before they meet the targets.
+/// The images' gradient at iteration `iteration` of the scene `scene` (θ at the current level,
+/// whose voxels span `level_box`), its renders scaled by the exposure factor `exposure` before
+/// they meet the targets.
 pub fn images_gradient(
     problem: &Problem,
     cluster: &Cluster,
@@ -78,6 +81,7 @@ pub fn images_gradient(
     estimator: Estimator,
     iteration: u64,
     exposure: f32,
+    level_box: (IVec3, IVec3),
 ) -> Result<ImagesGradient> {
     let s = &problem.settings;
     let pieces = batch_pieces(problem, iteration);
@@ -92,9 +96,15 @@ pub fn images_gradient(
         deltas.push(adjoint.delta);
     }
     let quantum = quantum_for(deltas.iter().map(|d| &d[..]), s.spp);
+    // An emission unknown's gradient is wanted over its whole box: the pass would otherwise
+    // cover only its current bricks (none for an empty start, which then never grows) and their
+    // apron (outside the box). The density's domain is the medium's bounds already.
+    let parameter = problem.unknown.parameter();
+    let domain = (parameter != Parameter::Extinction).then_some(level_box);
     let pass = GradOptions {
         quantum: Some(quantum),
-        parameter: problem.unknown.parameter(),
+        parameter,
+        domain,
         ..GradOptions::new(estimator, s.spp, 0, s.max_depth)
     };
     let mut total = gradient_grid_for::<Quanta>(scene, &pass);
@@ -109,7 +119,11 @@ pub fn images_gradient(
         total.add_grid(&run.gradient);
     }
     let (total, traffic) = sum_over_ranks(cluster, total);
-    let voxels = total.voxels().map(|(v, q)| (v, q * quantum)).collect();
+    let inside = |v: &IVec3| domain.is_none_or(|(lo, hi)| v.cmpge(lo).all() && v.cmple(hi).all());
+    let voxels = (total.voxels())
+        .filter(|(v, _)| inside(v))
+        .map(|(v, q)| (v, q * quantum))
+        .collect();
     Ok(ImagesGradient {
         voxels,
         loss,

@@ -44,6 +44,7 @@ use crate::optimize::log::LogRow;
 use crate::optimize::parameters::Parameters;
 use crate::optimize::problem::Problem;
 use crate::optimize::resample::upsample;
+use crate::optimize::run_file::UnknownGrid;
 use crate::optimize::schedule::Stop;
 use crate::optimize::smoothing::smooth;
 use crate::render::scene::Scene;
@@ -267,8 +268,13 @@ impl<'a> Run<'a> {
     fn advance_levels(&mut self, fraction: f32) -> Result<()> {
         let (domain, s) = (&self.problem.domain, &self.problem.settings);
         let mut level = self.position.level as usize;
+        // An emission unknown's field ends at its box (the density's reaches half a voxel
+        // past it, where the medium's bounds let its lookups read).
+        let emission = self.problem.unknown == UnknownGrid::Emission;
         while level < domain.levels && fraction >= s.level_starts[level] {
-            self.parameters = upsample(&self.parameters, &domain.transform(level), s.moments)?.0;
+            let keep = emission.then(|| domain.voxel_box(level + 1));
+            let transform = domain.transform(level);
+            self.parameters = upsample(&self.parameters, &transform, s.moments, keep)?.0;
             level += 1;
         }
         self.position.level = level as u32;
@@ -397,9 +403,17 @@ fn step(
 ) -> Result<(f64, Traffic)> {
     let s = &problem.settings;
     let exposure = parameters.exposure.factor();
-    let images = images_gradient(problem, cluster, scene, estimator, iteration, exposure)?;
-    let passes = if s.smooth_gradient { level as u32 } else { 0 };
     let (lo, hi) = problem.domain.voxel_box(level);
+    let images = images_gradient(
+        problem,
+        cluster,
+        scene,
+        estimator,
+        iteration,
+        exposure,
+        (lo, hi),
+    )?;
+    let passes = if s.smooth_gradient { level as u32 } else { 0 };
     let gradient = smooth(BrickGradient::from_voxels(images.voxels), passes, lo, hi);
     let level_voxels = problem.domain.voxel_count_at(level);
     let loss = images.loss + parameters.descend(adam, &gradient, &s.priors, level_voxels);

@@ -60,12 +60,15 @@ fn trilinear(p: &Parameters, c: Vec3) -> (f32, f32, f32) {
 
 /// The unknown at twice the resolution per axis, and its transform. Work and memory follow the
 /// stored bricks: each old brick b reaches the new bricks 2b − 1 ..= 2b + 2 (its voxels' trilinear
-/// footprint), and only those are sampled.
+/// footprint), and only those are sampled; with `keep`, only the new voxels in that inclusive box
+/// (an unknown whose field ends at its box: the trilinear field reaches half an old voxel past it).
 pub fn upsample(
     p: &Parameters,
     transform: &IndexTransform,
     moments: Moments,
+    keep: Option<(IVec3, IVec3)>,
 ) -> anyhow::Result<(Parameters, IndexTransform)> {
+    let kept = |j: IVec3| keep.is_none_or(|(lo, hi)| j.cmpge(lo).all() && j.cmple(hi).all());
     let mut targets: HashSet<IVec3> = HashSet::new();
     for b in p.brick_keys() {
         for dx in -1..=2 {
@@ -82,6 +85,9 @@ pub fn upsample(
             for y in 0..8 {
                 for z in 0..8 {
                     let j = (key << 3) + IVec3::new(x, y, z);
+                    if !kept(j) {
+                        continue;
+                    }
                     let (theta, m, v) = trilinear(p, old_index(j));
                     if theta == 0.0 && m == 0.0 && v == 0.0 {
                         continue;
@@ -132,7 +138,7 @@ mod tests {
             }
         }
         let coarse = IndexTransform::uniform(2.0, DVec3::new(10.0, -3.0, 0.5));
-        let (fine, fine_transform) = upsample(&p, &coarse, Moments::Reset).unwrap();
+        let (fine, fine_transform) = upsample(&p, &coarse, Moments::Reset, None).unwrap();
         assert_eq!(fine_transform.voxel_size(), DVec3::splat(1.0));
         let mut checked = 0;
         for x in -8..8 {
@@ -178,12 +184,14 @@ mod tests {
             &p,
             &IndexTransform::uniform(1.0, DVec3::ZERO),
             Moments::Resample,
+            None,
         )
         .unwrap();
         let (reset, _) = upsample(
             &p,
             &IndexTransform::uniform(1.0, DVec3::ZERO),
             Moments::Reset,
+            None,
         )
         .unwrap();
         assert_eq!(kept.steps(), 1);
