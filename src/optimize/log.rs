@@ -35,7 +35,8 @@ pub struct LogRow {
     pub reduce_seconds: f64,
 }
 
-const COLUMNS: [&str; 15] = [
+/// The columns of `log.csv`, in order (the manual documents each: `tests/manual.rs`).
+pub const COLUMNS: [&str; 15] = [
     "iteration",
     "level",
     "fraction",
