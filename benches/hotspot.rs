@@ -44,7 +44,7 @@ fn scene(hot: impl Fn(IVec3) -> Option<f32>, filter: Filter) -> Scene {
         lights,
         settings: RenderFile::default(),
         grid_name: "density".into(),
-        vdb_path: "hotspot.vdb".into(),
+        vdb_path: Some("hotspot.vdb".into()),
     }
 }
 

@@ -232,6 +232,83 @@ fn a_colmap_model_with_a_png_gives_back_the_orbit_and_its_picture_over_the_sky()
     assert!((target[2] - sky).length() < 1e-6, "{}", target[2]);
 }
 
+/// Pictures without a grid: a scene with the optical constants and lights only (no `vdb`, no
+/// camera), images with their cameras in a transforms file, and `bounds = "views"`. The run finds
+/// the box every camera sees, writes it in settings.toml and reconstructs; the same scene is
+/// refused by `render`, which needs a grid and a camera.
+#[test]
+fn pictures_alone_need_no_grid_and_give_their_own_box() {
+    use volgrad::capture::transforms::camera_to_world;
+    use volgrad::optimize::problem::Problem;
+    let dir = fixture(&run_file("0.2", ""));
+    let d = dir.path();
+    let orbit_problem =
+        Problem::load(&d.join("run.toml"), None, false, None, &Cluster::single()).unwrap();
+    let (lo, hi) = orbit_problem.domain.world_box();
+    let centre = (lo + hi) / 2.0;
+    let frames: Vec<String> = orbit_problem
+        .views
+        .iter()
+        .enumerate()
+        .map(|(i, v)| {
+            let name = format!("view{i}.exr");
+            volgrad::io::images::write_exr(&d.join(&name), &v.target, false).unwrap();
+            let m = camera_to_world(v.camera.position, centre, glam::Vec3::Y);
+            format!("{{ \"file_path\": \"{name}\", \"transform_matrix\": {m:?} }}")
+        })
+        .collect();
+    let json = format!(
+        "{{ \"camera_angle_x\": {}, \"w\": 24, \"h\": 24, \"frames\": [{}] }}",
+        40f32.to_radians(),
+        frames.join(", ")
+    );
+    std::fs::write(d.join("transforms.json"), json).unwrap();
+    let constants = SCENE
+        .replace("vdb = \"ball.vdb\"\n", "")
+        .replace(
+            "[camera]\nposition = [0.0, 2.0, 12.0]\ntarget = [0.0, 0.0, 0.0]\nfov_deg = 40\nwidth = 24\nheight = 24\n",
+            "",
+        );
+    assert!(!constants.contains("vdb") && !constants.contains("[camera]"));
+    std::fs::write(d.join("constants.toml"), &constants).unwrap();
+    let run = run_file("0.2", "iterations = 2")
+        .replace("scene = \"scene.toml\"\ntruth = \"ball.vdb\"\n", "scene = \"constants.toml\"\n")
+        .replace(
+            "[views.orbit]\ncount = 6\nelevation_deg = [-30, 70]\ndistance = 12\nfov_deg = 40\nwidth = 24\nheight = 24\n",
+            "[views]\ntransforms = \"transforms.json\"\n",
+        )
+        .replace("[holdouts.orbit]", "[[holdout]]\nposition = [0, 0, 12]\ntarget = [0, 0, 0]\nfov_deg = 40\nwidth = 24\nheight = 24\nimage = \"view0.exr\"\n[holdouts.unused]")
+        .replace("bounds = \"truth\"", "bounds = \"views\"");
+    let run = run[..run.find("[holdouts.unused]").unwrap()].to_string()
+        + &run[run.find("[unknown]").unwrap()..];
+    assert!(!run.contains("truth ="), "{run}");
+    std::fs::write(d.join("images.toml"), run).unwrap();
+    ok(volgrad_in(
+        d,
+        &["optimize", "images.toml", "--out", "out", "-q"],
+    ));
+    let settings: toml::Value =
+        toml::from_str(&std::fs::read_to_string(d.join("out/settings.toml")).unwrap()).unwrap();
+    let bounds = &settings["unknown"]["bounds"];
+    let corner = |key: &str| -> Vec<f64> {
+        let v = bounds[key].as_array().unwrap();
+        v.iter().map(|x| x.as_float().unwrap()).collect()
+    };
+    let (min, max) = (corner("min"), corner("max"));
+    // The ball (radius 3 around the origin) is inside what every camera sees; the box is not
+    // the whole space between the cameras (12 from the centre).
+    for a in 0..3 {
+        assert!(min[a] < -3.0 && min[a] > -11.0, "{min:?} {max:?}");
+        assert!(max[a] > 3.0 && max[a] < 11.0, "{min:?} {max:?}");
+    }
+    assert!(settings["unknown"]["voxel_size"].as_float().unwrap() > 0.0);
+    assert!(d.join("out/final.vdb").is_file());
+    assert_clean_error(
+        &volgrad_in(d, &["render", "constants.toml", "-o", "x.exr"]),
+        &["names no camera"],
+    );
+}
+
 /// `--estimators` runs each estimator into its folder and writes the study's files.
 #[test]
 fn the_study_writes_its_chart_table_and_summary() {

@@ -124,7 +124,11 @@ fn scene_grids(path: &Path) -> Result<()> {
     println!(
         "  density    grid '{}' in '{}': {} active voxels, voxel size {:.4}, σt = {} × value",
         scene.grid_name,
-        scene.vdb_path.display(),
+        scene
+            .vdb_path
+            .as_deref()
+            .expect("a scene loaded to render names its grid's file")
+            .display(),
         m.grid.active_voxel_count(),
         m.transform.voxel_size().x,
         m.density_scale

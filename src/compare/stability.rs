@@ -66,7 +66,7 @@ fn suite_scene(
         lights,
         settings,
         grid_name: "density".into(),
-        vdb_path: "stability.vdb".into(),
+        vdb_path: Some("stability.vdb".into()),
     }
 }
 

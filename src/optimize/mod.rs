@@ -26,5 +26,6 @@ pub mod study;
 pub mod target_cache;
 pub mod targets;
 pub mod unknown;
+pub mod view_bounds;
 pub mod view_files;
 pub mod views;

@@ -13,6 +13,10 @@ use crate::optimize::scene_units::{self, SceneUnits};
 /// `[optimizer]`: every key may be left out (`Default`). The keys that would be grid values are
 /// optical depths and weights relative to the images (`scene_units`), so the defaults carry over
 /// from scene to scene; `Problem::load` resolves them and `OUT/settings.toml` shows the result.
+/// Pixels per iteration by default: the sample-matching paper's recipe (32,768 pixels over all
+/// views), which is also 8 whole views of 64², the cloud study's batch.
+pub const BATCH_PIXELS: u32 = 32_768;
+
 #[derive(Debug, Clone, Deserialize, Serialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct OptimizerFile {
@@ -34,7 +38,8 @@ pub struct OptimizerFile {
     pub level_lr: f32,
     pub loss: Loss,
     /// Views per iteration: a random batch, reshuffled each epoch (default: 8, or every view
-    /// when there are fewer).
+    /// when there are fewer, as long as they hold at most `BATCH_PIXELS`; larger views are
+    /// batched by pixels instead).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub batch: Option<u32>,
     /// Pixels per iteration instead of whole views: drawn across every training view (a uniform
@@ -219,12 +224,22 @@ impl OptimizerFile {
     }
 
     /// Fills in what the scene decides: the learning rate (from `step_optical_depth`), the batch
-    /// (8, or the number of views, unless pixel batches are asked for) and `primal_spp`
-    /// (2 × spp).
-    pub fn resolve(&mut self, units: &SceneUnits, views: usize) {
+    /// and `primal_spp` (2 × spp). The batch, unless given: 8 whole views (or every view, when
+    /// there are fewer) if they hold at most `BATCH_PIXELS`, else `BATCH_PIXELS` pixels drawn
+    /// across the views, so that an iteration costs the same on 64² views and on 800² ones.
+    /// `view_pixels` are the training views' sizes.
+    pub fn resolve(&mut self, units: &SceneUnits, view_pixels: &[u64]) {
         self.lr = Some(self.lr.unwrap_or(units.theta(self.step_optical_depth)));
-        if self.batch_pixels.is_none() {
-            self.batch = Some(self.batch.unwrap_or(8.min(views as u32)));
+        if self.batch.is_none() && self.batch_pixels.is_none() {
+            let views = view_pixels.len().min(8);
+            // The largest views: what a batch of whole views may cost.
+            let mut sizes = view_pixels.to_vec();
+            sizes.sort_unstable_by(|a, b| b.cmp(a));
+            if sizes[..views].iter().sum::<u64>() > u64::from(BATCH_PIXELS) {
+                self.batch_pixels = Some(BATCH_PIXELS);
+            } else {
+                self.batch = Some(views as u32);
+            }
         }
         self.primal_spp = Some(self.primal_spp.unwrap_or(2 * self.spp));
     }
@@ -246,5 +261,34 @@ impl OptimizerFile {
     pub fn priors(&self, units: &SceneUnits) -> Vec<Prior> {
         let prior = |p: &PriorFile| units.prior(p.kind, p.weight, p.scale);
         self.prior.iter().map(prior).collect()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Whole views while 8 of them cost at most the recipe's 32,768 pixels (the cloud's 64²
+    /// views), pixel batches of that size above it; a batch the file gives is kept.
+    #[test]
+    fn the_default_batch_follows_the_views_size() {
+        let units = SceneUnits::new(0.1, 500.0, 0.04);
+        let resolved = |views: &[u64], batch: Option<u32>| {
+            let mut o = OptimizerFile {
+                batch,
+                ..OptimizerFile::default()
+            };
+            o.resolve(&units, views);
+            (o.batch, o.batch_pixels)
+        };
+        assert_eq!(resolved(&[64 * 64; 20], None), (Some(8), None));
+        assert_eq!(resolved(&[32 * 32; 3], None), (Some(3), None));
+        assert_eq!(resolved(&[96 * 96; 24], None), (None, Some(BATCH_PIXELS)));
+        assert_eq!(resolved(&[800 * 800; 2], None), (None, Some(BATCH_PIXELS)));
+        // One large view among small ones counts: a batch may draw it.
+        let mut mixed = vec![64 * 64; 10];
+        mixed[3] = 256 * 256;
+        assert_eq!(resolved(&mixed, None), (None, Some(BATCH_PIXELS)));
+        assert_eq!(resolved(&[96 * 96; 24], Some(8)), (Some(8), None));
     }
 }

@@ -23,10 +23,11 @@ use crate::optimize::target_cache::TargetCache;
 use crate::optimize::targets::{
     image_power, read_views, view_specs, LightSets, ReadView, TargetRenderer,
 };
+use crate::optimize::view_bounds::seen_by_all;
 use crate::optimize::view_files::target_pixels;
 use crate::render::camera::Camera;
 use crate::render::lights::Lights;
-use crate::render::scene::Scene;
+use crate::render::scene::{Scene, SceneNeeds};
 use crate::volume::brickmap::BrickMap;
 use crate::volume::transform::IndexTransform;
 
@@ -176,7 +177,11 @@ impl Problem {
             ),
             UnknownGrid::Emission => SceneUnits::for_emission(&scene, image_power(&views))?,
         };
-        file.optimizer.resolve(&units, views.len());
+        let view_pixels: Vec<u64> = views
+            .iter()
+            .map(|v| u64::from(v.camera.width) * u64::from(v.camera.height))
+            .collect();
+        file.optimizer.resolve(&units, &view_pixels);
         let start_file = file.unknown.start.clone().unwrap_or(StartFile::Constant(
             units.theta(scene_units::START_OPTICAL_DEPTH),
         ));
@@ -260,7 +265,11 @@ impl Inputs {
         let mut file = RunFile::read(run_path)?;
         file.target_seed = Some(file.target_seed.unwrap_or(file.seed));
         file.seed = seed.unwrap_or(file.seed);
-        let scene = Scene::load(&RunFile::resolve(run_path, &file.scene)).context("scene")?;
+        let scene = Scene::load_as(
+            &RunFile::resolve(run_path, &file.scene),
+            SceneNeeds::Constants,
+        )
+        .context("scene")?;
         if scene.medium.density_scale <= 0.0 {
             bail!(
                 "scene: medium.density_scale is {}: a vacuum's images do not depend on the grid, so it cannot be reconstructed from them",
@@ -269,8 +278,24 @@ impl Inputs {
         }
         check_scene(&scene, file.unknown.grid).context("scene")?;
         let grids = KnownGrids::read(run_path, &file)?;
+        if matches!(&file.unknown.bounds, BoundsFile::Named(name) if name == "views") {
+            let specs = view_specs(run_path, "view", &file.view, &file.views, None)?;
+            let cameras: Vec<Camera> = specs.iter().map(|s| s.camera).collect();
+            let (min, max) = seen_by_all(&cameras)?;
+            // Unless given: the finest view's pixel at the box's centre, the detail the views resolve.
+            let voxel = file.unknown.voxel_size.map_or_else(
+                || scene_units::footprint(&cameras, ((min + max) / 2.0).as_vec3()),
+                f64::from,
+            );
+            // The run goes on (and writes in settings.toml) with the box it found.
+            file.unknown.bounds = BoundsFile::Box {
+                min: min.as_vec3().to_array(),
+                max: max.as_vec3().to_array(),
+            };
+            file.unknown.voxel_size = Some(voxel as f32);
+        }
         let domain = final_domain(&file, &grids)?;
-        let world_box = domain.world_box();
+        let world_box = Some(domain.world_box());
         let training = view_specs(run_path, "view", &file.view, &file.views, world_box)?;
         let held_out = view_specs(
             run_path,

@@ -218,8 +218,13 @@ impl UnknownFile {
                     bail!("unknown.bounds = \"start\" needs unknown.start to be a VDB file");
                 }
             }
+            BoundsFile::Named(name) if name == "views" => {
+                if let Some(v) = self.voxel_size.filter(|v| !(*v > 0.0 && v.is_finite())) {
+                    bail!("unknown.voxel_size must be a positive number (got {v})");
+                }
+            }
             BoundsFile::Named(name) if name != "truth" => bail!(
-                "unknown.bounds must be \"truth\", \"start\" or {{ min = [x, y, z], max = [x, y, z] }} (got \"{name}\")"
+                "unknown.bounds must be \"truth\", \"start\", \"views\" or {{ min = [x, y, z], max = [x, y, z] }} (got \"{name}\")"
             ),
             BoundsFile::Box { min, max } => {
                 if !(0..3).all(|a| min[a].is_finite() && max[a].is_finite() && min[a] < max[a]) {

@@ -74,13 +74,14 @@ impl LightSets {
 }
 
 /// The cameras of one set's listed views, orbits and transforms file (`key` is "view" or
-/// "holdout"), checked to lie outside the unknown's `world_box`.
+/// "holdout"), checked to lie outside the unknown's `world_box` (`None` while it is not known:
+/// the box is being found from these cameras, and there are no orbits around it).
 pub fn view_specs(
     run_path: &Path,
     key: &str,
     listed: &[ViewFile],
     set: &ViewSetFile,
-    world_box: (Vec3, Vec3),
+    world_box: Option<(Vec3, Vec3)>,
 ) -> Result<Vec<ViewSpec>> {
     let orbits = &set.orbit;
     let mut specs = Vec::new();
@@ -144,7 +145,10 @@ pub fn view_specs(
         } else {
             format!("{key}s.orbit[{k}]")
         };
-        let centre = (world_box.0 + world_box.1) / 2.0;
+        let (lo, hi) = world_box.with_context(|| {
+            format!("{name}: orbits circle the unknown's box, which bounds = \"views\" finds from the listed cameras; list the cameras instead")
+        })?;
+        let centre = (lo + hi) / 2.0;
         let cameras = o.orbit().cameras(centre).with_context(|| name.clone())?;
         for (i, camera) in cameras.into_iter().enumerate() {
             specs.push(ViewSpec {
@@ -156,7 +160,8 @@ pub fn view_specs(
             });
         }
     }
-    for spec in &specs {
+    for spec in specs.iter().filter(|_| world_box.is_some()) {
+        let world_box = world_box.expect("filtered");
         let p = spec.camera.position;
         if p.cmpge(world_box.0).all() && p.cmple(world_box.1).all() {
             bail!(

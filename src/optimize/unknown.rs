@@ -134,6 +134,9 @@ pub fn check_scene(scene: &Scene, unknown: UnknownGrid) -> Result<()> {
     if unknown == UnknownGrid::Density {
         return Ok(());
     }
+    if scene.vdb_path.is_none() {
+        bail!("unknown.grid = \"emission\": the density is known, so the scene names its grid (medium.vdb)");
+    }
     match &scene.medium.emission {
         None => bail!(
             "unknown.grid = \"emission\": the scene's medium has no emission (medium.emission = {{ grid = …, radiance = [r, g, b] }} says what the unknown's values mean)"

@@ -15,11 +15,21 @@ use crate::volume::brickmap::{BrickMap, Leaf, Tile};
 use crate::volume::emission::{Emission, EmissionKind};
 use crate::volume::medium::Filter;
 
-/// The file a grid key names: its own `vdb`, relative to the scene file's folder `dir`, or the
-/// medium's.
-fn grid_file(own: &Option<String>, dir: &Path, medium_vdb: &Path) -> std::path::PathBuf {
-    own.as_ref()
-        .map_or(medium_vdb.to_path_buf(), |v| dir.join(v))
+/// The file the grid key `key` names: its own `vdb`, relative to the scene file's folder `dir`,
+/// or the medium's.
+fn grid_file(
+    key: &str,
+    own: &Option<String>,
+    dir: &Path,
+    medium_vdb: Option<&Path>,
+) -> Result<std::path::PathBuf> {
+    match (own, medium_vdb) {
+        (Some(v), _) => Ok(dir.join(v)),
+        (None, Some(medium)) => Ok(medium.to_path_buf()),
+        (None, None) => bail!(
+            "medium.{key}: the scene names no medium.vdb, so its grid needs a file of its own (`vdb = …`)"
+        ),
+    }
 }
 
 /// The albedo `file` gives: a constant, or the grid it names (three channels for a vec3 grid,
@@ -27,14 +37,14 @@ fn grid_file(own: &Option<String>, dir: &Path, medium_vdb: &Path) -> std::path::
 pub fn load_albedo(
     file: &AlbedoFile,
     dir: &Path,
-    medium_vdb: &Path,
+    medium_vdb: Option<&Path>,
     filter: Filter,
 ) -> Result<Albedo> {
     let (name, own_vdb) = match file {
         AlbedoFile::Constant(albedo) => return Ok(Albedo::Constant(albedo.rgb())),
         AlbedoFile::Grid { grid, vdb } => (grid, vdb),
     };
-    let path = grid_file(own_vdb, dir, medium_vdb);
+    let path = grid_file("albedo", own_vdb, dir, medium_vdb)?;
     let context = || format!("medium.albedo.grid '{name}' (a float or vec3 grid)");
     let components = vdb::read_components(&path, name).with_context(context)?;
     let what = format!("medium.albedo: grid '{name}' in '{}'", path.display());
@@ -123,11 +133,11 @@ fn shifted(map: &BrickMap, background: f32) -> BrickMap {
 pub fn load_emission(
     file: &EmissionFile,
     dir: &Path,
-    medium_vdb: &Path,
+    medium_vdb: Option<&Path>,
     filter: Filter,
 ) -> Result<Emission> {
     let kind = file.emission_kind()?;
-    let path = grid_file(&file.vdb, dir, medium_vdb);
+    let path = grid_file("emission", &file.vdb, dir, medium_vdb)?;
     let grid = vdb::read_zero_outside(
         &path,
         &GridSelector::Name(file.grid.clone()),

@@ -4,7 +4,7 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context, Result};
-use glam::Vec3;
+use glam::{DVec3, Vec3};
 
 use crate::io::images;
 use crate::io::vdb::{self, GridSelector};
@@ -12,8 +12,10 @@ use crate::render::camera::{Camera, Intrinsics};
 use crate::render::lights::{DirectionalLight, EnvMap, Environment, Lights};
 use crate::render::medium_grids;
 use crate::render::scene_check::{self, MAX_EXTINCTION, MAX_LIGHT};
+use crate::volume::brickmap::BrickMap;
 use crate::volume::majorant::{Majorant, MajorantGrid, MajorantMode};
 use crate::volume::medium::Medium;
+use crate::volume::transform::IndexTransform;
 
 // The file's structs are named here too: the layers above load a scene and its settings through
 // `render::scene` alone; they live in `scene_file`, below `scene_check`, which validates them.
@@ -32,7 +34,8 @@ pub struct Scene {
     pub settings: RenderFile,
     /// The grid the medium came from, as loaded (name, transform, metadata) for exports.
     pub grid_name: String,
-    pub vdb_path: PathBuf,
+    /// Its file; `None` for an optimize run's scene without a grid (`SceneNeeds::Constants`).
+    pub vdb_path: Option<PathBuf>,
 }
 
 impl CameraFile {
@@ -53,61 +56,76 @@ impl CameraFile {
     }
 }
 
+/// What a scene file must name. A scene to render names its grid and its camera; the scene of an
+/// `optimize` run whose views are all images may leave both out: it gives the medium's optical
+/// constants and the lights, the unknown stands in for the grid and each view is its own camera.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum SceneNeeds {
+    GridAndCamera,
+    Constants,
+}
+
 impl Scene {
     /// Reads, validates and loads a scene file with its grid and lights.
     pub fn load(path: &Path) -> Result<Scene> {
+        Self::load_as(path, SceneNeeds::GridAndCamera)
+    }
+
+    /// Reads, validates and loads a scene file that must name what `needs` says.
+    pub fn load_as(path: &Path, needs: SceneNeeds) -> Result<Scene> {
         let file = SceneFile::read(path)?;
-        Self::from_file(file, path)
+        Self::from_file_as(file, path, needs)
     }
 
     /// Loads a parsed scene; `path` locates the files it names.
     pub fn from_file(file: SceneFile, path: &Path) -> Result<Scene> {
+        Self::from_file_as(file, path, SceneNeeds::GridAndCamera)
+    }
+
+    fn from_file_as(file: SceneFile, path: &Path, needs: SceneNeeds) -> Result<Scene> {
         file.validate()
             .with_context(|| format!("invalid scene '{}'", path.display()))?;
-        let dir = path.parent().unwrap_or(Path::new("."));
-        let vdb_path = dir.join(&file.medium.vdb);
-        if !vdb_path.exists() {
-            bail!(
-                "medium.vdb: file '{}' does not exist (paths are relative to the scene file)",
-                vdb_path.display()
-            );
+        if needs == SceneNeeds::GridAndCamera {
+            let missing = match (&file.camera, &file.medium.vdb) {
+                (None, _) => Some("camera ([camera])"),
+                (_, None) => Some("grid (medium.vdb)"),
+                _ => None,
+            };
+            if let Some(missing) = missing {
+                bail!(
+                    "scene '{}' names no {missing}: a scene to render needs one (only the scene of an optimize run whose views are images may leave it out)",
+                    path.display()
+                );
+            }
         }
-        let selector = match (&file.medium.grid, file.medium.grid_index) {
-            (Some(name), _) => GridSelector::Name(name.clone()),
-            (None, Some(i)) => GridSelector::Index(i),
-            (None, None) => GridSelector::Default,
-        };
-        let grid = vdb::read_density(&vdb_path, &selector, file.medium.levelset)?;
-        let camera = file.camera.camera()?;
+        let dir = path.parent().unwrap_or(Path::new("."));
         let filter = file.medium.filter;
         let mode = file.render.majorant();
-        if grid.bricks.min_value() < 0.0 {
-            bail!(
-                "grid '{}' in '{}' has negative values (min {}): extinction must be ≥ 0 (signed distances must be stored as class \"level set\" to be converted)",
-                grid.name,
-                vdb_path.display(),
-                grid.bricks.min_value()
-            );
-        }
-        let extinction = file.medium.density_scale as f64 * grid.bricks.max_value() as f64;
-        if extinction > MAX_EXTINCTION {
-            bail!(
-                "medium.density_scale × the largest value of grid '{}' in '{}' is {extinction:.3e}: too large to track (at most {MAX_EXTINCTION:e} per world unit; the medium is opaque long before)",
-                grid.name,
-                vdb_path.display()
-            );
-        }
-        let mut medium = Medium::new(
-            grid.bricks,
-            grid.transform,
-            file.medium.density_scale,
-            filter,
-            mode,
-        );
-        medium.albedo = medium_grids::load_albedo(&file.medium.albedo, dir, &vdb_path, filter)?;
+        let (grid_name, bricks, transform, vdb_path) = match &file.medium.vdb {
+            Some(vdb) => {
+                let vdb_path = dir.join(vdb);
+                let grid = density_grid(&file, &vdb_path)?;
+                (grid.name, grid.bricks, grid.transform, Some(vdb_path))
+            }
+            // No grid: an empty medium, which the run's unknown replaces.
+            None => (
+                "density".to_string(),
+                BrickMap::new(Vec::new(), Vec::new()),
+                IndexTransform::uniform(1.0, DVec3::ZERO),
+                None,
+            ),
+        };
+        let camera = match &file.camera {
+            Some(camera) => camera.camera()?,
+            // Never rendered through: every view of the run sets its own.
+            None => Camera::new(Vec3::Z, Vec3::ZERO, Vec3::Y, 40.0, 1, 1),
+        };
+        let mut medium = Medium::new(bricks, transform, file.medium.density_scale, filter, mode);
+        let own = vdb_path.as_deref();
+        medium.albedo = medium_grids::load_albedo(&file.medium.albedo, dir, own, filter)?;
         medium.phase_g = file.medium.phase_g;
         if let Some(e) = &file.medium.emission {
-            medium.emission = Some(medium_grids::load_emission(e, dir, &vdb_path, filter)?);
+            medium.emission = Some(medium_grids::load_emission(e, dir, own, filter)?);
         }
         let lights = load_lights(&file.light, dir)?;
         Ok(Scene {
@@ -116,7 +134,7 @@ impl Scene {
             medium,
             lights,
             settings: file.render,
-            grid_name: grid.name,
+            grid_name,
             vdb_path,
         })
     }
@@ -131,6 +149,39 @@ impl Scene {
             self.settings.majorant_cell = majorant.cell_voxels;
         }
     }
+}
+
+/// The density grid `file` names in `vdb_path`: ≥ 0 everywhere, its extinction trackable.
+fn density_grid(file: &SceneFile, vdb_path: &Path) -> Result<vdb::Grid> {
+    if !vdb_path.exists() {
+        bail!(
+            "medium.vdb: file '{}' does not exist (paths are relative to the scene file)",
+            vdb_path.display()
+        );
+    }
+    let selector = match (&file.medium.grid, file.medium.grid_index) {
+        (Some(name), _) => GridSelector::Name(name.clone()),
+        (None, Some(i)) => GridSelector::Index(i),
+        (None, None) => GridSelector::Default,
+    };
+    let grid = vdb::read_density(vdb_path, &selector, file.medium.levelset)?;
+    if grid.bricks.min_value() < 0.0 {
+        bail!(
+            "grid '{}' in '{}' has negative values (min {}): extinction must be ≥ 0 (signed distances must be stored as class \"level set\" to be converted)",
+            grid.name,
+            vdb_path.display(),
+            grid.bricks.min_value()
+        );
+    }
+    let extinction = file.medium.density_scale as f64 * grid.bricks.max_value() as f64;
+    if extinction > MAX_EXTINCTION {
+        bail!(
+            "medium.density_scale × the largest value of grid '{}' in '{}' is {extinction:.3e}: too large to track (at most {MAX_EXTINCTION:e} per world unit; the medium is opaque long before)",
+            grid.name,
+            vdb_path.display()
+        );
+    }
+    Ok(grid)
 }
 
 /// The renderer's lights from a checked list of scene-file lights (`scene_check::check_lights`);

@@ -106,7 +106,9 @@ pub fn calibrated_camera(
 impl SceneFile {
     /// Checks every value a render depends on; the message names the key.
     pub fn validate(&self) -> Result<()> {
-        self.camera.validate()?;
+        if let Some(camera) = &self.camera {
+            camera.validate()?;
+        }
         let m = &self.medium;
         if m.grid.is_some() && m.grid_index.is_some() {
             bail!("medium.grid and medium.grid_index are exclusive: give one");

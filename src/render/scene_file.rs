@@ -32,7 +32,9 @@ impl Spectrum {
 #[derive(Debug, Clone, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct SceneFile {
-    pub camera: CameraFile,
+    /// Required to render; the scene of an `optimize` run whose views are all images may leave
+    /// it out (each view is its own camera).
+    pub camera: Option<CameraFile>,
     pub medium: MediumFile,
     #[serde(default)]
     pub light: Vec<LightFile>,
@@ -61,7 +63,9 @@ pub fn default_up() -> [f32; 3] {
 #[derive(Debug, Clone, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct MediumFile {
-    pub vdb: String,
+    /// The density grid's file. Required to render; the scene of an `optimize` run that solves
+    /// for the density from images may leave it out (the unknown is the grid).
+    pub vdb: Option<String>,
     pub grid: Option<String>,
     pub grid_index: Option<usize>,
     #[serde(default = "one")]

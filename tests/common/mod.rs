@@ -85,7 +85,7 @@ impl SceneBuilder {
             lights: self.lights,
             settings: self.settings,
             grid_name: "density".into(),
-            vdb_path: PathBuf::from("test.vdb"),
+            vdb_path: Some(PathBuf::from("test.vdb")),
         }
     }
 }
