@@ -5,6 +5,8 @@
 mod common;
 mod optimize_common;
 
+use std::path::Path;
+
 use common::{assert_clean_error, ok, stderr, stdout, volgrad_in};
 use optimize_common::*;
 use volgrad::cluster::Cluster;
@@ -232,27 +234,30 @@ fn a_colmap_model_with_a_png_gives_back_the_orbit_and_its_picture_over_the_sky()
     assert!((target[2] - sky).length() < 1e-6, "{}", target[2]);
 }
 
-/// Pictures without a grid: a scene with the optical constants and lights only (no `vdb`, no
-/// camera), images with their cameras in a transforms file, and `bounds = "views"`. The run finds
-/// the box every camera sees, writes it in settings.toml and reconstructs; the same scene is
-/// refused by `render`, which needs a grid and a camera.
-#[test]
-fn pictures_alone_need_no_grid_and_give_their_own_box() {
+/// The fixture's views as pictures from elsewhere, in `d`: the targets (× `brightness`) as EXRs
+/// with their cameras in a transforms file, the held-out view as a listed camera and image, a
+/// scene with the optical constants and lights only (no `vdb`, no camera), and a run file
+/// `images.toml` over them with `bounds = "views"` and `optimizer` in its `[optimizer]`.
+fn write_pictures(d: &Path, brightness: f32, optimizer: &str) {
     use volgrad::capture::transforms::camera_to_world;
+    use volgrad::io::images::{write_exr, RgbImage};
     use volgrad::optimize::problem::Problem;
-    let dir = fixture(&run_file("0.2", ""));
-    let d = dir.path();
     let orbit_problem =
         Problem::load(&d.join("run.toml"), None, false, None, &Cluster::single()).unwrap();
     let (lo, hi) = orbit_problem.domain.world_box();
     let centre = (lo + hi) / 2.0;
-    let frames: Vec<String> = orbit_problem
-        .views
-        .iter()
-        .enumerate()
+    let write = |name: &str, image: &RgbImage| {
+        let pixels = image.pixels.iter().map(|&c| c * brightness).collect();
+        let image = RgbImage {
+            pixels,
+            ..image.clone()
+        };
+        write_exr(&d.join(name), &image, false).unwrap();
+    };
+    let frames: Vec<String> = (orbit_problem.views.iter().enumerate())
         .map(|(i, v)| {
             let name = format!("view{i}.exr");
-            volgrad::io::images::write_exr(&d.join(&name), &v.target, false).unwrap();
+            write(&name, &v.target);
             let m = camera_to_world(v.camera.position, centre, glam::Vec3::Y);
             format!("{{ \"file_path\": \"{name}\", \"transform_matrix\": {m:?} }}")
         })
@@ -263,26 +268,40 @@ fn pictures_alone_need_no_grid_and_give_their_own_box() {
         frames.join(", ")
     );
     std::fs::write(d.join("transforms.json"), json).unwrap();
-    let constants = SCENE
-        .replace("vdb = \"ball.vdb\"\n", "")
-        .replace(
-            "[camera]\nposition = [0.0, 2.0, 12.0]\ntarget = [0.0, 0.0, 0.0]\nfov_deg = 40\nwidth = 24\nheight = 24\n",
-            "",
-        );
+    let holdout = &orbit_problem.holdouts[0];
+    write("holdout.exr", &holdout.target);
+    let constants = SCENE.replace("vdb = \"ball.vdb\"\n", "").replace(
+        "[camera]\nposition = [0.0, 2.0, 12.0]\ntarget = [0.0, 0.0, 0.0]\nfov_deg = 40\nwidth = 24\nheight = 24\n",
+        "",
+    );
     assert!(!constants.contains("vdb") && !constants.contains("[camera]"));
     std::fs::write(d.join("constants.toml"), &constants).unwrap();
-    let run = run_file("0.2", "iterations = 2")
-        .replace("scene = \"scene.toml\"\ntruth = \"ball.vdb\"\n", "scene = \"constants.toml\"\n")
-        .replace(
-            "[views.orbit]\ncount = 6\nelevation_deg = [-30, 70]\ndistance = 12\nfov_deg = 40\nwidth = 24\nheight = 24\n",
-            "[views]\ntransforms = \"transforms.json\"\n",
-        )
-        .replace("[holdouts.orbit]", "[[holdout]]\nposition = [0, 0, 12]\ntarget = [0, 0, 0]\nfov_deg = 40\nwidth = 24\nheight = 24\nimage = \"view0.exr\"\n[holdouts.unused]")
-        .replace("bounds = \"truth\"", "bounds = \"views\"");
-    let run = run[..run.find("[holdouts.unused]").unwrap()].to_string()
-        + &run[run.find("[unknown]").unwrap()..];
+    let run = run_file("0.2", optimizer);
+    let (top, rest) = run.split_at(run.find("[views.orbit]").unwrap());
+    let top = top.replace(
+        "scene = \"scene.toml\"\ntruth = \"ball.vdb\"\n",
+        "scene = \"constants.toml\"\n",
+    );
+    let unknown =
+        rest[rest.find("[unknown]").unwrap()..].replace("bounds = \"truth\"", "bounds = \"views\"");
+    let (p, t) = (holdout.camera.position, centre);
+    let run = format!(
+        "{top}[views]\ntransforms = \"transforms.json\"\n\n[[holdout]]\nposition = [{}, {}, {}]\ntarget = [{}, {}, {}]\nfov_deg = 40\nwidth = 24\nheight = 24\nimage = \"holdout.exr\"\n\n{unknown}",
+        p.x, p.y, p.z, t.x, t.y, t.z
+    );
     assert!(!run.contains("truth ="), "{run}");
     std::fs::write(d.join("images.toml"), run).unwrap();
+}
+
+/// Pictures without a grid: a scene with the optical constants and lights only (no `vdb`, no
+/// camera), images with their cameras in a transforms file, and `bounds = "views"`. The run finds
+/// the box every camera sees, writes it in settings.toml and reconstructs; the same scene is
+/// refused by `render`, which needs a grid and a camera.
+#[test]
+fn pictures_alone_need_no_grid_and_give_their_own_box() {
+    let dir = fixture(&run_file("0.2", ""));
+    let d = dir.path();
+    write_pictures(d, 1.0, "iterations = 2");
     ok(volgrad_in(
         d,
         &["optimize", "images.toml", "--out", "out", "-q"],
@@ -307,6 +326,35 @@ fn pictures_alone_need_no_grid_and_give_their_own_box() {
         &volgrad_in(d, &["render", "constants.toml", "-o", "x.exr"]),
         &["names no camera"],
     );
+}
+
+/// A capture 30 % brighter than the scene's lights say (an exposure nobody wrote down): with
+/// `fit_exposure` the run finds the factor (the sky behind the ball pins it) and the held-out
+/// view fits far better than without, where no density can brighten the sky.
+#[test]
+fn an_unknown_exposure_is_fitted_with_the_volume() {
+    let dir = fixture(&run_file("0.2", ""));
+    let d = dir.path();
+    let mut last = Vec::new();
+    for fit in [true, false] {
+        write_pictures(d, 1.3, &format!("iterations = 60\nfit_exposure = {fit}"));
+        let out = format!("out-{fit}");
+        ok(volgrad_in(
+            d,
+            &["optimize", "images.toml", "--out", &out, "-q"],
+        ));
+        let rows = log(&d.join(&out));
+        let row = rows.last().unwrap().clone();
+        last.push((
+            row["exposure"].parse::<f64>().unwrap(),
+            row["heldout_psnr"].parse::<f64>().unwrap(),
+        ));
+    }
+    let ((fitted, with), (fixed, without)) = (last[0], last[1]);
+    eprintln!("exposure {fitted} (PSNR {with}) against {fixed} (PSNR {without})");
+    assert!((fitted - 1.3).abs() < 0.05, "{fitted}");
+    assert_eq!(fixed, 1.0);
+    assert!(with > without + 2.0, "{with} vs {without}");
 }
 
 /// `--estimators` runs each estimator into its folder and writes the study's files.

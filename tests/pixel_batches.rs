@@ -64,6 +64,7 @@ fn projections(problem: &Problem, iterations: u64) -> [Vec<f64>; 3] {
             &mut scene,
             Estimator::Joint,
             iteration,
+            1.0,
         )
         .unwrap();
         let sum = |keep: &dyn Fn(i32) -> bool| -> f64 {

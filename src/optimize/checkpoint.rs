@@ -4,7 +4,8 @@
 //! that `--resume` continues exactly where the run stopped.
 //!
 //! The state file is little-endian binary: the magic line, the run's fingerprint, the stop rule
-//! (`Stop::to_text`), the counters and the global scale's (m, v), the log text, then the bricks in
+//! (`Stop::to_text`), the counters and the global scale's (m, v), the exposure's x and (m, v)
+//! (f32 each), the log text, then the bricks in
 //! key order (origin as 3 × i32, then θ, m, v as 512 × f32 each, the brick's log-scale (m, v) as
 //! 2 × f32 and its idle steps as u32).
 
@@ -18,12 +19,13 @@ use crate::io::bridge::MetaEntry;
 use crate::io::output::write_whole;
 use crate::io::vdb::{self, Grid};
 use crate::optimize::adam::ScalarMoments;
+use crate::optimize::exposure::Exposure;
 use crate::optimize::parameters::Parameters;
 use crate::optimize::schedule::Stop;
 use crate::volume::brickmap::BRICK_VOXELS;
 use crate::volume::transform::IndexTransform;
 
-const MAGIC: &[u8] = b"volgrad optimizer state 6\n";
+const MAGIC: &[u8] = b"volgrad optimizer state 7\n";
 
 /// Where a run is, apart from θ and Adam's moments.
 #[derive(Debug, Clone, Default, PartialEq)]
@@ -91,6 +93,8 @@ pub fn write_state(
         w.write_all(&position.level.to_le_bytes())?;
         w.write_all(&parameters.steps().to_le_bytes())?;
         write_moments(w, parameters.scale_moments())?;
+        w.write_all(&parameters.exposure.log.to_le_bytes())?;
+        write_moments(w, parameters.exposure.moments)?;
         w.write_all(&position.optimisation_seconds.to_le_bytes())?;
         w.write_all(&position.evaluation_seconds.to_le_bytes())?;
         write_text(w, &position.log)?;
@@ -166,6 +170,13 @@ pub fn read_state(path: &Path, fingerprint: &str) -> Result<(Position, Parameter
         let level = u32::from_le_bytes(read_array(&mut r)?);
         let steps = u32::from_le_bytes(read_array(&mut r)?);
         let scale = read_moments(&mut r, "the global scale")?;
+        let exposure = Exposure {
+            log: f32::from_le_bytes(read_array(&mut r)?),
+            moments: read_moments(&mut r, "the exposure")?,
+        };
+        if !exposure.log.is_finite() {
+            bail!("a non-finite exposure");
+        }
         let optimisation_seconds = f64::from_le_bytes(read_array(&mut r)?);
         let evaluation_seconds = f64::from_le_bytes(read_array(&mut r)?);
         let log = read_text(&mut r, size)?;
@@ -195,6 +206,7 @@ pub fn read_state(path: &Path, fingerprint: &str) -> Result<(Position, Parameter
             p.insert_brick(IVec3::from_array(key), theta, m, v, scale, idle);
         }
         p.set_steps(steps, scale);
+        p.exposure = exposure;
         let position = Position {
             iteration,
             level,

@@ -62,9 +62,17 @@ pub struct Evaluation {
     pub renders: Vec<RgbImage>,
 }
 
-/// Evaluates `scene` (the unknown at level `level`) on the held-out views and against the truth;
-/// every rank renders its share of each view's pixels, and all get the same evaluation.
-pub fn evaluate(problem: &Problem, scene: &Scene, level: usize, cluster: &Cluster) -> Evaluation {
+/// Evaluates `scene` (the unknown at level `level`) on the held-out views, its renders scaled by
+/// the fitted exposure factor `exposure` (1 when none is fitted: the held-out views are of the
+/// same capture), and against the truth; every rank renders its share of each view's pixels, and
+/// all get the same evaluation.
+pub fn evaluate(
+    problem: &Problem,
+    scene: &Scene,
+    level: usize,
+    exposure: f32,
+    cluster: &Cluster,
+) -> Evaluation {
     let mut scene = scene.clone();
     let mut e = Evaluation::default();
     let (mut lit, mut relit) = (0, Vec::new());
@@ -76,7 +84,10 @@ pub fn evaluate(problem: &Problem, scene: &Scene, level: usize, cluster: &Cluste
             max_depth: problem.settings.max_depth,
             progress: false,
         };
-        let image = render_shared(cluster, &scene, &options).0;
+        let mut image = render_shared(cluster, &scene, &options).0;
+        if exposure != 1.0 {
+            image.pixels.iter_mut().for_each(|c| *c *= exposure);
+        }
         let view_psnr = psnr(&image, &view.target);
         e.psnr += view_psnr;
         if view.relit {

@@ -25,6 +25,7 @@ use crate::gradient::adjoint::Estimator;
 use crate::gradient::grid::Quanta;
 use crate::gradient::objective::check_target;
 use crate::gradient::passes::{gradient_grid_for, gradient_of, quantum_for, GradOptions};
+use crate::io::images::RgbImage;
 use crate::optimize::problem::Problem;
 use crate::render::image::{render_pixels, RenderOptions};
 use crate::render::pixel_set::PixelSet;
@@ -34,12 +35,17 @@ use crate::render::scene::Scene;
 /// Seeds the pixel batches' draws apart from every other stream of a run.
 const PIXEL_BATCH_SALT: u64 = 0x91c5_e1ba_7c40_0001;
 
+/// Seeds the second half of a primal render apart from the first (`piece_adjoint`).
+const EXPOSURE_HALF_SALT: u64 = 0x5bd1_e995_0e5b_0002;
+
 /// The images' gradient of one iteration, the same on every rank.
 pub struct ImagesGradient {
     /// ∂loss/∂θ per voxel that some path reached.
     pub voxels: Vec<(glam::IVec3, f64)>,
     /// The batch's loss.
     pub loss: f64,
+    /// ∂loss/∂x of the exposure's log-factor x (`exposure`): Σ δ′·I′ over the batch.
+    pub exposure_gradient: f64,
     pub traffic: Traffic,
 }
 
@@ -63,23 +69,27 @@ impl Piece {
     }
 }
 
-/// The images' gradient at iteration `iteration` of the scene `scene` (θ at the current level).
+/// The images' gradient at iteration `iteration` of the scene `scene` (θ at the current level),
+/// its renders scaled by the exposure factor `exposure` before they meet the targets.
 pub fn images_gradient(
     problem: &Problem,
     cluster: &Cluster,
     scene: &mut Scene,
     estimator: Estimator,
     iteration: u64,
+    exposure: f32,
 ) -> Result<ImagesGradient> {
     let s = &problem.settings;
     let pieces = batch_pieces(problem, iteration);
     let (mut loss, mut deltas, mut lit) = (0.0, Vec::with_capacity(pieces.len()), 0);
+    let mut exposure_gradient = 0.0;
     let view_weight = 1.0 / pieces.len() as f64;
     for piece in &pieces {
         problem.look_through(scene, &mut lit, &problem.views[piece.view]);
-        let (piece_loss, delta) = piece_adjoint(problem, cluster, scene, piece, view_weight)?;
-        loss += piece_loss;
-        deltas.push(delta);
+        let adjoint = piece_adjoint(problem, cluster, scene, piece, view_weight, exposure)?;
+        loss += adjoint.loss;
+        exposure_gradient += adjoint.exposure_gradient;
+        deltas.push(adjoint.delta);
     }
     let quantum = quantum_for(deltas.iter().map(|d| &d[..]), s.spp);
     let pass = GradOptions {
@@ -103,51 +113,115 @@ pub fn images_gradient(
     Ok(ImagesGradient {
         voxels,
         loss,
+        exposure_gradient,
         traffic,
     })
 }
 
-/// A piece's share of the batch's loss and its adjoint image δ (zero where it draws no pixel),
-/// from a primal render whose pixels the ranks share and sum; `scene` looks through its view.
+/// A piece's share of the batch: its loss, the adjoint image the gradient pass traces (k·δ′,
+/// zero where it draws no pixel) and its part of ∂loss/∂x (Σ δ′·I′).
+struct PieceAdjoint {
+    loss: f64,
+    delta: Vec<Vec3>,
+    exposure_gradient: f64,
+}
+
+/// A piece's part of the batch from a primal render whose pixels the ranks share and sum, scaled
+/// by the exposure factor `exposure` (k); `scene` looks through its view.
+///
+/// When the exposure is fitted, the primal render is two independent halves A and B of its
+/// samples: ∂loss/∂x = Σ δ′·I′ from one render would correlate the noise of δ′ with that of I′
+/// (for L2, E[(kI − T)·kI] carries k²·Var I: a bias that pulls the exposure down), so it is
+/// ½ Σ (δ′_A·I′_B + δ′_B·I′_A) instead, each factor from the other half's paths.
 fn piece_adjoint(
     problem: &Problem,
     cluster: &Cluster,
     scene: &Scene,
     piece: &Piece,
     view_weight: f64,
-) -> Result<(f64, Vec<Vec3>)> {
+    exposure: f32,
+) -> Result<PieceAdjoint> {
     let s = &problem.settings;
     let target = &problem.views[piece.view].target;
     check_target(target, scene)?;
-    let options = RenderOptions {
-        spp: s.primal_spp,
-        seed: piece.seed,
-        max_depth: s.max_depth,
-        progress: false,
-    };
+    let halves = if s.fit_exposure { 2 } else { 1 };
     let pixels = scene.camera.width * scene.camera.height;
-    let mut image = render_pixels(scene, &options, &piece.pixels(pixels, cluster)).0;
-    let Some(drawn) = &piece.drawn else {
-        sum_image(cluster, &mut image);
-        let loss = view_weight * s.loss.evaluate(&image, Some(target));
-        let delta = s.loss.adjoint(&image, Some(target));
-        return Ok((
-            loss,
-            delta.into_iter().map(|d| d * view_weight as f32).collect(),
-        ));
+    let drawn: Option<Vec<u32>> =
+        (piece.drawn.as_ref()).map(|d| d.iter().map(|&(p, _)| p).collect());
+    let renders: Vec<RgbImage> = (0..halves)
+        .map(|half| {
+            let options = RenderOptions {
+                spp: (s.primal_spp / halves).max(1),
+                seed: piece.seed ^ (half as u64).wrapping_mul(EXPOSURE_HALF_SALT),
+                max_depth: s.max_depth,
+                progress: false,
+            };
+            let mut image = render_pixels(scene, &options, &piece.pixels(pixels, cluster)).0;
+            match &drawn {
+                None => sum_image(cluster, &mut image),
+                Some(list) => sum_pixels(cluster, &mut image, list),
+            }
+            scale(&mut image.pixels, exposure);
+            image
+        })
+        .collect();
+    let image = match &renders[..] {
+        [one] => one.clone(),
+        [a, b] => RgbImage {
+            pixels: (a.pixels.iter().zip(&b.pixels))
+                .map(|(x, y)| (*x + *y) * 0.5)
+                .collect(),
+            ..a.clone()
+        },
+        _ => unreachable!("one or two halves"),
     };
-    let list: Vec<u32> = drawn.iter().map(|&(p, _)| p).collect();
-    sum_pixels(cluster, &mut image, &list);
-    // Each draw weighs 1/(3N): the loss is a mean over draws and channels.
-    let per_draw = 1.0 / (3.0 * s.batch_pixels as f64);
-    let (mut loss, mut delta) = (0.0, vec![Vec3::ZERO; pixels as usize]);
-    for &(p, count) in drawn {
-        let (c, t) = (image.pixels[p as usize], target.pixels[p as usize]);
-        let weight = count as f64 * per_draw;
-        loss += weight * s.loss.pixel_value(c, t);
-        delta[p as usize] = s.loss.pixel_adjoint(c, t) * weight as f32;
+    // The loss and δ′ = ∂loss/∂I′ of an image (zero off the drawn pixels).
+    let adjoint_of = |image: &RgbImage| -> (f64, Vec<Vec3>) {
+        match &piece.drawn {
+            None => {
+                let loss = view_weight * s.loss.evaluate(image, Some(target));
+                let delta = s.loss.adjoint(image, Some(target));
+                let weight = view_weight as f32;
+                (loss, delta.into_iter().map(|d| d * weight).collect())
+            }
+            Some(drawn) => {
+                // Each draw weighs 1/(3N): the loss is a mean over draws and channels.
+                let per_draw = 1.0 / (3.0 * s.batch_pixels as f64);
+                let (mut loss, mut delta) = (0.0, vec![Vec3::ZERO; pixels as usize]);
+                for &(p, count) in drawn {
+                    let (c, t) = (image.pixels[p as usize], target.pixels[p as usize]);
+                    let weight = count as f64 * per_draw;
+                    loss += weight * s.loss.pixel_value(c, t);
+                    delta[p as usize] = s.loss.pixel_adjoint(c, t) * weight as f32;
+                }
+                (loss, delta)
+            }
+        }
+    };
+    let (loss, mut delta) = adjoint_of(&image);
+    let dot = |d: &[Vec3], c: &RgbImage| -> f64 {
+        (d.iter().zip(&c.pixels))
+            .map(|(d, c)| f64::from(d.dot(*c)))
+            .sum()
+    };
+    let exposure_gradient = match &renders[..] {
+        [a, b] => 0.5 * (dot(&adjoint_of(a).1, b) + dot(&adjoint_of(b).1, a)),
+        _ => dot(&delta, &image),
+    };
+    // The pass traces k·δ′: ∂I′/∂θ = k·∂I/∂θ.
+    scale(&mut delta, exposure);
+    Ok(PieceAdjoint {
+        loss,
+        delta,
+        exposure_gradient,
+    })
+}
+
+/// Multiplies every value by `k`; k = 1 (no exposure fitted) leaves the bits as they are.
+fn scale(values: &mut [Vec3], k: f32) {
+    if k != 1.0 {
+        values.iter_mut().for_each(|v| *v *= k);
     }
-    Ok((loss, delta))
 }
 
 /// The views of iteration `iteration` with their seeds: the view batch, or the views a pixel

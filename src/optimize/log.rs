@@ -33,10 +33,12 @@ pub struct LogRow {
     /// process), and its seconds, included in `seconds`.
     pub reduce_bytes: u64,
     pub reduce_seconds: f64,
+    /// The exposure factor after this iteration's step (1 unless fitted).
+    pub exposure: f32,
 }
 
 /// The columns of `log.csv`, in order (the manual documents each: `tests/manual.rs`).
-pub const COLUMNS: [&str; 15] = [
+pub const COLUMNS: [&str; 16] = [
     "iteration",
     "level",
     "fraction",
@@ -52,6 +54,7 @@ pub const COLUMNS: [&str; 15] = [
     "state_bytes",
     "reduce_bytes",
     "reduce_seconds",
+    "exposure",
 ];
 
 fn optional(v: Option<f64>) -> String {
@@ -68,7 +71,7 @@ impl LogRow {
         self.haze = e.haze;
     }
 
-    fn cells(&self) -> [String; 15] {
+    fn cells(&self) -> [String; 16] {
         [
             self.iteration.to_string(),
             self.level.to_string(),
@@ -86,6 +89,7 @@ impl LogRow {
             self.state_bytes.to_string(),
             self.reduce_bytes.to_string(),
             format!("{}", self.reduce_seconds),
+            self.exposure.to_string(),
         ]
     }
 
@@ -141,6 +145,7 @@ impl LogRow {
             state_bytes: cells[12].parse()?,
             reduce_bytes: cells[13].parse()?,
             reduce_seconds: cells[14].parse()?,
+            exposure: cells[15].parse()?,
         })
     }
 }
@@ -173,6 +178,7 @@ mod tests {
                 state_bytes: 4096,
                 reduce_bytes: 123456,
                 reduce_seconds: 0.25,
+                exposure: 1.3,
                 ..Default::default()
             },
         ];

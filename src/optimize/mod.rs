@@ -8,6 +8,7 @@ pub mod brick_gradient;
 pub mod checkpoint;
 pub mod descent;
 pub mod evaluate;
+pub mod exposure;
 pub mod hull;
 pub mod iteration;
 pub mod log;

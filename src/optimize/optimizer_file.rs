@@ -70,6 +70,9 @@ pub struct OptimizerFile {
     pub fit_brick_scales: bool,
     /// The brick log-scales' learning rate as a multiple of lr (`Adam::brick_scale_lr`).
     pub brick_scale_lr: f32,
+    /// Fit the capture's exposure: one factor the renders are scaled by before they meet the
+    /// targets, for pictures whose absolute brightness is not known (`exposure`).
+    pub fit_exposure: bool,
 }
 
 impl Default for OptimizerFile {
@@ -104,6 +107,7 @@ impl Default for OptimizerFile {
             smooth_gradient: true,
             fit_scale: true,
             fit_brick_scales: true,
+            fit_exposure: false,
             brick_scale_lr: 3.0,
         }
     }

@@ -8,6 +8,7 @@ use anyhow::{bail, Result};
 use glam::IVec3;
 
 use crate::optimize::adam::ScalarMoments;
+use crate::optimize::exposure::Exposure;
 use crate::volume::brickmap::{leaf_offset, BrickMap, Leaf, BRICK_VOXELS};
 use crate::volume::sparse_index::KeyMap;
 
@@ -69,6 +70,8 @@ pub struct Parameters {
     pub(super) steps: u32,
     /// The moments of the global log-scale (`Adam::fit_scale`).
     pub(super) scale: ScalarMoments,
+    /// The capture's exposure, when it is fitted (`exposure`; 1 otherwise).
+    pub exposure: Exposure,
 }
 
 impl Parameters {
@@ -184,11 +187,13 @@ impl Parameters {
         brick.v[i] = v.max(0.0);
     }
 
-    /// Continues the step count of `other` (Adam's bias corrections) and the global scale's
-    /// moments, e.g. after resampling: u is the same parameter at any resolution.
+    /// Continues the step count of `other` (Adam's bias corrections), the global scale's
+    /// moments and the exposure, e.g. after resampling: u and x are the same parameters at any
+    /// resolution.
     pub fn continue_steps_of(&mut self, other: &Parameters) {
         self.steps = other.steps;
         self.scale = other.scale;
+        self.exposure = other.exposure;
     }
 
     /// Gives each brick the log-scale moments of the brick of `coarse` (one level coarser) it

@@ -54,6 +54,8 @@ pub struct Settings {
     pub priors: Vec<Prior>,
     /// Gradient smoothing at the finer levels (`smoothing::smooth`).
     pub smooth_gradient: bool,
+    /// Fit the capture's exposure with the volume (`exposure`).
+    pub fit_exposure: bool,
     pub moments: Moments,
     /// Fractions of the budget at which level k + 1 begins.
     pub level_starts: Vec<f32>,
@@ -423,6 +425,7 @@ impl Settings {
             max_depth,
             priors: o.priors(units),
             smooth_gradient: o.smooth_gradient,
+            fit_exposure: o.fit_exposure,
             moments: file.unknown.moments,
             level_starts: file.unknown.levels.clone().unwrap_or_default(),
             iterations: o.iterations,

@@ -172,7 +172,8 @@ impl<'a> Run<'a> {
     fn evaluate(&self) -> Evaluation {
         let level = self.position.level as usize;
         let scene = self.problem.scene_at(self.parameters.to_brickmap(), level);
-        evaluate(self.problem, &scene, level, self.options.cluster)
+        let exposure = self.parameters.exposure.factor();
+        evaluate(self.problem, &scene, level, exposure, self.options.cluster)
     }
 
     /// This iteration's row of the log, before any evaluation.
@@ -186,6 +187,7 @@ impl<'a> Run<'a> {
             loss,
             active_voxels: self.parameters.active_voxels(),
             state_bytes: self.parameters.memory_bytes() as u64,
+            exposure: self.parameters.exposure.factor(),
             ..Default::default()
         }
     }
@@ -324,6 +326,10 @@ impl<'a> Run<'a> {
         if !self.problem.holdouts.is_empty() && !self.evaluation.renders.is_empty() {
             m.push(meta("volgrad_heldout_psnr", "double", self.evaluation.psnr));
         }
+        if s.fit_exposure {
+            let exposure = self.parameters.exposure.factor();
+            m.push(meta("volgrad_exposure", "double", exposure));
+        }
         m
     }
 
@@ -390,12 +396,19 @@ fn step(
     adam: &Adam,
 ) -> Result<(f64, Traffic)> {
     let s = &problem.settings;
-    let images = images_gradient(problem, cluster, scene, estimator, iteration)?;
+    let exposure = parameters.exposure.factor();
+    let images = images_gradient(problem, cluster, scene, estimator, iteration, exposure)?;
     let passes = if s.smooth_gradient { level as u32 } else { 0 };
     let (lo, hi) = problem.domain.voxel_box(level);
     let gradient = smooth(BrickGradient::from_voxels(images.voxels), passes, lo, hi);
     let level_voxels = problem.domain.voxel_count_at(level);
     let loss = images.loss + parameters.descend(adam, &gradient, &s.priors, level_voxels);
+    if s.fit_exposure {
+        let steps = parameters.steps();
+        parameters
+            .exposure
+            .step(adam, steps, images.exposure_gradient);
+    }
     Ok((loss, images.traffic))
 }
 
