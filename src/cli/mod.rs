@@ -13,6 +13,8 @@ pub mod render;
 pub mod values;
 
 #[cfg(test)]
+mod manual_tests;
+#[cfg(test)]
 mod parse_tests;
 
 use anyhow::{bail, Context, Result};

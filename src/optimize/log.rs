@@ -37,7 +37,8 @@ pub struct LogRow {
     pub exposure: f32,
 }
 
-const COLUMNS: [&str; 16] = [
+/// The columns of `log.csv`, in order (the manual documents each: `tests/manual.rs`).
+pub const COLUMNS: [&str; 16] = [
     "iteration",
     "level",
     "fraction",

@@ -451,7 +451,7 @@ fn derivation_notes(
         UnknownGrid::Emission => "emission grid value of 1/25 of the targets' brightness (√P)",
     };
     let mut notes = format!(
-        "Derived from the scene (see the README, \"Settings from the scene\"):\n\
+        "Derived from the scene (see docs/reconstruct.md, \"Settings from the scene\"):\n\
          {unit}: u = {:.6e}\n\
          the targets' power (the L2 loss of a black image): P = {:.6e}\n\
          the finest view's pixel at the unknown's centre: {footprint_voxels:.2} final voxels\n\
