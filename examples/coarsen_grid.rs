@@ -45,7 +45,7 @@ fn run() -> Result<()> {
     // Only the values are wanted: the transform upsample composes is that of a coarse grid, and
     // the output keeps the input's.
     for _ in 0..levels {
-        theta = upsample(&theta, &grid.transform, Moments::Reset)?.0;
+        theta = upsample(&theta, &grid.transform, Moments::Reset, None)?.0;
     }
     theta.prune();
     grid.bricks = theta.to_brickmap();
