@@ -659,3 +659,27 @@ fn a_target_cache_renders_each_target_once_and_changes_nothing() {
         &["target cache", "run.toml"],
     );
 }
+
+/// The noise ceiling the log reports beside the held-out PSNR is what the evaluation's noise
+/// allows: the true grid, rendered at `eval_spp = 8` against targets of 2048 spp (nearly noise
+/// free), scores it to within a dB (a ceiling off by a factor of 2 in the noise's variance would
+/// be 3 dB away).
+#[test]
+fn the_noise_ceiling_is_what_the_truth_scores() {
+    let run = run_file("\"ball.vdb\"", "iterations = 1")
+        .replace("target_spp = 256", "target_spp = 2048")
+        .replace("eval_spp = 128", "eval_spp = 8");
+    let dir = fixture(&run);
+    let d = dir.path();
+    ok(volgrad_in(
+        d,
+        &["optimize", "run.toml", "--out", "out", "-q"],
+    ));
+    let rows = log(&d.join("out"));
+    let psnr: f64 = rows[0]["heldout_psnr"].parse().unwrap();
+    let ceiling: f64 = rows[0]["heldout_noise_psnr"].parse().unwrap();
+    assert!(
+        (psnr - ceiling).abs() < 1.0,
+        "the truth scores {psnr} dB, the ceiling says {ceiling}"
+    );
+}

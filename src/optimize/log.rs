@@ -20,6 +20,8 @@ pub struct LogRow {
     /// Training loss of this iteration (batch mean, prior included).
     pub loss: f64,
     pub psnr: Option<f64>,
+    /// What the evaluation's own noise allows (`Evaluation::noise_psnr`).
+    pub noise_psnr: Option<f64>,
     /// Over the relit held-out views only (`Evaluation::relit_psnr`).
     pub relit_psnr: Option<f64>,
     pub relative_rmse: Option<f64>,
@@ -38,7 +40,7 @@ pub struct LogRow {
 }
 
 /// The columns of `log.csv`, in order (the manual documents each: `tests/manual.rs`).
-pub const COLUMNS: [&str; 16] = [
+pub const COLUMNS: [&str; 17] = [
     "iteration",
     "level",
     "fraction",
@@ -55,6 +57,7 @@ pub const COLUMNS: [&str; 16] = [
     "reduce_bytes",
     "reduce_seconds",
     "exposure",
+    "heldout_noise_psnr",
 ];
 
 fn optional(v: Option<f64>) -> String {
@@ -65,13 +68,14 @@ impl LogRow {
     /// Fills the evaluation columns.
     pub fn record(&mut self, e: &Evaluation) {
         self.psnr = Some(e.psnr);
+        self.noise_psnr = Some(e.noise_psnr);
         self.relit_psnr = e.relit_psnr;
         self.relative_rmse = Some(e.relative_rmse);
         self.volume_rmse = e.volume_rmse;
         self.haze = e.haze;
     }
 
-    fn cells(&self) -> [String; 16] {
+    fn cells(&self) -> [String; 17] {
         [
             self.iteration.to_string(),
             self.level.to_string(),
@@ -90,6 +94,7 @@ impl LogRow {
             self.reduce_bytes.to_string(),
             format!("{}", self.reduce_seconds),
             self.exposure.to_string(),
+            optional(self.noise_psnr),
         ]
     }
 
@@ -146,6 +151,7 @@ impl LogRow {
             reduce_bytes: cells[13].parse()?,
             reduce_seconds: cells[14].parse()?,
             exposure: cells[15].parse()?,
+            noise_psnr: opt(16)?,
         })
     }
 }
@@ -171,6 +177,7 @@ mod tests {
                 seconds: 1.0,
                 loss: 1e-3,
                 psnr: Some(31.5),
+                noise_psnr: Some(40.25),
                 relit_psnr: Some(29.25),
                 relative_rmse: Some(0.1),
                 volume_rmse: Some(0.02),

@@ -251,8 +251,8 @@ impl<'a> Run<'a> {
         let evaluated = row.psnr.is_some();
         self.log.push(row);
         self.bar.set_message(format!(
-            "it {it} · level {level} · loss {loss:.3e} · held-out PSNR {:.2} dB",
-            self.evaluation.psnr
+            "it {it} · level {level} · loss {loss:.3e} · held-out PSNR {:.2} dB (noise allows {:.1})",
+            self.evaluation.psnr, self.evaluation.noise_psnr
         ));
         let p = &self.position;
         self.bar
