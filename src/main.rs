@@ -59,6 +59,17 @@ fn main() -> ExitCode {
     };
     // After the launcher: under mpirun its hook (MPI_Abort, ending every rank) runs inside ours.
     end_on_panic();
+    let across_ranks = matches!(
+        command,
+        Command::Render(_) | Command::Grad(_) | Command::Optimize(_)
+    );
+    if cluster.size() > 1 && !across_ranks {
+        // Every rank would do the same work on the same files and print the same errors.
+        if cluster.is_root() {
+            eprintln!("error: only render, grad and optimize run across MPI ranks; run this command as one process (without mpirun or srun)");
+        }
+        return ExitCode::FAILURE;
+    }
     let result = match command {
         Command::Info(args) => cli::info::run(&args),
         Command::Render(args) => cli::render::run(&args, &cluster),

@@ -546,3 +546,23 @@ fn stats_count_every_rank() {
         assert_eq!(seen[n].1, seen[0].1, "grad at {} ranks", n + 1);
     }
 }
+
+/// Commands that do not share work across ranks are refused under mpirun, once, on every rank:
+/// each rank would otherwise do the whole work on the same files and print its own errors.
+#[test]
+fn one_process_commands_are_refused_once_under_mpirun() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut command = Command::new("mpirun");
+    command
+        .args(["--oversubscribe", "-n", "2", env!("CARGO_BIN_EXE_volgrad")])
+        .args(["make-grid", "box", "-o", "box.vdb"])
+        .env("OMPI_ALLOW_RUN_AS_ROOT", "1")
+        .env("OMPI_ALLOW_RUN_AS_ROOT_CONFIRM", "1")
+        .current_dir(dir.path());
+    let out = wait(command, LIMIT);
+    let err = stderr(&out);
+    assert!(!dir.path().join("box.vdb").exists());
+    assert!(!out.status.success(), "{err}");
+    assert_eq!(err.matches("error").count(), 1, "one message: {err}");
+    assert!(err.contains("only render, grad and optimize"), "{err}");
+}

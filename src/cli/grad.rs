@@ -10,13 +10,14 @@ use glam::IVec3;
 
 use super::values::{self, FdDirection, IndexBox};
 use super::{report_non_finite, set_threads, AdjointArgs, Domain, FdArgs};
+use volgrad::cluster::images::render_shared;
 use volgrad::cluster::passes::{adjoint_shared, gradient_shared};
 use volgrad::cluster::Cluster;
 use volgrad::gradient::adjoint::Estimator;
 use volgrad::gradient::fd;
 use volgrad::gradient::grid::GradientGrid;
 use volgrad::gradient::loss::Loss;
-use volgrad::gradient::objective::{check_target, render_target};
+use volgrad::gradient::objective::{check_target, target_options};
 use volgrad::gradient::passes::{derivative_image, GradOptions, GradientRun, Parameter};
 use volgrad::io::fingerprint::image as image_fingerprint;
 use volgrad::io::gradient_files::{self, Provenance};
@@ -127,34 +128,52 @@ fn resolve_box(b: IndexBox, scene: &Scene, what: &str) -> Result<(IVec3, IVec3)>
     Ok((lo, hi))
 }
 
-/// The target image of a loss, from --target or --target-scene, checked against the scene.
-fn load_target(args: &Args, scene: &Scene) -> Result<Option<RgbImage>> {
-    let target = match (&args.target, &args.target_scene) {
-        (Some(path), _) => {
-            Some(images::read_rgb(path).with_context(|| format!("--target '{}'", path.display()))?)
-        }
-        (None, Some(path)) => {
-            let other = Scene::load(path)
-                .with_context(|| format!("--target-scene '{}'", path.display()))?;
-            Some(render_target(
-                &other,
-                args.target_spp,
-                scene.settings.seed,
-                !args.adjoint.sampling.quiet,
-            ))
-        }
-        (None, None) => None,
+/// Where a loss's target comes from: an image read, or a scene to render.
+enum TargetSource {
+    None,
+    Image(RgbImage),
+    Scene(Box<Scene>),
+}
+
+/// The target's source, from --target or --target-scene: what can fail on one rank and not
+/// another (a file), before any rank renders with the others.
+fn load_target(args: &Args) -> Result<TargetSource> {
+    let source = match (&args.target, &args.target_scene) {
+        (Some(path), _) => TargetSource::Image(
+            images::read_rgb(path).with_context(|| format!("--target '{}'", path.display()))?,
+        ),
+        (None, Some(path)) => TargetSource::Scene(Box::new(
+            Scene::load(path).with_context(|| format!("--target-scene '{}'", path.display()))?,
+        )),
+        (None, None) => TargetSource::None,
     };
-    if args.loss.needs_target() && target.is_none() {
+    if args.loss.needs_target() && matches!(source, TargetSource::None) {
         bail!(
             "--loss {} needs --target IMAGE or --target-scene SCENE",
             args.loss
         );
     }
-    if let Some(t) = &target {
-        check_target(t, scene)?;
+    Ok(source)
+}
+
+/// The target image: read, or rendered with every rank tracing its share of the pixels (one
+/// progress bar, rank 0's).
+fn target_image(
+    args: &Args,
+    source: TargetSource,
+    scene: &Scene,
+    cluster: &Cluster,
+) -> Option<RgbImage> {
+    match source {
+        TargetSource::None => None,
+        TargetSource::Image(image) => Some(image),
+        TargetSource::Scene(other) => {
+            let progress = !args.adjoint.sampling.quiet && cluster.is_root();
+            let seed = scene.settings.seed;
+            let options = target_options(&other, args.target_spp, seed, progress);
+            Some(render_shared(cluster, &other, &options).0)
+        }
     }
-    Ok(target)
 }
 
 /// Under mpirun every rank traces its share of the pixels, the gradients are summed, and rank 0
@@ -190,10 +209,14 @@ pub fn run(args: &Args, cluster: &Cluster) -> Result<()> {
             false => Ok(()),
         })?;
     }
-    let (scene, target) = cluster.agree(Scene::load(&args.scene).and_then(|scene| {
-        let target = load_target(args, &scene)?;
-        Ok((scene, target))
+    let (scene, source) = cluster.agree(Scene::load(&args.scene).and_then(|scene| {
+        let source = load_target(args)?;
+        Ok((scene, source))
     }))?;
+    let target = target_image(args, source, &scene, cluster);
+    if let Some(t) = &target {
+        cluster.agree(check_target(t, &scene))?;
+    }
     let image_box = match &args.image_of {
         Some(spec) => Some(resolve_box(
             values::index_box(spec, "--image-of")?,

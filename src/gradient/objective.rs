@@ -12,20 +12,30 @@ use crate::render::image::{render, RenderOptions};
 use crate::render::sampling::TARGET_SEED_SALT;
 use crate::render::scene::Scene;
 
-/// The render of `target_scene` that a loss compares against, at `spp` samples per pixel. Its
-/// seed is derived from the gradient pass's `gradient_seed` but differs from it.
+/// The render options of `target_scene`'s image that a loss compares against, at `spp` samples
+/// per pixel. Its seed is derived from the gradient pass's `gradient_seed` but differs from it.
+pub fn target_options(
+    target_scene: &Scene,
+    spp: u32,
+    gradient_seed: u64,
+    progress: bool,
+) -> RenderOptions {
+    RenderOptions {
+        spp: spp.max(1),
+        seed: gradient_seed ^ TARGET_SEED_SALT,
+        max_depth: target_scene.settings.max_depth,
+        progress,
+    }
+}
+
+/// The render of `target_scene` that a loss compares against, in one process (`target_options`).
 pub fn render_target(
     target_scene: &Scene,
     spp: u32,
     gradient_seed: u64,
     progress: bool,
 ) -> RgbImage {
-    let options = RenderOptions {
-        spp: spp.max(1),
-        seed: gradient_seed ^ TARGET_SEED_SALT,
-        max_depth: target_scene.settings.max_depth,
-        progress,
-    };
+    let options = target_options(target_scene, spp, gradient_seed, progress);
     render(target_scene, &options).0
 }
 

@@ -104,7 +104,9 @@ pub fn equal_time(
             evaluation: outcome.evaluation,
         });
     }
-    write_outputs(problem, &runs, out)?;
+    // Rank 0 writes; the others learn whether it could.
+    let cluster = options.cluster;
+    cluster.agree(cluster.on_root(|| write_outputs(problem, &runs, out)))?;
     Ok(runs)
 }
 
