@@ -150,7 +150,8 @@ pub struct EmissionFile {
     /// The file it is in (default: `medium.vdb`), relative to the scene file.
     pub vdb: Option<String>,
     /// Le = strength × the normalised blackbody at T = (v − offset) · scale kelvin (pbrt-v4's
-    /// `Lescale`, `temperaturescale`, `temperatureoffset`, `temperaturecutoff`).
+    /// `Lescale`, `temperaturescale` and `temperatureoffset`, whose older name
+    /// `temperaturecutoff` is that offset, not `BlackbodyFile::cutoff`).
     pub blackbody: Option<BlackbodyFile>,
     pub strength: Option<f32>,
     /// Le = radiance × v.
