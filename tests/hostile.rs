@@ -247,3 +247,26 @@ fn trackers_end_on_rays_that_are_not_finite() {
         .count();
     assert!(hits > 50, "{hits}");
 }
+
+/// An infinite δ in one pixel of an adjoint image: its samples are dropped and counted, and every
+/// other pixel's gradient is what it is without that pixel, bit for bit. (The pass's quantum was
+/// once taken from the infinite value: 1, which rounded every other sample to 0.)
+#[test]
+fn an_infinite_adjoint_pixel_is_dropped_and_counted_not_spread() {
+    let scene = lumpy_block_scene(Filter::Trilinear, false, 0.5);
+    let mut adjoint = Loss::Mean.adjoint(&RgbImage::new(8, 8), None);
+    let pixel = 3 * 8 + 4;
+    let options = GradOptions::new(Estimator::Joint, 8, 11, 16);
+    adjoint[pixel] = Vec3::ZERO;
+    let without = gradient(&scene, &adjoint, &options);
+    adjoint[pixel] = Vec3::new(f32::INFINITY, 0.0, 0.0);
+    let with = gradient(&scene, &adjoint, &options);
+    assert_eq!(without.stats.non_finite, 0);
+    assert!(with.stats.non_finite > 0, "the pixel's samples are counted");
+    assert_eq!(with.quantum, without.quantum);
+    let voxels = |run: &volgrad::gradient::passes::GradientRun| -> Vec<_> {
+        run.gradient.voxels().map(|(v, q)| (v, q.to_bits())).collect()
+    };
+    assert!(voxels(&without).iter().any(|&(_, q)| q != 0));
+    assert_eq!(voxels(&with), voxels(&without));
+}

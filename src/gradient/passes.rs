@@ -87,10 +87,13 @@ impl GradOptions {
 /// quanta, and a voxel's sum has 2²⁹ such samples' headroom before i64 saturates; samples below
 /// 2⁻³³ of the largest weight round to 0 (an f32 sum keeps 2⁻²⁴ of its total).
 pub fn quantum_for<'a>(deltas: impl IntoIterator<Item = &'a [Vec3]>, spp: u32) -> f64 {
+    // Over the finite values only: one infinite δ would make the quantum 1 and round every other
+    // sample to 0 (its own samples are dropped and counted by the pass).
     let largest = deltas
         .into_iter()
         .flatten()
         .map(|d| d.abs().max_element())
+        .filter(|x| x.is_finite())
         .fold(0.0f32, f32::max) as f64
         / spp.max(1) as f64;
     if largest > 0.0 && largest.is_finite() {
@@ -138,11 +141,12 @@ struct SplatSink<'a> {
 
 impl SplatSink<'_> {
     /// A non-finite sample would poison every voxel it touches and every merge after it: it is
-    /// dropped and counted instead.
+    /// dropped and counted instead, whether the path's derivative or the pixel's weight (a
+    /// non-finite δ) made it so; rounded to quanta it would have become 0 or ±2⁶³ unseen.
     #[inline]
     fn push(&mut self, base: IVec3, weights: [f32; 8], d_pixel: Vec3) {
-        if d_pixel.is_finite() {
-            let value = self.weight.dot(d_pixel);
+        let value = self.weight.dot(d_pixel);
+        if value.is_finite() {
             self.splats.push(Splat {
                 base,
                 weights,
