@@ -265,7 +265,10 @@ fn an_infinite_adjoint_pixel_is_dropped_and_counted_not_spread() {
     assert!(with.stats.non_finite > 0, "the pixel's samples are counted");
     assert_eq!(with.quantum, without.quantum);
     let voxels = |run: &volgrad::gradient::passes::GradientRun| -> Vec<_> {
-        run.gradient.voxels().map(|(v, q)| (v, q.to_bits())).collect()
+        run.gradient
+            .voxels()
+            .map(|(v, q)| (v, q.to_bits()))
+            .collect()
     };
     assert!(voxels(&without).iter().any(|&(_, q)| q != 0));
     assert_eq!(voxels(&with), voxels(&without));
