@@ -176,6 +176,41 @@ def node_material(bpy, medium, emission, kelvin):
     return material
 
 
+def cycles_lights(bpy, blender, lights):
+    """A scene file's `[[light]]` list as Blender's world and sun lamps, replacing any the scene
+    has: `constant` lights summed into the world's background colour, each `directional` one a sun
+    lamp of angle 0 whose strength is its irradiance."""
+    import mathutils
+
+    for lamp in [o for o in blender.objects if o.type == "LIGHT"]:
+        bpy.data.objects.remove(lamp)
+    world = bpy.data.worlds.new("world")
+    world.use_nodes = True
+    background = world.node_tree.nodes["Background"]
+    background.inputs["Strength"].default_value = 1.0
+    sky = [0.0, 0.0, 0.0]
+    for i, light in enumerate(lights):
+        if light["type"] == "constant":
+            sky = [a + b for a, b in zip(sky, spectrum(light["radiance"]))]
+        elif light["type"] == "directional":
+            irradiance = spectrum(light["irradiance"])
+            strength = max(irradiance)
+            sun = bpy.data.lights.new(f"sun{i}", "SUN")
+            sun.energy = strength
+            sun.color = [c / strength for c in irradiance] if strength > 0 else [1.0, 1.0, 1.0]
+            sun.angle = 0.0
+            lamp = bpy.data.objects.new(f"sun{i}", sun)
+            # A sun shines down its −Z.
+            direction = mathutils.Vector(light["direction"]).normalized()
+            lamp.rotation_mode = "QUATERNION"
+            lamp.rotation_quaternion = direction.to_track_quat("-Z", "Y")
+            blender.collection.objects.link(lamp)
+        else:
+            sys.exit(f"error: light {i}: only constant and directional lights are mapped")
+    background.inputs["Color"].default_value = (*sky, 1.0)
+    blender.world = world
+
+
 def cycles_scene(bpy, scene_path, scene, max_depth, step_rate, kelvin):
     """Sets up Blender's scene for `scene` (parsed TOML of the file at `scene_path`)."""
     import mathutils
@@ -226,31 +261,7 @@ def cycles_scene(bpy, scene_path, scene, max_depth, step_rate, kelvin):
     blender.collection.objects.link(eye)
     blender.camera = eye
 
-    world = bpy.data.worlds.new("world")
-    world.use_nodes = True
-    background = world.node_tree.nodes["Background"]
-    background.inputs["Strength"].default_value = 1.0
-    sky = [0.0, 0.0, 0.0]
-    for i, light in enumerate(scene.get("light", [])):
-        if light["type"] == "constant":
-            sky = [a + b for a, b in zip(sky, spectrum(light["radiance"]))]
-        elif light["type"] == "directional":
-            irradiance = spectrum(light["irradiance"])
-            strength = max(irradiance)
-            sun = bpy.data.lights.new(f"sun{i}", "SUN")
-            sun.energy = strength
-            sun.color = [c / strength for c in irradiance] if strength > 0 else [1.0, 1.0, 1.0]
-            sun.angle = 0.0
-            lamp = bpy.data.objects.new(f"sun{i}", sun)
-            # A sun shines down its −Z.
-            direction = mathutils.Vector(light["direction"]).normalized()
-            lamp.rotation_mode = "QUATERNION"
-            lamp.rotation_quaternion = direction.to_track_quat("-Z", "Y")
-            blender.collection.objects.link(lamp)
-        else:
-            sys.exit(f"error: light {i}: only constant and directional lights are mapped")
-    background.inputs["Color"].default_value = (*sky, 1.0)
-    blender.world = world
+    cycles_lights(bpy, blender, scene.get("light", []))
 
     blender.render.engine = "CYCLES"
     blender.render.resolution_x, blender.render.resolution_y = camera["width"], camera["height"]

@@ -86,6 +86,27 @@ fn views_under_their_own_lights_and_relit_held_out_views() {
     ));
 }
 
+/// The fixture's training orbit as its run file writes it (what the camera-file tests replace).
+const ORBIT: &str =
+    "[views.orbit]\ncount = 6\nelevation_deg = [-30, 70]\ndistance = 12\nfov_deg = 40\nwidth = 24\nheight = 24\n";
+
+/// The two problems' training views are the same cameras: positions within `tolerance`, the same
+/// rays through pixels across the image.
+fn assert_same_cameras(
+    a: &volgrad::optimize::problem::Problem,
+    b: &volgrad::optimize::problem::Problem,
+    tolerance: f32,
+) {
+    assert_eq!(a.views.len(), b.views.len());
+    for (a, b) in a.views.iter().zip(&b.views) {
+        assert!((a.camera.position - b.camera.position).length() < tolerance);
+        for (x, y) in [(0.5, 0.5), (23.5, 0.5), (12.0, 12.0), (3.5, 20.5)] {
+            let (da, db) = (a.camera.direction(x, y), b.camera.direction(x, y));
+            assert!((da - db).length() < 1e-5, "pixel ({x}, {y}): {da} vs {db}");
+        }
+    }
+}
+
 /// A `transforms.json` (NeRF / instant-ngp: camera-to-world rows, the camera looking down −z)
 /// written from an orbit's cameras gives those cameras back: the same positions and rays. A frame
 /// whose `file_path` has no extension finds its `.exr`, which becomes its target as written.
@@ -124,21 +145,14 @@ fn a_transforms_file_gives_back_the_orbit_it_was_written_from() {
     let first = &orbit_problem.views[0].target;
     volgrad::io::images::write_exr(&d.join("first.exr"), first, false).unwrap();
     let run = run_file("0.2", "").replace(
-        "[views.orbit]\ncount = 6\nelevation_deg = [-30, 70]\ndistance = 12\nfov_deg = 40\nwidth = 24\nheight = 24\n",
+        ORBIT,
         "[views]\ntransforms = \"transforms.json\"\n",
     );
     assert!(run.contains("transforms.json"), "{run}");
     std::fs::write(d.join("run.toml"), run).unwrap();
     let json_problem =
         Problem::load(&d.join("run.toml"), None, false, None, &Cluster::single()).unwrap();
-    assert_eq!(json_problem.views.len(), orbit_problem.views.len());
-    for (a, b) in orbit_problem.views.iter().zip(&json_problem.views) {
-        assert!((a.camera.position - b.camera.position).length() < 1e-5);
-        for (x, y) in [(0.5, 0.5), (23.5, 0.5), (12.0, 12.0), (3.5, 20.5)] {
-            let (da, db) = (a.camera.direction(x, y), b.camera.direction(x, y));
-            assert!((da - db).length() < 1e-5, "pixel ({x}, {y}): {da} vs {db}");
-        }
-    }
+    assert_same_cameras(&orbit_problem, &json_problem, 1e-5);
     assert_eq!(json_problem.views[0].target.pixels, first.pixels);
     // A pose changed in the file, under the same name, is another run: a checkpoint of this one
     // would not be resumed by it.
@@ -202,20 +216,13 @@ fn a_colmap_model_with_a_png_gives_back_the_orbit_and_its_picture_over_the_sky()
         .save(d.join("project/images/other.png"))
         .unwrap();
     let run = run_file("0.2", "").replace(
-        "[views.orbit]\ncount = 6\nelevation_deg = [-30, 70]\ndistance = 12\nfov_deg = 40\nwidth = 24\nheight = 24\n",
+        ORBIT,
         "[views.colmap]\nmodel = \"project/sparse/0\"\n",
     );
     std::fs::write(d.join("run.toml"), run).unwrap();
     let colmap_problem =
         Problem::load(&d.join("run.toml"), None, false, None, &Cluster::single()).unwrap();
-    assert_eq!(colmap_problem.views.len(), orbit_problem.views.len());
-    for (a, b) in orbit_problem.views.iter().zip(&colmap_problem.views) {
-        assert!((a.camera.position - b.camera.position).length() < 1e-4);
-        for (x, y) in [(0.5, 0.5), (23.5, 0.5), (12.0, 12.0), (3.5, 20.5)] {
-            let (da, db) = (a.camera.direction(x, y), b.camera.direction(x, y));
-            assert!((da - db).length() < 1e-5, "pixel ({x}, {y}): {da} vs {db}");
-        }
-    }
+    assert_same_cameras(&orbit_problem, &colmap_problem, 1e-4);
     // sRGB 128/255 is radiance 0.2158; alpha 128/255 lets 0.498 of the sky through.
     let sky = Vec3::new(0.03, 0.04, 0.06);
     let target = &colmap_problem.views[0].target.pixels;

@@ -75,6 +75,18 @@ fn sensors(text: &str) -> Result<HashMap<u32, Sensor>> {
     Ok(sensors)
 }
 
+/// The words as finite numbers, or an error naming the first that is not one.
+fn finite_numbers(words: &[&str]) -> Result<Vec<f64>> {
+    (words.iter())
+        .map(|w| {
+            w.parse::<f64>()
+                .ok()
+                .filter(|v| v.is_finite())
+                .with_context(|| format!("'{w}' is not a finite number"))
+        })
+        .collect()
+}
+
 fn first_number(line: &str) -> Result<u32> {
     let word = line.split_whitespace().next().unwrap_or_default();
     word.parse()
@@ -94,15 +106,7 @@ fn sensor(line: &str) -> Result<Sensor> {
             .with_context(|| format!("{key} '{}' is not a whole number", words[i]))
     };
     let (width, height) = (size(2, "WIDTH")?, size(3, "HEIGHT")?);
-    let params = words[4..]
-        .iter()
-        .map(|w| {
-            w.parse::<f64>()
-                .ok()
-                .filter(|v| v.is_finite())
-                .with_context(|| format!("parameter '{w}' is not a finite number"))
-        })
-        .collect::<Result<Vec<f64>>>()?;
+    let params = finite_numbers(&words[4..])?;
     // (fx, fy, cx, cy) and the distortion terms, by model.
     let (pinhole, distortion, expected): ([f64; 4], &[f64], usize) = match model {
         "SIMPLE_PINHOLE" | "SIMPLE_RADIAL" | "RADIAL" if params.len() >= 3 => {
@@ -172,15 +176,7 @@ fn view(line: &str, sensors: &HashMap<u32, Sensor>, images: &Path) -> Result<Cap
     if words.len() < 10 {
         bail!("expected IMAGE_ID QW QX QY QZ TX TY TZ CAMERA_ID NAME");
     }
-    let numbers = words[1..8]
-        .iter()
-        .map(|w| {
-            w.parse::<f64>()
-                .ok()
-                .filter(|v| v.is_finite())
-                .with_context(|| format!("'{w}' is not a finite number"))
-        })
-        .collect::<Result<Vec<f64>>>()?;
+    let numbers = finite_numbers(&words[1..8])?;
     let q = DQuat::from_xyzw(numbers[1], numbers[2], numbers[3], numbers[0]);
     let norm = q.length();
     if norm <= 1e-12 {
