@@ -8,8 +8,7 @@ use std::path::{Path, PathBuf};
 use anyhow::{bail, Context, Result};
 use glam::Vec3;
 
-use crate::capture::pictures;
-use crate::capture::{colmap, transforms};
+use crate::capture::{colmap, pictures, transforms};
 use crate::cluster::images::{render_shared, sum_image};
 use crate::cluster::Cluster;
 use crate::io::images::{self, ColorSpace, RgbImage};
@@ -160,15 +159,15 @@ pub fn view_specs(
             });
         }
     }
-    for spec in specs.iter().filter(|_| world_box.is_some()) {
-        let world_box = world_box.expect("filtered");
+    let Some((lo, hi)) = world_box else {
+        return Ok(specs);
+    };
+    for spec in &specs {
         let p = spec.camera.position;
-        if p.cmpge(world_box.0).all() && p.cmple(world_box.1).all() {
+        if p.cmpge(lo).all() && p.cmple(hi).all() {
             bail!(
-                "{}: the camera at {p} is inside the unknown's box {:?}..{:?} (move it out, or for an orbit raise `distance`)",
+                "{}: the camera at {p} is inside the unknown's box {lo:?}..{hi:?} (move it out, or for an orbit raise `distance`)",
                 spec.name,
-                world_box.0,
-                world_box.1
             );
         }
     }
