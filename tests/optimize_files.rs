@@ -463,6 +463,14 @@ fn bad_run_files_name_the_key() {
             good.replacen("distance = 12", "distance = 2", 1),
             vec!["views.orbit", "inside"],
         ),
+        (
+            good.replace("bounds = \"truth\"", "bounds = \"views\""),
+            vec!["views.orbit", "orbits circle the unknown's box"],
+        ),
+        (
+            good.replace("bounds = \"truth\"", "bounds = \"views\"\nvoxel_size = -1"),
+            vec!["unknown.voxel_size"],
+        ),
         (good.replace("lr = 0.1", "lr = 0"), vec!["optimizer.lr"]),
         (good.replace("lr = 0.1", "lr = -2"), vec!["optimizer.lr"]),
         (
