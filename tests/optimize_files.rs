@@ -719,3 +719,38 @@ fn the_worked_examples_pngs_decode_to_its_exrs() {
         }
     }
 }
+
+/// `--iterations 0` evaluates the start and writes it: with the truth as the start, its row is
+/// the held-out views' ceiling, and final.vdb is the truth's voxels, untouched.
+#[test]
+fn zero_iterations_evaluate_the_start_and_write_it() {
+    let dir = fixture(&run_file("\"ball.vdb\"", ""));
+    let d = dir.path();
+    ok(volgrad_in(
+        d,
+        &[
+            "optimize",
+            "run.toml",
+            "--iterations",
+            "0",
+            "--out",
+            "out",
+            "-q",
+        ],
+    ));
+    let rows = log(&d.join("out"));
+    assert_eq!(rows.len(), 1);
+    assert!(rows[0]["heldout_psnr"].parse::<f64>().unwrap() > 20.0);
+    use volgrad::io::vdb::{read_grid, GridSelector};
+    let read = |p: &Path| read_grid(p, &GridSelector::Default).unwrap().bricks;
+    let (written, truth) = (read(&d.join("out/final.vdb")), read(&d.join("ball.vdb")));
+    let (lo, hi) = truth.active_bounds().unwrap();
+    for x in lo.x..=hi.x {
+        for y in lo.y..=hi.y {
+            for z in lo.z..=hi.z {
+                let v = glam::IVec3::new(x, y, z);
+                assert_eq!(written.voxel(v), truth.voxel(v), "{v}");
+            }
+        }
+    }
+}

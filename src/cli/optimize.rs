@@ -29,7 +29,8 @@ pub struct Args {
     #[arg(long, value_parser = values::duration, conflicts_with = "iterations")]
     pub budget: Option<Duration>,
     /// Iterations (default: the run file's optimizer.iterations; resuming, the stop rule of the
-    /// run resumed).
+    /// run resumed). 0 evaluates the start and writes it as final.vdb: with the true grid as the
+    /// start, the best score the held-out pictures allow.
     #[arg(long)]
     pub iterations: Option<u64>,
     /// Replay the schedule (levels, learning rate) a run's log.csv records, iteration by
@@ -84,8 +85,11 @@ fn stop_on_sigusr1() {
 
 pub fn run(args: &Args, cluster: &Cluster) -> Result<()> {
     set_threads(args.threads)?;
-    if args.iterations == Some(0) || args.budget == Some(Duration::ZERO) {
-        bail!("--iterations and --budget must be above 0");
+    if args.budget == Some(Duration::ZERO) {
+        bail!("--budget must be above 0");
+    }
+    if args.iterations == Some(0) && (args.estimators.is_some() || args.resume.is_some()) {
+        bail!("--iterations 0 (evaluate the start, write it as final.vdb) is for a fresh single run, not --estimators or --resume");
     }
     if let Some(estimators) = &args.estimators {
         if estimators.is_empty() {

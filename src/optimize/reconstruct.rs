@@ -376,6 +376,8 @@ impl<'a> Run<'a> {
                 .cluster
                 .agree(self.options.cluster.on_root(|| {
                     self.write_grid(&out.join("final.vdb"))?;
+                    // Also written at every evaluation; here for a run of 0 iterations too.
+                    write_bytes_whole(&out.join("log.csv"), LogRow::csv(&self.log))?;
                     write_progress_chart(out, &self.log)
                 }))?;
         }

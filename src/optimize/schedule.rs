@@ -29,7 +29,9 @@ impl Stop {
     /// (≥ 1: done).
     pub fn fraction(&self, iteration: u64, seconds: f64) -> f64 {
         match self {
-            Stop::Iterations(n) => iteration as f64 / (*n).max(1) as f64,
+            // 0 iterations: done at once (the start is evaluated and written, nothing stepped).
+            Stop::Iterations(0) => 1.0,
+            Stop::Iterations(n) => iteration as f64 / *n as f64,
             Stop::Budget(b) => seconds / b.as_secs_f64().max(1e-9),
             Stop::Replay(fractions) => usize::try_from(iteration)
                 .ok()
