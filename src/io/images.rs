@@ -38,6 +38,24 @@ impl RgbImage {
         }
     }
 
+    /// Every pixel × `k` (k = 1 leaves the bits as they are).
+    pub fn scale(&mut self, k: f32) {
+        if k != 1.0 {
+            self.pixels.iter_mut().for_each(|c| *c *= k);
+        }
+    }
+
+    /// The pixelwise mean of two images of one size (two independent halves of a render's
+    /// samples are one render).
+    pub fn average(a: &RgbImage, b: &RgbImage) -> RgbImage {
+        RgbImage {
+            pixels: (a.pixels.iter().zip(&b.pixels))
+                .map(|(x, y)| (*x + *y) * 0.5)
+                .collect(),
+            ..a.clone()
+        }
+    }
+
     pub fn mean(&self) -> Vec3 {
         self.pixels.iter().copied().sum::<Vec3>() / self.pixels.len().max(1) as f32
     }

@@ -102,19 +102,12 @@ pub fn evaluate(
                     ..options
                 };
                 let mut image = render_shared(cluster, &scene, &options).0;
-                if exposure != 1.0 {
-                    image.pixels.iter_mut().for_each(|c| *c *= exposure);
-                }
+                image.scale(exposure);
                 image
             })
             .collect();
         let (a, b) = (&halves[0], &halves[1]);
-        let image = RgbImage {
-            pixels: (a.pixels.iter().zip(&b.pixels))
-                .map(|(x, y)| (*x + *y) * 0.5)
-                .collect(),
-            ..a.clone()
-        };
+        let image = RgbImage::average(a, b);
         let noise = mean_squared_error(a, b) / 4.0;
         e.noise_psnr += 10.0 * (peak(&view.target).powi(2) / noise.max(1e-30)).log10();
         let view_psnr = psnr(&image, &view.target);

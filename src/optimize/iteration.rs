@@ -162,32 +162,26 @@ fn piece_adjoint(
     let pixels = scene.camera.width * scene.camera.height;
     let drawn: Option<Vec<u32>> =
         (piece.drawn.as_ref()).map(|d| d.iter().map(|&(p, _)| p).collect());
-    let renders: Vec<RgbImage> = (0..halves)
-        .map(|half| {
-            let options = RenderOptions {
-                spp: (s.primal_spp / halves).max(1),
-                seed: piece.seed ^ (half as u64).wrapping_mul(EXPOSURE_HALF_SALT),
-                max_depth: s.max_depth,
-                progress: false,
-            };
-            let mut image = render_pixels(scene, &options, &piece.pixels(pixels, cluster)).0;
-            match &drawn {
-                None => sum_image(cluster, &mut image),
-                Some(list) => sum_pixels(cluster, &mut image, list),
-            }
-            scale(&mut image.pixels, exposure);
-            image
-        })
-        .collect();
-    let image = match &renders[..] {
-        [one] => one.clone(),
-        [a, b] => RgbImage {
-            pixels: (a.pixels.iter().zip(&b.pixels))
-                .map(|(x, y)| (*x + *y) * 0.5)
-                .collect(),
-            ..a.clone()
-        },
-        _ => unreachable!("one or two halves"),
+    let render = |half: u64| {
+        let options = RenderOptions {
+            spp: (s.primal_spp / halves).max(1),
+            seed: piece.seed ^ half.wrapping_mul(EXPOSURE_HALF_SALT),
+            max_depth: s.max_depth,
+            progress: false,
+        };
+        let mut image = render_pixels(scene, &options, &piece.pixels(pixels, cluster)).0;
+        match &drawn {
+            None => sum_image(cluster, &mut image),
+            Some(list) => sum_pixels(cluster, &mut image, list),
+        }
+        image.scale(exposure);
+        image
+    };
+    let (image, halves) = if s.fit_exposure {
+        let (a, b) = (render(0), render(1));
+        (RgbImage::average(&a, &b), Some((a, b)))
+    } else {
+        (render(0), None)
     };
     // The loss and δ′ = ∂loss/∂I′ of an image (zero off the drawn pixels).
     let adjoint_of = |image: &RgbImage| -> (f64, Vec<Vec3>) {
@@ -218,24 +212,19 @@ fn piece_adjoint(
             .map(|(d, c)| f64::from(d.dot(*c)))
             .sum()
     };
-    let exposure_gradient = match &renders[..] {
-        [a, b] => 0.5 * (dot(&adjoint_of(a).1, b) + dot(&adjoint_of(b).1, a)),
-        _ => dot(&delta, &image),
+    let exposure_gradient = match &halves {
+        Some((a, b)) => 0.5 * (dot(&adjoint_of(a).1, b) + dot(&adjoint_of(b).1, a)),
+        None => dot(&delta, &image),
     };
     // The pass traces k·δ′: ∂I′/∂θ = k·∂I/∂θ.
-    scale(&mut delta, exposure);
+    if exposure != 1.0 {
+        delta.iter_mut().for_each(|d| *d *= exposure);
+    }
     Ok(PieceAdjoint {
         loss,
         delta,
         exposure_gradient,
     })
-}
-
-/// Multiplies every value by `k`; k = 1 (no exposure fitted) leaves the bits as they are.
-fn scale(values: &mut [Vec3], k: f32) {
-    if k != 1.0 {
-        values.iter_mut().for_each(|v| *v *= k);
-    }
 }
 
 /// The views of iteration `iteration` with their seeds: the view batch, or the views a pixel

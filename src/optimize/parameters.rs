@@ -187,13 +187,11 @@ impl Parameters {
         brick.v[i] = v.max(0.0);
     }
 
-    /// Continues the step count of `other` (Adam's bias corrections), the global scale's
-    /// moments and the exposure, e.g. after resampling: u and x are the same parameters at any
-    /// resolution.
+    /// Continues the step count of `other` (Adam's bias corrections) and the global scale's
+    /// moments, e.g. after resampling: u is the same parameter at any resolution.
     pub fn continue_steps_of(&mut self, other: &Parameters) {
         self.steps = other.steps;
         self.scale = other.scale;
-        self.exposure = other.exposure;
     }
 
     /// Gives each brick the log-scale moments of the brick of `coarse` (one level coarser) it

@@ -6,6 +6,7 @@
 
 use anyhow::{bail, Result};
 use glam::{DMat3, DVec3, Vec3};
+use rayon::prelude::*;
 
 use crate::render::camera::Camera;
 
@@ -24,14 +25,22 @@ pub fn seen_by_all(cameras: &[Camera]) -> Result<(DVec3, DVec3)> {
         .map(|c| (c.position.as_dvec3() - centre).length())
         .fold(0.0, f64::max);
     let (lo, step) = (centre - radius, 2.0 * radius / SAMPLES as f64);
-    let mut found: Option<(DVec3, DVec3)> = None;
-    for i in 0..SAMPLES * SAMPLES * SAMPLES {
-        let (x, y, z) = (i % SAMPLES, i / SAMPLES % SAMPLES, i / (SAMPLES * SAMPLES));
-        let p = lo + DVec3::new(x as f64 + 0.5, y as f64 + 0.5, z as f64 + 0.5) * step;
-        if cameras.iter().all(|c| sees(c, p.as_vec3())) {
-            found = Some(found.map_or((p, p), |(a, b)| (a.min(p), b.max(p))));
-        }
-    }
+    // Slices in parallel (thousands of views test up to 96³ points each); min and max do not
+    // depend on the order they are taken in.
+    let found = (0..SAMPLES)
+        .into_par_iter()
+        .filter_map(|z| {
+            let mut slice: Option<(DVec3, DVec3)> = None;
+            for i in 0..SAMPLES * SAMPLES {
+                let (x, y) = (i % SAMPLES, i / SAMPLES);
+                let p = lo + DVec3::new(x as f64 + 0.5, y as f64 + 0.5, z as f64 + 0.5) * step;
+                if cameras.iter().all(|c| sees(c, p.as_vec3())) {
+                    slice = Some(slice.map_or((p, p), |(a, b)| (a.min(p), b.max(p))));
+                }
+            }
+            slice
+        })
+        .reduce_with(|(a, b), (c, d)| (a.min(c), b.max(d)));
     match found {
         Some((a, b)) => Ok((a - step, b + step)),
         None => bail!(
