@@ -23,7 +23,7 @@ use clap::{Args, ValueEnum};
 use volgrad::gradient::adjoint::{AdjointOptions, Estimator, Suffix, DEFAULT_SUFFIX_PATHS};
 use volgrad::gradient::fd::{self, FdOptions};
 use volgrad::gradient::loss::Loss;
-use volgrad::gradient::passes::{GradOptions, Parameter};
+use volgrad::gradient::passes::{GradOptions, Measured, Parameter};
 use volgrad::render::image::RenderStats;
 use volgrad::render::scene::Scene;
 
@@ -118,6 +118,7 @@ impl AdjointArgs {
             parameter: self.parameter,
             channel: None,
             domain: None,
+            measured: Measured::Radiance,
         })
     }
 }

@@ -8,6 +8,7 @@ use glam::Vec3;
 
 use crate::cluster::Cluster;
 use crate::io::images::RgbImage;
+use crate::render::alpha::render_alpha_pixels;
 use crate::render::image::{render, render_pixels, RenderOptions, RenderStats};
 use crate::render::pixel_set::PixelSet;
 use crate::render::scene::Scene;
@@ -27,6 +28,15 @@ pub fn render_shared(
     sum_image(cluster, &mut image);
     sum_stats(cluster, &mut stats);
     (image, stats)
+}
+
+/// The scene's camera view's alpha (`render::alpha`), rendered by all ranks.
+pub fn render_alpha_shared(cluster: &Cluster, scene: &Scene, options: &RenderOptions) -> RgbImage {
+    let pixels = scene.camera.width * scene.camera.height;
+    let set = PixelSet::share(pixels, cluster.rank(), cluster.size());
+    let mut image = render_alpha_pixels(scene, options, &set).0;
+    sum_image(cluster, &mut image);
+    image
 }
 
 /// This rank's `stats` made the job's, on every rank: paths, dropped samples and tracking

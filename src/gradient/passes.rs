@@ -13,8 +13,10 @@ use rayon::prelude::*;
 use crate::gradient::adjoint::{
     AdjointOptions, Estimator, GradientSink, Replay, Scratch, Suffix, DEFAULT_SUFFIX_PATHS,
 };
+use crate::gradient::alpha_gradient::alpha_gradient_sample;
 use crate::gradient::grid::{Accumulator, GradientGrid, Quanta};
 use crate::io::images::RgbImage;
+use crate::render::alpha::{alpha_sample, ALPHA_SEED_SALT};
 use crate::render::image::RenderStats;
 use crate::render::pixel_set::PixelSet;
 use crate::render::sampling::{sample_rng, Pass};
@@ -43,6 +45,19 @@ pub struct GradOptions {
     /// own: an optimisation's unknown has a fixed domain, which its current bricks (none, for an
     /// empty start) do not cover. `None`: every voxel the pass's lookups can weight.
     pub domain: Option<(IVec3, IVec3)>,
+    /// What the adjoint image weights: the pixels' radiance, or their alpha.
+    pub measured: Measured,
+}
+
+/// The pixel values a pass differentiates.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub enum Measured {
+    /// The camera paths' radiance (the estimators' business).
+    #[default]
+    Radiance,
+    /// The camera rays' alpha, 1 − T (`render::alpha`, `alpha_gradient`): grey, its adjoint's
+    /// three channels add up.
+    Alpha,
 }
 
 /// The grid a gradient is taken with respect to.
@@ -78,6 +93,7 @@ impl GradOptions {
             parameter: Parameter::Extinction,
             channel: None,
             domain: None,
+            measured: Measured::Radiance,
         }
     }
 }
@@ -335,13 +351,29 @@ impl GradientPass<'_> {
         sink: &mut impl GradientSink,
     ) -> Vec3 {
         let camera = &self.scene.camera;
-        let mut rng = sample_rng(
-            self.options.seed,
-            (y * camera.width + x) as u64,
-            sample,
-            Pass::Adjoint,
-        );
+        let measured = self.options.measured;
+        let seed = match measured {
+            Measured::Radiance => self.options.seed,
+            Measured::Alpha => self.options.seed ^ ALPHA_SEED_SALT,
+        };
+        let mut rng = sample_rng(seed, (y * camera.width + x) as u64, sample, Pass::Adjoint);
         let dir = camera.direction(x as f32 + rng.gen::<f32>(), y as f32 + rng.gen::<f32>());
+        if measured == Measured::Alpha {
+            // Alpha depends on the extinction alone: with respect to other grids its gradient is 0.
+            let stats = &mut worker.stats;
+            return match self.options.parameter {
+                Parameter::Extinction => {
+                    alpha_gradient_sample(self.scene, camera.position, dir, &mut rng, stats, sink)
+                }
+                _ => Vec3::splat(alpha_sample(
+                    self.scene,
+                    camera.position,
+                    dir,
+                    &mut rng,
+                    stats,
+                )),
+            };
+        }
         let mut replay = Replay {
             scene: self.scene,
             options: &self.options.adjoint,

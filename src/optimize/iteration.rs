@@ -25,10 +25,11 @@ use crate::gradient::adjoint::Estimator;
 use crate::gradient::grid::Quanta;
 use crate::gradient::objective::check_target;
 use crate::gradient::passes::{
-    gradient_grid_for, gradient_of, quantum_for, GradOptions, Parameter,
+    gradient_grid_for, gradient_of, quantum_for, GradOptions, Measured, Parameter,
 };
 use crate::io::images::RgbImage;
 use crate::optimize::problem::Problem;
+use crate::render::alpha::render_alpha_pixels;
 use crate::render::image::{render_pixels, RenderOptions};
 use crate::render::pixel_set::PixelSet;
 use crate::render::sampling::pixel_rng;
@@ -88,14 +89,21 @@ pub fn images_gradient(
     let (mut loss, mut deltas, mut lit) = (0.0, Vec::with_capacity(pieces.len()), 0);
     let mut exposure_gradient = 0.0;
     let view_weight = 1.0 / pieces.len() as f64;
+    let mut alpha_deltas = Vec::with_capacity(pieces.len());
     for piece in &pieces {
         problem.look_through(scene, &mut lit, &problem.views[piece.view]);
         let adjoint = piece_adjoint(problem, cluster, scene, piece, view_weight, exposure)?;
         loss += adjoint.loss;
         exposure_gradient += adjoint.exposure_gradient;
         deltas.push(adjoint.delta);
+        let alpha = alpha_adjoint(problem, cluster, scene, piece, view_weight);
+        if let Some((alpha_loss, _)) = &alpha {
+            loss += alpha_loss;
+        }
+        alpha_deltas.push(alpha.map(|a| a.1));
     }
-    let quantum = quantum_for(deltas.iter().map(|d| &d[..]), s.spp);
+    let every_delta = deltas.iter().chain(alpha_deltas.iter().flatten());
+    let quantum = quantum_for(every_delta.map(|d| &d[..]), s.spp);
     // An emission unknown's gradient is wanted over its whole box: the pass would otherwise
     // cover only its current bricks (none for an empty start, which then never grows) and their
     // apron (outside the box). The density's domain is the medium's bounds already.
@@ -108,15 +116,21 @@ pub fn images_gradient(
         ..GradOptions::new(estimator, s.spp, 0, s.max_depth)
     };
     let mut total = gradient_grid_for::<Quanta>(scene, &pass);
-    for (piece, delta) in pieces.iter().zip(&deltas) {
+    for ((piece, delta), alpha_delta) in pieces.iter().zip(&deltas).zip(&alpha_deltas) {
         problem.look_through(scene, &mut lit, &problem.views[piece.view]);
+        let pixels = piece.pixels(scene.camera.width * scene.camera.height, cluster);
         let options = GradOptions {
             seed: piece.seed,
             ..pass
         };
-        let pixels = scene.camera.width * scene.camera.height;
-        let run = gradient_of(scene, delta, &options, &piece.pixels(pixels, cluster));
-        total.add_grid(&run.gradient);
+        total.add_grid(&gradient_of(scene, delta, &options, &pixels).gradient);
+        if let Some(alpha_delta) = alpha_delta {
+            let options = GradOptions {
+                measured: Measured::Alpha,
+                ..options
+            };
+            total.add_grid(&gradient_of(scene, alpha_delta, &options, &pixels).gradient);
+        }
     }
     let (total, traffic) = sum_over_ranks(cluster, total);
     let inside = |v: &IVec3| domain.is_none_or(|(lo, hi)| v.cmpge(lo).all() && v.cmple(hi).all());
@@ -160,8 +174,6 @@ fn piece_adjoint(
     check_target(target, scene)?;
     let halves = if s.fit_exposure { 2 } else { 1 };
     let pixels = scene.camera.width * scene.camera.height;
-    let drawn: Option<Vec<u32>> =
-        (piece.drawn.as_ref()).map(|d| d.iter().map(|&(p, _)| p).collect());
     let render = |half: u64| {
         let options = RenderOptions {
             spp: (s.primal_spp / halves).max(1),
@@ -169,11 +181,9 @@ fn piece_adjoint(
             max_depth: s.max_depth,
             progress: false,
         };
-        let mut image = render_pixels(scene, &options, &piece.pixels(pixels, cluster)).0;
-        match &drawn {
-            None => sum_image(cluster, &mut image),
-            Some(list) => sum_pixels(cluster, &mut image, list),
-        }
+        let mut image = shared_render(cluster, piece, pixels, |set| {
+            render_pixels(scene, &options, set).0
+        });
         image.scale(exposure);
         image
     };
@@ -183,29 +193,7 @@ fn piece_adjoint(
     } else {
         (render(0), None)
     };
-    // The loss and δ′ = ∂loss/∂I′ of an image (zero off the drawn pixels).
-    let adjoint_of = |image: &RgbImage| -> (f64, Vec<Vec3>) {
-        match &piece.drawn {
-            None => {
-                let loss = view_weight * s.loss.evaluate(image, Some(target));
-                let delta = s.loss.adjoint(image, Some(target));
-                let weight = view_weight as f32;
-                (loss, delta.into_iter().map(|d| d * weight).collect())
-            }
-            Some(drawn) => {
-                // Each draw weighs 1/(3N): the loss is a mean over draws and channels.
-                let per_draw = 1.0 / (3.0 * s.batch_pixels as f64);
-                let (mut loss, mut delta) = (0.0, vec![Vec3::ZERO; pixels as usize]);
-                for &(p, count) in drawn {
-                    let (c, t) = (image.pixels[p as usize], target.pixels[p as usize]);
-                    let weight = count as f64 * per_draw;
-                    loss += weight * s.loss.pixel_value(c, t);
-                    delta[p as usize] = s.loss.pixel_adjoint(c, t) * weight as f32;
-                }
-                (loss, delta)
-            }
-        }
-    };
+    let adjoint_of = |image: &RgbImage| weighed_adjoint(problem, piece, image, target, view_weight);
     let (loss, mut delta) = adjoint_of(&image);
     let dot = |d: &[Vec3], c: &RgbImage| -> f64 {
         (d.iter().zip(&c.pixels))
@@ -225,6 +213,85 @@ fn piece_adjoint(
         delta,
         exposure_gradient,
     })
+}
+
+/// The loss of `image` against `target` over a piece's pixels, weighed by `weight`, and its
+/// adjoint δ = ∂loss/∂pixel (zero off the drawn pixels).
+fn weighed_adjoint(
+    problem: &Problem,
+    piece: &Piece,
+    image: &RgbImage,
+    target: &RgbImage,
+    weight: f64,
+) -> (f64, Vec<Vec3>) {
+    let s = &problem.settings;
+    match &piece.drawn {
+        None => {
+            let loss = weight * s.loss.evaluate(image, Some(target));
+            let delta = s.loss.adjoint(image, Some(target));
+            (loss, delta.into_iter().map(|d| d * weight as f32).collect())
+        }
+        Some(drawn) => {
+            // Each draw weighs 1/(3N): the loss is a mean over draws and channels.
+            let per_draw = weight / (3.0 * s.batch_pixels as f64);
+            let (mut loss, mut delta) = (0.0, vec![Vec3::ZERO; image.pixels.len()]);
+            for &(p, count) in drawn {
+                let (c, t) = (image.pixels[p as usize], target.pixels[p as usize]);
+                let weight = count as f64 * per_draw;
+                loss += weight * s.loss.pixel_value(c, t);
+                delta[p as usize] = s.loss.pixel_adjoint(c, t) * weight as f32;
+            }
+            (loss, delta)
+        }
+    }
+}
+
+/// A piece's image of a `pixels`-pixel view from `render` of each rank's share of its pixels,
+/// summed over the ranks: every rank has the piece's pixels.
+fn shared_render(
+    cluster: &Cluster,
+    piece: &Piece,
+    pixels: u32,
+    render: impl Fn(&PixelSet) -> RgbImage,
+) -> RgbImage {
+    let mut image = render(&piece.pixels(pixels, cluster));
+    match &piece.drawn {
+        None => sum_image(cluster, &mut image),
+        Some(drawn) => {
+            let list: Vec<u32> = drawn.iter().map(|&(p, _)| p).collect();
+            sum_pixels(cluster, &mut image, &list);
+        }
+    }
+    image
+}
+
+/// A piece's alpha loss and its adjoint image, when the run fits alpha and the piece's view has
+/// an alpha target: α from its own primal render (`render::alpha`; the exposure scales colour,
+/// not coverage), weighed by `alpha_weight` beside the colour's loss.
+fn alpha_adjoint(
+    problem: &Problem,
+    cluster: &Cluster,
+    scene: &Scene,
+    piece: &Piece,
+    view_weight: f64,
+) -> Option<(f64, Vec<Vec3>)> {
+    let s = &problem.settings;
+    let target = problem.views[piece.view].alpha.as_ref()?;
+    if s.alpha_weight <= 0.0 {
+        return None;
+    }
+    let options = RenderOptions {
+        spp: s.primal_spp,
+        seed: piece.seed,
+        max_depth: 1,
+        progress: false,
+    };
+    let pixels = scene.camera.width * scene.camera.height;
+    let image = shared_render(cluster, piece, pixels, |set| {
+        render_alpha_pixels(scene, &options, set).0
+    });
+    let weight = view_weight * f64::from(s.alpha_weight);
+    Some(weighed_adjoint(problem, piece, &image, target, weight))
 }
 
 /// The views of iteration `iteration` with their seeds: the view batch, or the views a pixel

@@ -73,6 +73,12 @@ pub struct OptimizerFile {
     /// Fit the capture's exposure: one factor the renders are scaled by before they meet the
     /// targets, for pictures whose absolute brightness is not known (`exposure`).
     pub fit_exposure: bool,
+    /// The weight of the alpha loss beside the colour's: alpha (1 − the camera ray's
+    /// transmittance) counts as this many colour channels. Default: `ALPHA_WEIGHT` when every
+    /// training image has alpha, 0 otherwise; above 0, views rendered from a truth get alpha
+    /// targets too.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub alpha_weight: Option<f32>,
 }
 
 impl Default for OptimizerFile {
@@ -108,10 +114,15 @@ impl Default for OptimizerFile {
             fit_scale: true,
             fit_brick_scales: true,
             fit_exposure: false,
+            alpha_weight: None,
             brick_scale_lr: 3.0,
         }
     }
 }
+
+/// `alpha_weight` when every training image has alpha: alpha counts as much as one colour
+/// channel.
+pub const ALPHA_WEIGHT: f32 = 1.0;
 
 /// The most pixels one iteration may draw (2²⁴: 512 times the sample-matching paper's 32,768).
 pub const MAX_BATCH_PIXELS: u32 = 1 << 24;
@@ -185,6 +196,9 @@ impl OptimizerFile {
                 self.brick_scale_lr
             );
         }
+        if let Some(w) = self.alpha_weight.filter(|w| !(*w >= 0.0 && w.is_finite())) {
+            bail!("optimizer.alpha_weight must be a number ≥ 0 (got {w})");
+        }
         if self.loss == Loss::Mean {
             bail!("optimizer.loss must compare against the targets: l2, l1 or relative-l2");
         }
@@ -246,6 +260,30 @@ impl OptimizerFile {
             }
         }
         self.primal_spp = Some(self.primal_spp.unwrap_or(2 * self.spp));
+    }
+
+    /// Fills in `alpha_weight` once the views are known: `with_alpha` of the `views` training
+    /// views have an alpha target; `extinction`: the unknown is the density (alpha depends on
+    /// nothing else).
+    pub fn resolve_alpha(
+        &mut self,
+        with_alpha: usize,
+        views: usize,
+        extinction: bool,
+    ) -> Result<()> {
+        let weight = match self.alpha_weight {
+            Some(w) if w > 0.0 && !extinction => bail!(
+                "optimizer.alpha_weight is {w}, but alpha (1 − transmittance) does not depend on the emission grid: set it to 0"
+            ),
+            Some(w) if w > 0.0 && with_alpha == 0 => bail!(
+                "optimizer.alpha_weight is {w}, but no training view has an alpha target: their images have no alpha channel and there is no truth to render one from"
+            ),
+            Some(w) => w,
+            None if extinction && with_alpha == views && views > 0 => ALPHA_WEIGHT,
+            None => 0.0,
+        };
+        self.alpha_weight = Some(weight);
+        Ok(())
     }
 
     /// Adam's settings once `resolve` has run.

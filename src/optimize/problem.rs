@@ -56,6 +56,8 @@ pub struct Settings {
     pub smooth_gradient: bool,
     /// Fit the capture's exposure with the volume (`exposure`).
     pub fit_exposure: bool,
+    /// The alpha loss's weight beside the colour's (0: colour only).
+    pub alpha_weight: f32,
     pub moments: Moments,
     /// Fractions of the budget at which level k + 1 begins.
     pub level_starts: Vec<f32>,
@@ -150,6 +152,8 @@ impl Problem {
             cached: 0,
             cache,
             cluster,
+            alpha: file.optimizer.alpha_weight.is_some_and(|w| w > 0.0),
+            rendered_alpha: 0,
         };
         let views = targets.complete(training, &light_sets)?;
         let mut holdouts = targets.complete(held_out, &light_sets)?;
@@ -184,6 +188,8 @@ impl Problem {
             .map(|v| u64::from(v.camera.width) * u64::from(v.camera.height))
             .collect();
         file.optimizer.resolve(&units, &view_pixels);
+        let with_alpha = views.iter().filter(|v| v.alpha.is_some()).count();
+        (file.optimizer).resolve_alpha(with_alpha, views.len(), unknown == UnknownGrid::Density)?;
         let start_file = file.unknown.start.clone().unwrap_or(StartFile::Constant(
             units.theta(scene_units::START_OPTICAL_DEPTH),
         ));
@@ -426,6 +432,7 @@ impl Settings {
             priors: o.priors(units),
             smooth_gradient: o.smooth_gradient,
             fit_exposure: o.fit_exposure,
+            alpha_weight: o.alpha_weight.unwrap_or(0.0),
             moments: file.unknown.moments,
             level_starts: file.unknown.levels.clone().unwrap_or_default(),
             iterations: o.iterations,
@@ -490,6 +497,9 @@ fn fingerprint<'a>(file: &RunFile, scene: &Scene, views: impl Iterator<Item = &'
     for view in views {
         f.text(&format!("{:?}", view.camera))
             .text(&crate::io::fingerprint::image(&view.target));
+        if let Some(alpha) = &view.alpha {
+            f.text(&crate::io::fingerprint::image(alpha));
+        }
     }
     f.hex()
 }

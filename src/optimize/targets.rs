@@ -9,7 +9,7 @@ use anyhow::{bail, Context, Result};
 use glam::Vec3;
 
 use crate::capture::{colmap, pictures, transforms};
-use crate::cluster::images::{render_shared, sum_image};
+use crate::cluster::images::{render_alpha_shared, render_shared, sum_image};
 use crate::cluster::Cluster;
 use crate::io::images::{self, ColorSpace, RgbImage};
 use crate::optimize::run_file::RunFile;
@@ -31,6 +31,9 @@ pub struct View {
     /// A held-out view under lights no training view had: it measures the volume relit.
     pub relit: bool,
     pub target: RgbImage,
+    /// Its alpha target (grey, `render::alpha`): the picture's alpha channel, or rendered from
+    /// the truth when the run fits alpha; `None` without.
+    pub alpha: Option<RgbImage>,
 }
 
 /// A camera of the run file, before its target is known.
@@ -180,6 +183,7 @@ pub struct ReadView {
     camera: Camera,
     light_set: usize,
     target: Option<RgbImage>,
+    alpha: Option<RgbImage>,
 }
 
 impl ReadView {
@@ -208,14 +212,19 @@ pub fn read_views(
     {
         let light_set = sets.index(&light, dir).with_context(|| name.clone())?;
         let background = &sets.lights[light_set].environment;
-        let target = image
-            .map(|file| read_target(&file, color_space, background, &camera, &name))
-            .transpose()?;
+        let (target, alpha) = match image {
+            Some(file) => {
+                let (target, alpha) = read_target(&file, color_space, background, &camera, &name)?;
+                (Some(target), alpha)
+            }
+            None => (None, None),
+        };
         views.push(ReadView {
             name,
             camera,
             light_set,
             target,
+            alpha,
         });
     }
     Ok(views)
@@ -233,8 +242,12 @@ pub struct TargetRenderer<'a> {
     pub rendered: u64,
     /// Of those, how many the cache held.
     pub cached: u64,
+    /// Alpha targets rendered so far.
+    pub rendered_alpha: u64,
     pub cache: Option<TargetCache>,
     pub cluster: &'a Cluster,
+    /// Render alpha targets too (the run fits alpha) for the views no image gives.
+    pub alpha: bool,
 }
 
 impl TargetRenderer<'_> {
@@ -242,18 +255,41 @@ impl TargetRenderer<'_> {
     pub fn complete(&mut self, read: Vec<ReadView>, sets: &LightSets) -> Result<Vec<View>> {
         read.into_iter()
             .map(|v| {
-                let target = match v.target {
-                    Some(image) => image,
-                    None => self.render(&v.camera, &sets.lights[v.light_set], &v.name)?,
+                let (target, alpha) = match v.target {
+                    Some(image) => (image, v.alpha),
+                    None => {
+                        let lights = &sets.lights[v.light_set];
+                        let target = self.render(&v.camera, lights, &v.name)?;
+                        let alpha = self.alpha.then(|| self.render_alpha(&v.camera));
+                        (target, alpha.transpose()?)
+                    }
                 };
                 Ok(View {
                     camera: v.camera,
                     light_set: v.light_set,
                     relit: false,
                     target,
+                    alpha,
                 })
             })
             .collect()
+    }
+
+    /// The truth's alpha seen by `camera`, every rank its share (cheap beside a colour render:
+    /// not cached).
+    fn render_alpha(&mut self, camera: &Camera) -> Result<RgbImage> {
+        let truth = self.truth.as_mut().context("checked by the caller")?;
+        truth.camera = *camera;
+        self.rendered_alpha += 1;
+        let options = RenderOptions {
+            spp: self.spp,
+            seed: self.seed
+                ^ TARGET_SEED_SALT
+                ^ self.rendered_alpha.wrapping_mul(0x9e37_79b9_7f4a_7c15),
+            max_depth: 1,
+            progress: false,
+        };
+        Ok(render_alpha_shared(self.cluster, truth, &options))
     }
 
     fn render(&mut self, camera: &Camera, lights: &Lights, name: &str) -> Result<RgbImage> {
@@ -305,17 +341,21 @@ fn cached(
 }
 
 /// A target image from its file, decoded to radiance and, where it has alpha, composited over the
-/// view's `background`: the view's size, finite pixels.
+/// view's `background` (the view's size, finite pixels), and its alpha as a grey image.
 fn read_target(
     path: &Path,
     color_space: Option<ColorSpace>,
     background: &Environment,
     camera: &Camera,
     name: &str,
-) -> Result<RgbImage> {
+) -> Result<(RgbImage, Option<RgbImage>)> {
     let picture =
         images::read_picture(path, color_space).with_context(|| format!("{name}.image"))?;
     let image = pictures::over(&picture, background, camera);
+    let alpha = picture.alpha.as_ref().map(|alpha| RgbImage {
+        pixels: alpha.iter().map(|&a| Vec3::splat(a)).collect(),
+        ..image.clone()
+    });
     if (image.width, image.height) != (camera.width, camera.height) {
         bail!(
             "{name}.image: '{}' is {}×{} but the view is {}×{}",
@@ -329,7 +369,7 @@ fn read_target(
     if image.pixels.iter().any(|c| !c.is_finite()) {
         bail!("{name}.image: '{}' has non-finite pixels", path.display());
     }
-    Ok(image)
+    Ok((image, alpha))
 }
 
 /// The targets' mean squared pixel value per channel: the L2 loss of a black image (P of

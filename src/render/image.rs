@@ -3,6 +3,7 @@
 use std::time::{Duration, Instant};
 
 use glam::Vec3;
+use rand::rngs::SmallRng;
 use rand::Rng;
 use rayon::prelude::*;
 
@@ -93,8 +94,8 @@ pub fn render(scene: &Scene, options: &RenderOptions) -> (RgbImage, RenderStats)
                     pixels.push(trace_pixel(
                         scene,
                         options,
-                        x,
-                        y,
+                        &radiance_path(options.max_depth),
+                        (x, y),
                         &mut stats,
                         &mut non_finite,
                     ));
@@ -136,6 +137,30 @@ pub fn render_pixels(
     options: &RenderOptions,
     set: &PixelSet,
 ) -> (RgbImage, RenderStats) {
+    render_pixels_of(scene, options, set, radiance_path(options.max_depth))
+}
+
+/// One camera path's value: `path(scene, origin, direction, rng, stats)`.
+pub trait PathValue:
+    Fn(&Scene, Vec3, Vec3, &mut SmallRng, &mut TrackingStats) -> Vec3 + Sync
+{
+}
+impl<F: Fn(&Scene, Vec3, Vec3, &mut SmallRng, &mut TrackingStats) -> Vec3 + Sync> PathValue for F {}
+
+/// A camera path's radiance, to `max_depth` scattering events (`render`'s paths).
+fn radiance_path(max_depth: u32) -> impl PathValue {
+    move |scene: &Scene, origin, dir, rng: &mut SmallRng, stats: &mut TrackingStats| {
+        trace_path(scene, origin, dir, max_depth, rng, stats)
+    }
+}
+
+/// `render_pixels` with each path's value from `path` (radiance, or `render::alpha`'s alpha).
+pub fn render_pixels_of(
+    scene: &Scene,
+    options: &RenderOptions,
+    set: &PixelSet,
+    path: impl PathValue,
+) -> (RgbImage, RenderStats) {
     let start = Instant::now();
     let w = scene.camera.width;
     let chunks = set.len().div_ceil(CHUNK_PIXELS);
@@ -148,7 +173,8 @@ pub fn render_pixels(
             let pixels = (chunk * CHUNK_PIXELS..end)
                 .map(|i| {
                     let p = set.pixel(i);
-                    let c = trace_pixel(scene, options, p % w, p / w, &mut stats, &mut non_finite);
+                    let xy = (p % w, p / w);
+                    let c = trace_pixel(scene, options, &path, xy, &mut stats, &mut non_finite);
                     (p, c)
                 })
                 .collect();
@@ -182,8 +208,8 @@ pub fn render_pixels(
 fn trace_pixel(
     scene: &Scene,
     options: &RenderOptions,
-    x: u32,
-    y: u32,
+    path: &impl PathValue,
+    (x, y): (u32, u32),
     stats: &mut TrackingStats,
     non_finite: &mut u64,
 ) -> Vec3 {
@@ -197,16 +223,9 @@ fn trace_pixel(
             Pass::Forward,
         );
         let dir = camera.direction(x as f32 + rng.gen::<f32>(), y as f32 + rng.gen::<f32>());
-        let radiance = trace_path(
-            scene,
-            camera.position,
-            dir,
-            options.max_depth,
-            &mut rng,
-            stats,
-        );
-        if radiance.is_finite() {
-            sum += radiance;
+        let value = path(scene, camera.position, dir, &mut rng, stats);
+        if value.is_finite() {
+            sum += value;
         } else {
             *non_finite += 1;
         }

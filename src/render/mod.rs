@@ -1,6 +1,7 @@
 //! The forward renderer: scene files, camera, lights, sampling, the path loop (`path`) and the
 //! image loop (`image`) over all pixels or a set of them (`pixel_set`). Uses `volume` and `io`.
 
+pub mod alpha;
 pub mod camera;
 pub mod fingerprint;
 pub mod image;
