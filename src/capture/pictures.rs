@@ -2,43 +2,54 @@
 //! alone (colour premultiplied, alpha its coverage); composited over the scene's background it is
 //! what the camera would have seen, which is what volgrad renders.
 
+use glam::Vec3;
+
 use crate::io::images::{Picture, RgbImage};
 use crate::render::camera::Camera;
 use crate::render::lights::Environment;
 
 /// The picture as the camera saw it in front of `background`: premultiplied colour plus
-/// (1 − alpha) × the environment's radiance along each pixel's central ray. Without alpha,
-/// the colour as it is.
+/// (1 − alpha) × the environment's radiance along each pixel's central ray (`background_seen`).
+/// Without alpha, the colour as it is.
 pub fn over(picture: &Picture, background: &Environment, camera: &Camera) -> RgbImage {
-    let Some(alpha) = &picture.alpha else {
-        return picture.color.clone();
-    };
+    let mut seen = picture.color.clone();
+    if let Some(behind) = background_seen(picture, background, camera) {
+        (seen.pixels.iter_mut())
+            .zip(&behind.pixels)
+            .for_each(|(c, b)| *c += *b);
+    }
+    seen
+}
+
+/// What of `background` the camera saw through the medium: (1 − alpha) × the environment's
+/// radiance along each pixel's central ray; `None` without alpha. A capture's exposure scales
+/// it as it scales the medium's colour (`View::target_at`).
+pub fn background_seen(
+    picture: &Picture,
+    background: &Environment,
+    camera: &Camera,
+) -> Option<RgbImage> {
+    let alpha = picture.alpha.as_ref()?;
     let width = picture.color.width as usize;
-    let pixels = picture
-        .color
-        .pixels
-        .iter()
-        .zip(alpha)
-        .enumerate()
-        .map(|(i, (&c, &a))| {
+    let pixels = (alpha.iter().enumerate())
+        .map(|(i, &a)| {
             if a >= 1.0 {
-                return c;
+                return Vec3::ZERO;
             }
             let (x, y) = ((i % width) as f32 + 0.5, (i / width) as f32 + 0.5);
-            c + (1.0 - a) * background.eval(camera.direction(x, y))
+            (1.0 - a) * background.eval(camera.direction(x, y))
         })
         .collect();
-    RgbImage {
+    Some(RgbImage {
         pixels,
         ..picture.color.clone()
-    }
+    })
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
     use crate::io::images::Decoding;
-    use glam::Vec3;
 
     /// Under a constant sky every pixel gains (1 − alpha) × the sky; opaque ones keep their colour.
     #[test]

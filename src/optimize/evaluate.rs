@@ -109,13 +109,14 @@ pub fn evaluate(
         let (a, b) = (&halves[0], &halves[1]);
         let image = RgbImage::average(a, b);
         let noise = mean_squared_error(a, b) / 4.0;
-        e.noise_psnr += 10.0 * (peak(&view.target).powi(2) / noise.max(1e-30)).log10();
-        let view_psnr = psnr(&image, &view.target);
+        let target = view.target_at(exposure);
+        e.noise_psnr += 10.0 * (peak(&target).powi(2) / noise.max(1e-30)).log10();
+        let view_psnr = psnr(&image, &target);
         e.psnr += view_psnr;
         if view.relit {
             relit.push(view_psnr);
         }
-        e.relative_rmse += relative_rmse(&image, &view.target);
+        e.relative_rmse += relative_rmse(&image, &target);
         e.renders.push(image);
     }
     let n = problem.holdouts.len().max(1) as f64;
@@ -185,12 +186,12 @@ pub fn write_holdout_picture(
         .iter()
         .zip(renders)
         .map(|(view, image)| {
-            let t = &view.target;
+            let t = view.target_at(exposure);
             let mut difference = image.clone();
             for (d, &t) in difference.pixels.iter_mut().zip(&t.pixels) {
                 *d = (*d - t).abs() * 4.0;
             }
-            enlarged(&side_by_side(&[t, image, &difference]))
+            enlarged(&side_by_side(&[&t, image, &difference]))
         })
         .collect();
     images::write_png(path, &stacked(&rows), exposure.max(f32::MIN_POSITIVE))

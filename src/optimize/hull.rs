@@ -165,6 +165,8 @@ mod tests {
             light_set: 0,
             relit: false,
             target,
+            alpha: None,
+            background: None,
         }
     }
 

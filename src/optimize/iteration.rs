@@ -170,8 +170,9 @@ fn piece_adjoint(
     exposure: f32,
 ) -> Result<PieceAdjoint> {
     let s = &problem.settings;
-    let target = &problem.views[piece.view].target;
-    check_target(target, scene)?;
+    let view = &problem.views[piece.view];
+    let target = view.target_at(exposure);
+    check_target(&target, scene)?;
     let halves = if s.fit_exposure { 2 } else { 1 };
     let pixels = scene.camera.width * scene.camera.height;
     let render = |half: u64| {
@@ -193,11 +194,15 @@ fn piece_adjoint(
     } else {
         (render(0), None)
     };
-    let adjoint_of = |image: &RgbImage| weighed_adjoint(problem, piece, image, target, view_weight);
+    let adjoint_of =
+        |image: &RgbImage| weighed_adjoint(problem, piece, image, &target, view_weight);
     let (loss, mut delta) = adjoint_of(&image);
+    // ∂(kI − T(k))/∂x = I′ − k·B, B the background a picture with alpha was composited over
+    // (`View::target_at`; 0 elsewhere).
     let dot = |d: &[Vec3], c: &RgbImage| -> f64 {
-        (d.iter().zip(&c.pixels))
-            .map(|(d, c)| f64::from(d.dot(*c)))
+        let background = |p: usize| view.background.as_ref().map_or(Vec3::ZERO, |b| b.pixels[p]);
+        (d.iter().zip(&c.pixels).enumerate())
+            .map(|(p, (d, c))| f64::from(d.dot(*c - exposure * background(p))))
             .sum()
     };
     let exposure_gradient = match &halves {

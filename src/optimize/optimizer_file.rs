@@ -333,4 +333,34 @@ mod tests {
         assert_eq!(resolved(&mixed, None), (None, Some(BATCH_PIXELS)));
         assert_eq!(resolved(&[96 * 96; 24], Some(8)), (Some(8), None));
     }
+
+    /// Alpha is fitted by default only when every training view has an alpha target and the
+    /// unknown is the density; asked for without alpha targets, or for an emission grid, it is
+    /// refused naming the key.
+    #[test]
+    fn the_alpha_weight_follows_the_targets() {
+        let resolved = |weight: Option<f32>, with_alpha, views, extinction| {
+            let mut o = OptimizerFile {
+                alpha_weight: weight,
+                ..OptimizerFile::default()
+            };
+            o.resolve_alpha(with_alpha, views, extinction)
+                .map(|_| o.alpha_weight.unwrap())
+                .map_err(|e| e.to_string())
+        };
+        assert_eq!(resolved(None, 24, 24, true), Ok(ALPHA_WEIGHT));
+        assert_eq!(resolved(None, 23, 24, true), Ok(0.0));
+        assert_eq!(resolved(None, 24, 24, false), Ok(0.0));
+        assert_eq!(resolved(Some(0.5), 3, 24, true), Ok(0.5));
+        assert_eq!(resolved(Some(0.0), 24, 24, false), Ok(0.0));
+        for (with_alpha, extinction, needle) in
+            [(0, true, "no training view"), (24, false, "emission")]
+        {
+            let error = resolved(Some(1.0), with_alpha, 24, extinction).unwrap_err();
+            assert!(
+                error.contains("optimizer.alpha_weight") && error.contains(needle),
+                "{error}"
+            );
+        }
+    }
 }

@@ -34,6 +34,28 @@ pub struct View {
     /// Its alpha target (grey, `render::alpha`): the picture's alpha channel, or rendered from
     /// the truth when the run fits alpha; `None` without.
     pub alpha: Option<RgbImage>,
+    /// The part of `target` that is the environment seen through the medium, where a picture
+    /// with alpha was composited over it (`pictures::background_seen`).
+    pub background: Option<RgbImage>,
+}
+
+impl View {
+    /// The target of a capture whose exposure is `exposure` (k) times the scene's: a picture
+    /// with alpha holds k × the medium's light, composited over the scene's environment at its
+    /// own brightness, so its background part must be k times brighter too. The target as it
+    /// is otherwise.
+    pub fn target_at(&self, exposure: f32) -> std::borrow::Cow<'_, RgbImage> {
+        match &self.background {
+            Some(background) if exposure != 1.0 => {
+                let mut target = self.target.clone();
+                (target.pixels.iter_mut())
+                    .zip(&background.pixels)
+                    .for_each(|(t, b)| *t += (exposure - 1.0) * *b);
+                std::borrow::Cow::Owned(target)
+            }
+            _ => std::borrow::Cow::Borrowed(&self.target),
+        }
+    }
 }
 
 /// A camera of the run file, before its target is known.
@@ -184,6 +206,7 @@ pub struct ReadView {
     light_set: usize,
     target: Option<RgbImage>,
     alpha: Option<RgbImage>,
+    background: Option<RgbImage>,
 }
 
 impl ReadView {
@@ -212,12 +235,12 @@ pub fn read_views(
     {
         let light_set = sets.index(&light, dir).with_context(|| name.clone())?;
         let background = &sets.lights[light_set].environment;
-        let (target, alpha) = match image {
-            Some(file) => {
-                let (target, alpha) = read_target(&file, color_space, background, &camera, &name)?;
-                (Some(target), alpha)
-            }
-            None => (None, None),
+        let picture = image
+            .map(|file| read_target(&file, color_space, background, &camera, &name))
+            .transpose()?;
+        let (target, alpha, background) = match picture {
+            Some(p) => (Some(p.target), p.alpha, p.background),
+            None => (None, None, None),
         };
         views.push(ReadView {
             name,
@@ -225,6 +248,7 @@ pub fn read_views(
             light_set,
             target,
             alpha,
+            background,
         });
     }
     Ok(views)
@@ -270,6 +294,7 @@ impl TargetRenderer<'_> {
                     relit: false,
                     target,
                     alpha,
+                    background: v.background,
                 })
             })
             .collect()
@@ -340,36 +365,48 @@ fn cached(
     Some(image)
 }
 
+/// A picture read as a target: composited over the view's environment (`pictures::over`), its
+/// alpha as a grey image, and the environment's part of the composite.
+struct TargetPicture {
+    target: RgbImage,
+    alpha: Option<RgbImage>,
+    background: Option<RgbImage>,
+}
+
 /// A target image from its file, decoded to radiance and, where it has alpha, composited over the
-/// view's `background` (the view's size, finite pixels), and its alpha as a grey image.
+/// view's `background`: the view's size, finite pixels.
 fn read_target(
     path: &Path,
     color_space: Option<ColorSpace>,
     background: &Environment,
     camera: &Camera,
     name: &str,
-) -> Result<(RgbImage, Option<RgbImage>)> {
+) -> Result<TargetPicture> {
     let picture =
         images::read_picture(path, color_space).with_context(|| format!("{name}.image"))?;
-    let image = pictures::over(&picture, background, camera);
-    let alpha = picture.alpha.as_ref().map(|alpha| RgbImage {
-        pixels: alpha.iter().map(|&a| Vec3::splat(a)).collect(),
-        ..image.clone()
-    });
-    if (image.width, image.height) != (camera.width, camera.height) {
+    let target = pictures::over(&picture, background, camera);
+    if (target.width, target.height) != (camera.width, camera.height) {
         bail!(
             "{name}.image: '{}' is {}×{} but the view is {}×{}",
             path.display(),
-            image.width,
-            image.height,
+            target.width,
+            target.height,
             camera.width,
             camera.height
         );
     }
-    if image.pixels.iter().any(|c| !c.is_finite()) {
+    if target.pixels.iter().any(|c| !c.is_finite()) {
         bail!("{name}.image: '{}' has non-finite pixels", path.display());
     }
-    Ok((image, alpha))
+    let alpha = picture.alpha.as_ref().map(|alpha| RgbImage {
+        pixels: alpha.iter().map(|&a| Vec3::splat(a)).collect(),
+        ..target.clone()
+    });
+    Ok(TargetPicture {
+        alpha,
+        background: pictures::background_seen(&picture, background, camera),
+        target,
+    })
 }
 
 /// The targets' mean squared pixel value per channel: the L2 loss of a black image (P of
