@@ -60,12 +60,13 @@ primal_spp = 4
     Problem::load(&path, None, false, None, &Cluster::single()).unwrap()
 }
 
-/// Per iteration (fresh seeds and draws): ⟨g, 1⟩ and the sums over the box's two halves in x.
-fn projections(problem: &Problem, iterations: u64) -> [Vec<f64>; 3] {
+/// Per iteration (fresh seeds and draws): ⟨g, 1⟩, the sums over the box's two halves in x, and
+/// the loss.
+fn projections(problem: &Problem, iterations: u64) -> [Vec<f64>; 4] {
     let mut scene = problem.scene_at(problem.start.to_brickmap(), 0);
     let (lo, hi) = problem.domain.voxel_box(0);
     let middle = (lo.x + hi.x) / 2;
-    let mut out = [Vec::new(), Vec::new(), Vec::new()];
+    let mut out = [Vec::new(), Vec::new(), Vec::new(), Vec::new()];
     for iteration in 0..iterations {
         let g = images_gradient(
             problem,
@@ -87,6 +88,7 @@ fn projections(problem: &Problem, iterations: u64) -> [Vec<f64>; 3] {
         out[0].push(sum(&|_| true));
         out[1].push(sum(&|x| x <= middle));
         out[2].push(sum(&|x| x > middle));
+        out[3].push(g.loss);
     }
     out
 }
@@ -96,13 +98,17 @@ fn projections(problem: &Problem, iterations: u64) -> [Vec<f64>; 3] {
 /// iterations agrees within 4 standard errors (about 5 % of the means). A draw weighted without
 /// the loss's mean over channels fails (3× too large; seen), as would one weighted as a full
 /// image's pixel, and pixels drawn uniformly over all views' pixels, which weigh a 24² view 4× a
-/// 12² one where the loss weighs them alike (−2.10e-2 against −3.41e-2 for ⟨g, 1⟩; seen).
+/// 12² one where the loss weighs them alike (−2.10e-2 against −3.41e-2 for ⟨g, 1⟩; seen), or a
+/// draw weighted as a view of the batch's (4× too small; seen). The losses agree the same way.
 #[test]
 fn a_pixel_batch_estimates_the_gradient_of_every_pixel() {
     let dir = tempfile::tempdir().unwrap();
     let full = projections(&problem(dir.path(), "batch = 4"), 192);
     let drawn = projections(&problem(dir.path(), "batch_pixels = 300"), 1280);
-    for (k, name) in ["⟨g, 1⟩", "x ≤ middle", "x > middle"].iter().enumerate() {
+    for (k, name) in ["⟨g, 1⟩", "x ≤ middle", "x > middle", "loss"]
+        .iter()
+        .enumerate()
+    {
         let (a, b) = (MeanAndError::of(&full[k]), MeanAndError::of(&drawn[k]));
         let se = (a.se * a.se + b.se * b.se).sqrt();
         println!(

@@ -195,7 +195,7 @@ fn piece_adjoint(
         (render(0), None)
     };
     let adjoint_of =
-        |image: &RgbImage| weighed_adjoint(problem, piece, image, &target, view_weight);
+        |image: &RgbImage| weighed_adjoint(problem, piece, (image, &target), view_weight, 1.0);
     let (loss, mut delta) = adjoint_of(&image);
     // ∂(kI − T(k))/∂x = I′ − k·B, B the background a picture with alpha was composited over
     // (`View::target_at`; 0 elsewhere).
@@ -220,18 +220,21 @@ fn piece_adjoint(
     })
 }
 
-/// The loss of `image` against `target` over a piece's pixels, weighed by `weight`, and its
-/// adjoint δ = ∂loss/∂pixel (zero off the drawn pixels).
+/// The loss of `image` against `target` over a piece's pixels, weighed by `weight` (alpha's
+/// `alpha_weight`, colour's 1), and its adjoint δ = ∂loss/∂pixel (zero off the drawn pixels). A
+/// whole view's pixels count as one of the batch's views (`view_weight`); a draw as one of its
+/// `batch_pixels` draws.
 fn weighed_adjoint(
     problem: &Problem,
     piece: &Piece,
-    image: &RgbImage,
-    target: &RgbImage,
+    (image, target): (&RgbImage, &RgbImage),
+    view_weight: f64,
     weight: f64,
 ) -> (f64, Vec<Vec3>) {
     let s = &problem.settings;
     match &piece.drawn {
         None => {
+            let weight = view_weight * weight;
             let loss = weight * s.loss.evaluate(image, Some(target));
             let delta = s.loss.adjoint(image, Some(target));
             (loss, delta.into_iter().map(|d| d * weight as f32).collect())
@@ -295,8 +298,14 @@ fn alpha_adjoint(
     let image = shared_render(cluster, piece, pixels, |set| {
         render_alpha_pixels(scene, &options, set).0
     });
-    let weight = view_weight * f64::from(s.alpha_weight);
-    Some(weighed_adjoint(problem, piece, &image, target, weight))
+    let weight = f64::from(s.alpha_weight);
+    Some(weighed_adjoint(
+        problem,
+        piece,
+        (&image, target),
+        view_weight,
+        weight,
+    ))
 }
 
 /// The views of iteration `iteration` with their seeds: the view batch, or the views a pixel
