@@ -10,6 +10,12 @@ use std::path::Path;
 use common::{assert_clean_error, ok, volgrad_in};
 use optimize_common::*;
 use volgrad::cluster::Cluster;
+use volgrad::optimize::problem::Problem;
+
+/// The problem `d/run.toml` gives, loaded as one process.
+fn run_problem(d: &Path) -> Problem {
+    Problem::load(&d.join("run.toml"), None, false, None, &Cluster::single()).unwrap()
+}
 
 /// The fixture's training orbit as its run file writes it (what the camera-file tests replace).
 const ORBIT: &str =
@@ -17,11 +23,7 @@ const ORBIT: &str =
 
 /// The two problems' training views are the same cameras: positions within `tolerance`, the same
 /// rays through pixels across the image.
-fn assert_same_cameras(
-    a: &volgrad::optimize::problem::Problem,
-    b: &volgrad::optimize::problem::Problem,
-    tolerance: f32,
-) {
+fn assert_same_cameras(a: &Problem, b: &Problem, tolerance: f32) {
     assert_eq!(a.views.len(), b.views.len());
     for (a, b) in a.views.iter().zip(&b.views) {
         assert!((a.camera.position - b.camera.position).length() < tolerance);
@@ -38,11 +40,9 @@ fn assert_same_cameras(
 #[test]
 fn a_transforms_file_gives_back_the_orbit_it_was_written_from() {
     use volgrad::capture::transforms::camera_to_world;
-    use volgrad::optimize::problem::Problem;
     let dir = fixture(&run_file("0.2", ""));
     let d = dir.path();
-    let orbit_problem =
-        Problem::load(&d.join("run.toml"), None, false, None, &Cluster::single()).unwrap();
+    let orbit_problem = run_problem(d);
     let centre = {
         let (lo, hi) = orbit_problem.domain.world_box();
         (lo + hi) / 2.0
@@ -72,8 +72,7 @@ fn a_transforms_file_gives_back_the_orbit_it_was_written_from() {
     let run = run_file("0.2", "").replace(ORBIT, "[views]\ntransforms = \"transforms.json\"\n");
     assert!(run.contains("transforms.json"), "{run}");
     std::fs::write(d.join("run.toml"), run).unwrap();
-    let json_problem =
-        Problem::load(&d.join("run.toml"), None, false, None, &Cluster::single()).unwrap();
+    let json_problem = run_problem(d);
     assert_same_cameras(&orbit_problem, &json_problem, 1e-5);
     assert_eq!(json_problem.views[0].target.pixels, first.pixels);
     // A pose changed in the file, under the same name, is another run: a checkpoint of this one
@@ -95,11 +94,9 @@ fn a_transforms_file_gives_back_the_orbit_it_was_written_from() {
 #[test]
 fn a_colmap_model_with_a_png_gives_back_the_orbit_and_its_picture_over_the_sky() {
     use glam::{DMat3, DQuat, Vec3};
-    use volgrad::optimize::problem::Problem;
     let dir = fixture(&run_file("0.2", ""));
     let d = dir.path();
-    let orbit_problem =
-        Problem::load(&d.join("run.toml"), None, false, None, &Cluster::single()).unwrap();
+    let orbit_problem = run_problem(d);
     let mut images = String::from("# IMAGE_ID, QW, QX, QY, QZ, TX, TY, TZ, CAMERA_ID, NAME\n");
     for (i, v) in orbit_problem.views.iter().enumerate() {
         let c = &v.camera;
@@ -139,8 +136,7 @@ fn a_colmap_model_with_a_png_gives_back_the_orbit_and_its_picture_over_the_sky()
         .unwrap();
     let run = run_file("0.2", "").replace(ORBIT, "[views.colmap]\nmodel = \"project/sparse/0\"\n");
     std::fs::write(d.join("run.toml"), run).unwrap();
-    let colmap_problem =
-        Problem::load(&d.join("run.toml"), None, false, None, &Cluster::single()).unwrap();
+    let colmap_problem = run_problem(d);
     assert_same_cameras(&orbit_problem, &colmap_problem, 1e-4);
     // sRGB 128/255 is radiance 0.2158; alpha 128/255 lets 0.498 of the sky through.
     let sky = Vec3::new(0.03, 0.04, 0.06);
@@ -178,9 +174,8 @@ fn a_colmap_model_with_a_png_gives_back_the_orbit_and_its_picture_over_the_sky()
 /// renderer writes them: the medium's light alone (× `brightness`) and its alpha.
 fn write_pictures(d: &Path, brightness: f32, optimizer: &str) {
     use volgrad::capture::transforms::camera_to_world;
-    use volgrad::optimize::problem::{Problem, View};
-    let orbit_problem =
-        Problem::load(&d.join("run.toml"), None, false, None, &Cluster::single()).unwrap();
+    use volgrad::optimize::problem::View;
+    let orbit_problem = run_problem(d);
     let (lo, hi) = orbit_problem.domain.world_box();
     let centre = (lo + hi) / 2.0;
     let sky = orbit_problem.scene.lights.environment.constant;

@@ -2,10 +2,11 @@
 //!
 //! 1. the batch: `batch` views (each epoch a fresh permutation), or `batch_pixels` pixels drawn
 //!    across every training view (a uniform view, then a uniform pixel of it);
-//! 2. each view's primal render, its pixels split over the ranks and summed, so every rank has
-//!    the same images, losses and adjoint images δ = ∂loss/∂pixel;
-//! 3. the gradient passes, each rank over its share of the pixels, accumulated as quanta of one
-//!    quantum for the whole batch (`passes::quantum_for`);
+//! 2. each view's primal render (and its alpha render, when the run fits alpha), its pixels split
+//!    over the ranks and summed, so every rank has the same images, losses and adjoint images
+//!    δ = ∂loss/∂pixel;
+//! 3. the gradient passes (colour's, then alpha's), each rank over its share of the pixels,
+//!    accumulated as quanta of one quantum for the whole batch (`passes::quantum_for`);
 //! 4. the sum over the ranks (`cluster::sparse_sum`), exact, so that the step is the same bits at
 //!    any number of ranks and threads.
 //!
