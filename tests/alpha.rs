@@ -50,8 +50,9 @@ fn over_seeds(n: u64, f: impl Fn(u64) -> f64) -> (f64, f64) {
 #[test]
 fn alpha_of_a_homogeneous_block_is_the_closed_form_and_so_is_its_gradient() {
     // Nearly parallel rays crossing n voxels of σt = s·θ: α = 1 − e^{−sθn} and, θ moving in
-    // every voxel at once, dα/dθ = s·n·e^{−sθn}. Without T the gradient would be 2.2× too large,
-    // without the density scale 10×.
+    // every voxel at once, dα/dθ = s·n·e^{−sθn}. Without the density scale the gradient would be
+    // 10× too large, without the segment's length 8× too small. (Here the majorant is σt, so T̂ is
+    // 0 or 1 and a dropped T̂ factor goes unseen: the lumpy block's test below catches that.)
     let (n, s, theta) = (8, 0.1f32, 1.0f32);
     let scene = SceneBuilder::new(300.0, 1.0, 4).build(
         grid(n, |_| theta),

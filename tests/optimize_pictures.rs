@@ -17,6 +17,16 @@ fn run_problem(d: &Path) -> Problem {
     Problem::load(&d.join("run.toml"), None, false, None, &Cluster::single()).unwrap()
 }
 
+/// `d/transforms.json` with the fixture's 24² views at 40° and `frames` (JSON objects).
+fn write_transforms(d: &Path, frames: &[String]) {
+    let json = format!(
+        "{{ \"camera_angle_x\": {}, \"w\": 24, \"h\": 24, \"frames\": [{}] }}",
+        40f32.to_radians(),
+        frames.join(", ")
+    );
+    std::fs::write(d.join("transforms.json"), json).unwrap();
+}
+
 /// The fixture's training orbit as its run file writes it (what the camera-file tests replace).
 const ORBIT: &str =
     "[views.orbit]\ncount = 6\nelevation_deg = [-30, 70]\ndistance = 12\nfov_deg = 40\nwidth = 24\nheight = 24\n";
@@ -61,12 +71,7 @@ fn a_transforms_file_gives_back_the_orbit_it_was_written_from() {
             format!("{{ {image}\"transform_matrix\": {m:?} }}")
         })
         .collect();
-    let json = format!(
-        "{{ \"camera_angle_x\": {}, \"w\": 24, \"h\": 24, \"frames\": [{}] }}",
-        40f32.to_radians(),
-        frames.join(", ")
-    );
-    std::fs::write(d.join("transforms.json"), json).unwrap();
+    write_transforms(d, &frames);
     let first = &orbit_problem.views[0].target;
     volgrad::io::images::write_exr(&d.join("first.exr"), first, false).unwrap();
     let run = run_file("0.2", "").replace(ORBIT, "[views]\ntransforms = \"transforms.json\"\n");
@@ -204,12 +209,7 @@ fn write_pictures(d: &Path, brightness: f32, optimizer: &str) {
             format!("{{ \"file_path\": \"{name}\", \"transform_matrix\": {m:?} }}")
         })
         .collect();
-    let json = format!(
-        "{{ \"camera_angle_x\": {}, \"w\": 24, \"h\": 24, \"frames\": [{}] }}",
-        40f32.to_radians(),
-        frames.join(", ")
-    );
-    std::fs::write(d.join("transforms.json"), json).unwrap();
+    write_transforms(d, &frames);
     let holdout = &orbit_problem.holdouts[0];
     write("holdout.exr", holdout);
     let scene = std::fs::read_to_string(d.join("scene.toml")).unwrap();
