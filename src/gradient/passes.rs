@@ -18,6 +18,7 @@ use crate::gradient::grid::{Accumulator, GradientGrid, Quanta};
 use crate::io::images::RgbImage;
 use crate::render::alpha::{alpha_sample, ALPHA_SEED_SALT};
 use crate::render::image::RenderStats;
+use crate::render::interrupt;
 use crate::render::pixel_set::PixelSet;
 use crate::render::sampling::{sample_rng, Pass};
 use crate::render::scene::Scene;
@@ -304,7 +305,9 @@ fn over_pixels<T: Send>(
                 let mut acc = init();
                 let first = unit * unit_pixels;
                 let last = (first + unit_pixels).min(pixels);
-                for i in first..last {
+                // An interrupted pass skips its remaining units' pixels (their result is
+                // discarded) but still hands every unit on, so the in-order merge drains.
+                for i in (first..last).filter(|_| !interrupt::requested()) {
                     let p = set.pixel(i);
                     per_pixel(&mut acc, p % w, p / w, &mut worker);
                 }

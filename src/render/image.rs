@@ -8,6 +8,7 @@ use rand::Rng;
 use rayon::prelude::*;
 
 use crate::io::images::RgbImage;
+use crate::render::interrupt;
 use crate::render::path::trace_path;
 use crate::render::pixel_set::PixelSet;
 use crate::render::sampling::{sample_rng, Pass};
@@ -215,6 +216,9 @@ fn trace_pixel(
 ) -> Vec3 {
     let camera = &scene.camera;
     let mut sum = Vec3::ZERO;
+    if interrupt::requested() {
+        return sum;
+    }
     for sample in 0..options.spp {
         let mut rng = sample_rng(
             options.seed,

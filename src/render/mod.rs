@@ -5,6 +5,7 @@ pub mod alpha;
 pub mod camera;
 pub mod fingerprint;
 pub mod image;
+pub mod interrupt;
 pub mod lights;
 pub mod medium_grids;
 pub mod path;

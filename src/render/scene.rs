@@ -82,7 +82,9 @@ impl Scene {
         Self::from_file_as(file, path, SceneNeeds::GridAndCamera)
     }
 
-    fn from_file_as(file: SceneFile, path: &Path, needs: SceneNeeds) -> Result<Scene> {
+    /// Loads a parsed scene that must name what `needs` says (the Python binding builds one from
+    /// parts, its grid given as an array).
+    pub fn from_file_as(file: SceneFile, path: &Path, needs: SceneNeeds) -> Result<Scene> {
         file.validate()
             .with_context(|| format!("invalid scene '{}'", path.display()))?;
         if needs == SceneNeeds::GridAndCamera {

@@ -1,0 +1,77 @@
+//! Long work without the GIL, on a thread count of the caller's choosing, that Ctrl-C stops.
+//!
+//! The work runs on a scoped thread while the calling thread, which holds no GIL, waits for it
+//! and every 50 ms takes the GIL for a moment to let Python run its signal handlers. When one
+//! raises (Ctrl-C's `KeyboardInterrupt`), the image loops are asked to skip their remaining pixels
+//! (`render::interrupt`), the work drains within milliseconds and the exception is raised in its
+//! place.
+
+use std::sync::mpsc;
+use std::time::Duration;
+
+use pyo3::exceptions::{PyRuntimeError, PyValueError};
+use pyo3::prelude::*;
+use volgrad::render::interrupt;
+
+use crate::errors::OrRaise;
+
+const SIGNAL_POLL: Duration = Duration::from_millis(50);
+
+/// Runs `work` without the GIL, on `threads` worker threads (rayon's global pool for `None`).
+pub fn run<T: Send>(
+    py: Python<'_>,
+    threads: Option<usize>,
+    work: impl FnOnce() -> anyhow::Result<T> + Send,
+) -> PyResult<T> {
+    let pool = match threads {
+        Some(0) => return Err(PyValueError::new_err("threads must be at least 1")),
+        Some(n) => Some(
+            rayon::ThreadPoolBuilder::new()
+                .num_threads(n)
+                .build()
+                .map_err(|e| PyRuntimeError::new_err(format!("cannot start {n} threads: {e}")))?,
+        ),
+        None => None,
+    };
+    let (result, signal) = py.detach(|| {
+        std::thread::scope(|scope| {
+            let (sender, receiver) = mpsc::channel();
+            let worker = scope.spawn(move || {
+                let result = match &pool {
+                    Some(pool) => pool.install(work),
+                    None => work(),
+                };
+                // The receiver outlives the scope's threads: sending cannot fail.
+                let _ = sender.send(result);
+            });
+            let mut signal = None;
+            let result = loop {
+                match receiver.recv_timeout(SIGNAL_POLL) {
+                    Ok(result) => break Some(result),
+                    Err(mpsc::RecvTimeoutError::Disconnected) => break None,
+                    Err(mpsc::RecvTimeoutError::Timeout) if signal.is_none() => {
+                        if let Err(e) = Python::attach(|py| py.check_signals()) {
+                            interrupt::request();
+                            signal = Some(e);
+                        }
+                    }
+                    Err(mpsc::RecvTimeoutError::Timeout) => {}
+                }
+            };
+            // A panic in the work ends its thread without a result: joined here, it is reported
+            // below as an error instead of unwinding into Python.
+            let panicked = worker.join().is_err();
+            interrupt::clear();
+            (result.filter(|_| !panicked), signal)
+        })
+    });
+    if let Some(signal) = signal {
+        return Err(signal);
+    }
+    match result {
+        Some(result) => result.or_raise(),
+        None => Err(PyRuntimeError::new_err(
+            "volgrad failed inside (a panic): please report it with the call that caused it",
+        )),
+    }
+}

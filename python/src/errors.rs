@@ -1,0 +1,35 @@
+//! volgrad's errors as Python exceptions, with the command line's messages: a missing file is
+//! `FileNotFoundError`, another failure to read or write one `OSError`, the rest (bad values, bad
+//! scenes) `ValueError`.
+
+use pyo3::exceptions::{PyFileNotFoundError, PyOSError, PyValueError};
+use pyo3::PyErr;
+
+/// The exception for `error`, its message the whole chain ("reading x: cause: ...") as the
+/// command line prints it.
+pub fn to_py(error: anyhow::Error) -> PyErr {
+    let message = format!("{error:#}");
+    let io_kind = error
+        .chain()
+        .find_map(|cause| cause.downcast_ref::<std::io::Error>())
+        .map(|e| e.kind());
+    match io_kind {
+        Some(std::io::ErrorKind::NotFound) => PyFileNotFoundError::new_err(message),
+        Some(_) => PyOSError::new_err(message),
+        // The scene and grid readers check a file's existence themselves, with a message that
+        // names the key it came from.
+        None if message.contains("does not exist") => PyFileNotFoundError::new_err(message),
+        None => PyValueError::new_err(message),
+    }
+}
+
+/// `Result<T, anyhow::Error>` as a Python result.
+pub trait OrRaise<T> {
+    fn or_raise(self) -> pyo3::PyResult<T>;
+}
+
+impl<T> OrRaise<T> for anyhow::Result<T> {
+    fn or_raise(self) -> pyo3::PyResult<T> {
+        self.map_err(to_py)
+    }
+}

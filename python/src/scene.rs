@@ -1,0 +1,412 @@
+//! `Scene`: a scene file loaded, or a scene built from parts (a density array and the medium's
+//! constants, lights and a camera), with its density as an array that can be read and replaced.
+
+use std::path::{Path, PathBuf};
+
+use glam::{IVec3, Vec3};
+use numpy::{IntoPyArray, PyArrayDyn};
+use pyo3::exceptions::PyValueError;
+use pyo3::prelude::*;
+use pyo3::types::PyDict;
+use volgrad::render::scene::{Scene as RustScene, SceneFile, SceneNeeds};
+use volgrad::render::scene_check::MAX_EXTINCTION;
+use volgrad::volume::albedo::{Albedo, AlbedoGrid};
+use volgrad::volume::brickmap::BrickMap;
+use volgrad::volume::medium::Medium;
+use volgrad::volume::transform::IndexTransform;
+
+use crate::arrays::{self, VoxelBox};
+use crate::camera::Camera;
+use crate::detached;
+use crate::errors::OrRaise;
+use crate::grids::{matrix, GridArrays};
+use crate::views::{self, Sampling};
+
+/// A scene ready to render and differentiate. Its density is the box of voxels `density` returns;
+/// gradients with respect to it come back in the same box.
+#[pyclass(name = "Scene", module = "volgrad")]
+pub struct Scene {
+    pub scene: RustScene,
+    /// The voxels the density array covers, in the grid's index space.
+    pub density_box: VoxelBox,
+}
+
+/// The scene's medium with `grid` (placed as `place` says, under `transform`) as its density: the
+/// optical constants, emission and majorant settings kept, the medium filling the box.
+fn medium_over(
+    scene: &RustScene,
+    grid: BrickMap,
+    transform: IndexTransform,
+    place: VoxelBox,
+) -> Medium {
+    let m = &scene.medium;
+    let bounds = match place.is_empty() {
+        true => (Vec3::ZERO, Vec3::ZERO),
+        false => (place.origin.as_vec3() - 0.5, place.last().as_vec3() + 0.5),
+    };
+    let mut medium = Medium::with_bounds(
+        grid,
+        transform,
+        bounds,
+        m.density_scale,
+        m.filter,
+        scene.settings.majorant(),
+    );
+    medium.albedo = m.albedo.clone();
+    medium.phase_g = m.phase_g;
+    medium.emission = m.emission.clone();
+    medium
+}
+
+/// `values` checked as densities of a medium with `density_scale`, as a brick map at `origin`.
+fn density_grid(
+    values: &numpy::ndarray::ArrayView3<f32>,
+    origin: IVec3,
+    density_scale: f32,
+    argument: &str,
+) -> anyhow::Result<BrickMap> {
+    arrays::check_values(values, argument, false)?;
+    let grid = arrays::to_brickmap(values, origin);
+    let extinction = density_scale as f64 * grid.max_value() as f64;
+    if extinction > MAX_EXTINCTION {
+        anyhow::bail!("{argument}: density_scale × its largest value is {extinction:.3e}: too large to track (at most {MAX_EXTINCTION:e} per world unit)");
+    }
+    Ok(grid)
+}
+
+impl Scene {
+    /// The medium with `values` in place of the density, over the current box (its shape must
+    /// match), or over a new box at index 0 under `index_to_world`.
+    pub fn medium_with(
+        &self,
+        values: &numpy::ndarray::ArrayView3<f32>,
+        index_to_world: Option<IndexTransform>,
+        argument: &str,
+    ) -> anyhow::Result<(Medium, VoxelBox)> {
+        let (nx, ny, nz) = values.dim();
+        let (place, transform) = match index_to_world {
+            Some(transform) => (VoxelBox::of_array([nx, ny, nz]), transform),
+            None if [nx, ny, nz] == self.density_box.shape => (self.density_box, self.scene.medium.transform),
+            None => anyhow::bail!(
+                "{argument} has shape {:?} but the scene's density is {:?}: give index_to_world with an array of another shape",
+                [nx, ny, nz],
+                self.density_box.shape
+            ),
+        };
+        let grid = density_grid(
+            values,
+            place.origin,
+            self.scene.medium.density_scale,
+            argument,
+        )?;
+        Ok((medium_over(&self.scene, grid, transform, place), place))
+    }
+}
+
+/// The index box a loaded scene's density array covers: its active voxels'.
+fn active_box(grid: &BrickMap) -> VoxelBox {
+    match grid.active_bounds() {
+        Some((lo, hi)) => VoxelBox::spanning(lo, hi),
+        None => VoxelBox::of_array([0, 0, 0]),
+    }
+}
+
+#[pymethods]
+impl Scene {
+    /// Reads a scene file (TOML) with its grid and lights, as `volgrad render` does.
+    #[staticmethod]
+    fn load(py: Python<'_>, path: PathBuf) -> PyResult<Scene> {
+        let scene = detached::run(py, None, || {
+            if !path.exists() {
+                anyhow::bail!("scene file '{}' does not exist", path.display());
+            }
+            RustScene::load(&path)
+        })?;
+        let density_box = active_box(&scene.medium.grid);
+        Ok(Scene { scene, density_box })
+    }
+
+    /// A scene from parts: `density` (nx, ny, nz) float32 with `index_to_world` (4×4, array
+    /// indices to world), the medium's constants, `lights` as scene-file light tables (dicts), a
+    /// `camera`, and the render settings a scene file's `[render]` table holds.
+    #[staticmethod]
+    #[pyo3(signature = (density, index_to_world, density_scale = 1.0, albedo = None, phase_g = 0.0, lights = None, camera = None, spp = None, seed = None, max_depth = None))]
+    #[allow(clippy::too_many_arguments)]
+    fn from_parts(
+        py: Python<'_>,
+        density: &Bound<'_, PyAny>,
+        index_to_world: &Bound<'_, PyAny>,
+        density_scale: f32,
+        albedo: Option<&Bound<'_, PyAny>>,
+        phase_g: f32,
+        lights: Option<&Bound<'_, PyAny>>,
+        camera: Option<Camera>,
+        spp: Option<u32>,
+        seed: Option<u64>,
+        max_depth: Option<u32>,
+    ) -> PyResult<Scene> {
+        let transform = arrays::matrix_argument(index_to_world, "index_to_world")?;
+        let density =
+            arrays::float32_argument::<numpy::Ix3>(density, "density", "of shape (nx, ny, nz)")?;
+        // The constants go through the scene file's own reader, so that they are checked and
+        // named as a scene file's keys are.
+        let medium = PyDict::new(py);
+        medium.set_item("density_scale", density_scale)?;
+        medium.set_item("phase_g", phase_g)?;
+        let albedo_array = match albedo {
+            Some(a) if a.hasattr("shape")? => Some(arrays::float32_argument::<numpy::IxDyn>(
+                a,
+                "albedo",
+                "shaped like the density",
+            )?),
+            Some(a) => {
+                medium.set_item("albedo", a)?;
+                None
+            }
+            None => None,
+        };
+        let spec = PyDict::new(py);
+        spec.set_item("medium", medium)?;
+        spec.set_item(
+            "light",
+            lights.map_or_else(|| pyo3::types::PyList::empty(py).into_any(), |l| l.clone()),
+        )?;
+        let render = PyDict::new(py);
+        for (key, value) in [
+            ("spp", spp.map(u64::from)),
+            ("seed", seed),
+            ("max_depth", max_depth.map(u64::from)),
+        ] {
+            if let Some(v) = value {
+                render.set_item(key, v)?;
+            }
+        }
+        spec.set_item("render", render)?;
+        let json: String = py
+            .import("json")?
+            .call_method1("dumps", (spec,))?
+            .extract()?;
+        let file: SceneFile = serde_json::from_str(&json)
+            .map_err(|e| PyValueError::new_err(format!("scene parts: {e}")))?;
+        let mut scene =
+            RustScene::from_file_as(file, Path::new("<from_parts>"), SceneNeeds::Constants)
+                .or_raise()?;
+        if let Some(camera) = camera {
+            scene.camera = camera.camera;
+        }
+        let values = density.as_array();
+        let place = VoxelBox::of_array({
+            let (nx, ny, nz) = values.dim();
+            [nx, ny, nz]
+        });
+        let grid = density_grid(&values, IVec3::ZERO, density_scale, "density").or_raise()?;
+        scene.medium = medium_over(&scene, grid, transform, place);
+        if let Some(albedo) = albedo_array {
+            scene.medium.albedo =
+                albedo_grid(&albedo.as_array(), place, transform, scene.medium.filter)
+                    .or_raise()?;
+        }
+        scene.grid_name = "density".into();
+        Ok(Scene {
+            scene,
+            density_box: place,
+        })
+    }
+
+    /// The density as (array (nx, ny, nz) float32, 4×4 index_to_world of the array's indices).
+    #[getter]
+    fn density<'py>(&self, py: Python<'py>) -> PyResult<GridArrays<'py>> {
+        let place = self.density_box;
+        let values = detached::run(py, None, || {
+            Ok(arrays::from_brickmap(&self.scene.medium.grid, place))
+        })?;
+        Ok((
+            values.into_pyarray(py),
+            matrix(py, self.index_to_world_rows()),
+        ))
+    }
+
+    /// Replaces the density: an array of the current shape keeps the current index_to_world; with
+    /// `index_to_world`, any shape.
+    #[pyo3(signature = (density, index_to_world = None))]
+    fn set_density(
+        &mut self,
+        py: Python<'_>,
+        density: &Bound<'_, PyAny>,
+        index_to_world: Option<&Bound<'_, PyAny>>,
+    ) -> PyResult<()> {
+        let transform = index_to_world
+            .map(|m| arrays::matrix_argument(m, "index_to_world"))
+            .transpose()?;
+        let density =
+            arrays::float32_argument::<numpy::Ix3>(density, "density", "of shape (nx, ny, nz)")?;
+        let values = density.as_array();
+        let (medium, place) =
+            detached::run(py, None, || self.medium_with(&values, transform, "density"))?;
+        self.scene.medium = medium;
+        self.density_box = place;
+        Ok(())
+    }
+
+    /// The scene file's camera (or the one `from_parts` was given).
+    #[getter]
+    fn camera(&self) -> Camera {
+        Camera {
+            camera: self.scene.camera,
+        }
+    }
+
+    /// Renders the scene's camera (an (H, W, 3) float32 array of linear radiance) or every camera
+    /// of a list ((N, H, W, 3); all of one size; view i with seed + i). `density` renders another
+    /// density of the same shape without changing the scene. spp, seed and max_depth default to
+    /// the scene's `[render]` settings. The same bits as `volgrad render` for the same camera,
+    /// spp and seed, at any thread count.
+    #[pyo3(signature = (cameras = None, spp = None, seed = None, max_depth = None, threads = None, density = None))]
+    #[allow(clippy::too_many_arguments)]
+    fn render<'py>(
+        &mut self,
+        py: Python<'py>,
+        cameras: Option<Vec<Camera>>,
+        spp: Option<u32>,
+        seed: Option<u64>,
+        max_depth: Option<u32>,
+        threads: Option<usize>,
+        density: Option<&Bound<'py, PyAny>>,
+    ) -> PyResult<Bound<'py, PyArrayDyn<f32>>> {
+        let density = density
+            .map(|d| {
+                arrays::float32_argument::<numpy::Ix3>(d, "density", "shaped like Scene.density")
+            })
+            .transpose()?;
+        let sampling = Sampling::resolve(&self.scene, spp, seed, max_depth).or_raise()?;
+        let listed = cameras.is_some();
+        let cameras = views::cameras(&self.scene, cameras).or_raise()?;
+        let values = density.as_ref().map(|d| d.as_array());
+        let image = detached::run(py, threads, || {
+            let swapped = values
+                .as_ref()
+                .map(|v| self.medium_with(v, None, "density"))
+                .transpose()?;
+            views::with_medium(&mut self.scene, swapped.map(|m| m.0), |scene| {
+                views::render_views(scene, &cameras, &sampling)
+            })
+        })?;
+        views::warn_non_finite(py, image.non_finite, image.paths)?;
+        views::image_array(py, image, &cameras, listed)
+    }
+
+    /// Σ over pixels of adjoint · ∂image/∂θ, the vector-Jacobian product of `render`: θ the
+    /// density (`parameter = "extinction"`, shaped like `density`), the albedo grid's values
+    /// ("albedo"; (nx, ny, nz) or (nx, ny, nz, 3)) or the emission grid's ("emission").
+    /// `adjoint` is (H, W, 3) for the scene's camera or (N, H, W, 3) for a list of cameras, as
+    /// `render` returns. The paths use a stream of their own: with the seed of the render the
+    /// adjoint came from they are still independent of it.
+    #[pyo3(signature = (adjoint, cameras = None, estimator = "joint", parameter = "extinction", spp = None, seed = None, max_depth = None, threads = None, density = None))]
+    #[allow(clippy::too_many_arguments)]
+    fn grad<'py>(
+        &mut self,
+        py: Python<'py>,
+        adjoint: &Bound<'py, PyAny>,
+        cameras: Option<Vec<Camera>>,
+        estimator: &str,
+        parameter: &str,
+        spp: Option<u32>,
+        seed: Option<u64>,
+        max_depth: Option<u32>,
+        threads: Option<usize>,
+        density: Option<&Bound<'py, PyAny>>,
+    ) -> PyResult<Bound<'py, PyArrayDyn<f32>>> {
+        let density = density
+            .map(|d| {
+                arrays::float32_argument::<numpy::Ix3>(d, "density", "shaped like Scene.density")
+            })
+            .transpose()?;
+        let sampling = Sampling::resolve(&self.scene, spp, seed, max_depth).or_raise()?;
+        let estimator = views::estimator(estimator).or_raise()?;
+        let parameter = views::parameter(parameter).or_raise()?;
+        let listed = cameras.is_some();
+        let cameras = views::cameras(&self.scene, cameras).or_raise()?;
+        let adjoint =
+            arrays::float32_argument::<numpy::IxDyn>(adjoint, "adjoint", "shaped like the images")?;
+        let deltas = views::adjoint_images(&adjoint, &cameras, listed).or_raise()?;
+        let values = density.as_ref().map(|d| d.as_array());
+        let density_box = self.density_box;
+        let gradient = detached::run(py, threads, || {
+            let swapped = values
+                .as_ref()
+                .map(|v| self.medium_with(v, None, "density"))
+                .transpose()?;
+            views::with_medium(&mut self.scene, swapped.map(|m| m.0), |scene| {
+                views::grad(
+                    scene,
+                    &cameras,
+                    &deltas,
+                    estimator,
+                    parameter,
+                    &sampling,
+                    density_box,
+                )
+            })
+        })?;
+        views::warn_non_finite(py, gradient.non_finite, gradient.paths)?;
+        Ok(gradient.values.into_pyarray(py))
+    }
+
+    fn __repr__(&self) -> String {
+        let m = &self.scene.medium;
+        format!(
+            "Scene('{}', density {:?} at index {:?}, density_scale {}, {} leaves)",
+            self.scene.path.display(),
+            self.density_box.shape,
+            self.density_box.origin.to_array(),
+            m.density_scale,
+            m.grid.leaves().len()
+        )
+    }
+}
+
+impl Scene {
+    fn index_to_world_rows(&self) -> [f64; 16] {
+        arrays::rows_of(
+            self.density_box
+                .array_to_world(&self.scene.medium.transform),
+        )
+    }
+}
+
+/// An albedo array shaped like the density ((nx, ny, nz) grey or (nx, ny, nz, 3)) as the
+/// medium's albedo grid, its values checked to lie in [0, 1].
+fn albedo_grid(
+    values: &numpy::ndarray::ArrayViewD<f32>,
+    place: VoxelBox,
+    transform: IndexTransform,
+    filter: volgrad::volume::medium::Filter,
+) -> anyhow::Result<Albedo> {
+    let shape = values.shape();
+    let channels = match shape {
+        [x, y, z] if [*x, *y, *z] == place.shape => 1,
+        [x, y, z, 3] if [*x, *y, *z] == place.shape => 3,
+        _ => anyhow::bail!("albedo has shape {shape:?}: an array of albedos is shaped like the density, {:?}, or with a last axis of 3 (RGB)", place.shape),
+    };
+    if values.iter().any(|v| !(0.0..=1.0).contains(v)) {
+        anyhow::bail!("albedo: every value must lie in [0, 1]");
+    }
+    let maps = (0..channels)
+        .map(|c| {
+            let channel = match channels {
+                1 => values.view().into_dimensionality::<numpy::ndarray::Ix3>(),
+                _ => values
+                    .index_axis(numpy::ndarray::Axis(3), c)
+                    .into_dimensionality::<numpy::ndarray::Ix3>(),
+            }?;
+            Ok(arrays::to_brickmap(&channel, place.origin))
+        })
+        .collect::<anyhow::Result<Vec<_>>>()?;
+    Ok(Albedo::Grid(Box::new(AlbedoGrid::new(
+        "albedo".into(),
+        maps,
+        Vec3::ZERO,
+        transform,
+        filter,
+    ))))
+}

@@ -1,0 +1,294 @@
+//! What `Scene.render` and `Scene.grad` do once their arguments are checked: the views one after
+//! another through the library's image loops and gradient passes, their gradients summed as quanta
+//! of one quantum (so the sum is the same bits at any thread count).
+
+use anyhow::{bail, Result};
+use glam::Vec3;
+use numpy::ndarray::{ArrayD, IxDyn};
+use numpy::{IntoPyArray, PyArrayDyn, PyReadonlyArrayDyn, PyUntypedArrayMethods};
+use pyo3::exceptions::PyRuntimeWarning;
+use pyo3::prelude::*;
+use volgrad::gradient::adjoint::{AdjointOptions, Estimator, Suffix, DEFAULT_SUFFIX_PATHS};
+use volgrad::gradient::grid::{GradientGrid, Quanta};
+use volgrad::gradient::passes::{
+    gradient, gradient_grid_for, quantum_for, GradOptions, Measured, Parameter,
+};
+use volgrad::render::camera::Camera as RustCamera;
+use volgrad::render::image::{self as image_loop, RenderOptions};
+use volgrad::render::scene::Scene as RustScene;
+use volgrad::volume::medium::Medium;
+
+use crate::arrays::{self, VoxelBox};
+use crate::camera::Camera;
+
+/// spp, seed and max_depth: given, or the scene's `[render]` settings.
+pub struct Sampling {
+    pub spp: u32,
+    pub seed: u64,
+    pub max_depth: u32,
+}
+
+impl Sampling {
+    pub fn resolve(
+        scene: &RustScene,
+        spp: Option<u32>,
+        seed: Option<u64>,
+        max_depth: Option<u32>,
+    ) -> Result<Self> {
+        let spp = spp.unwrap_or(scene.settings.spp);
+        if spp == 0 {
+            bail!("spp must be at least 1");
+        }
+        Ok(Sampling {
+            spp,
+            seed: seed.unwrap_or(scene.settings.seed),
+            max_depth: max_depth.unwrap_or(scene.settings.max_depth),
+        })
+    }
+
+    /// View i's seed: the views of one call are independent of each other.
+    fn seed_of(&self, view: usize) -> u64 {
+        self.seed.wrapping_add(view as u64)
+    }
+}
+
+/// The cameras of a call: the list given (non-empty, all of one size), or the scene's own.
+pub fn cameras(scene: &RustScene, cameras: Option<Vec<Camera>>) -> Result<Vec<RustCamera>> {
+    let Some(cameras) = cameras else {
+        return Ok(vec![scene.camera]);
+    };
+    let Some(first) = cameras.first() else {
+        bail!("cameras: the list is empty (give None for the scene's own camera)");
+    };
+    let size = (first.camera.width, first.camera.height);
+    if let Some((i, c)) = cameras
+        .iter()
+        .enumerate()
+        .find(|(_, c)| (c.camera.width, c.camera.height) != size)
+    {
+        bail!(
+            "cameras: every camera of a call has one size (camera 0 is {}×{}, camera {i} is {}×{}); render the others in a call of their own",
+            size.0,
+            size.1,
+            c.camera.width,
+            c.camera.height
+        );
+    }
+    Ok(cameras.into_iter().map(|c| c.camera).collect())
+}
+
+pub fn estimator(name: &str) -> Result<Estimator> {
+    Ok(match name {
+        "joint" => Estimator::Joint,
+        "drt" => Estimator::Drt,
+        "naive" => Estimator::Naive,
+        _ => bail!("estimator must be \"joint\", \"drt\" or \"naive\" (got \"{name}\")"),
+    })
+}
+
+pub fn parameter(name: &str) -> Result<Parameter> {
+    Ok(match name {
+        "extinction" => Parameter::Extinction,
+        "albedo" => Parameter::Albedo,
+        "emission" => Parameter::Emission,
+        _ => bail!("parameter must be \"extinction\", \"albedo\" or \"emission\" (got \"{name}\")"),
+    })
+}
+
+/// Runs `work` on the scene with `medium` in place of its own, if given, and puts its own back.
+pub fn with_medium<T>(
+    scene: &mut RustScene,
+    medium: Option<Medium>,
+    work: impl FnOnce(&mut RustScene) -> Result<T>,
+) -> Result<T> {
+    let own = medium.map(|m| std::mem::replace(&mut scene.medium, m));
+    let camera = scene.camera;
+    let result = work(scene);
+    scene.camera = camera;
+    if let Some(own) = own {
+        scene.medium = own;
+    }
+    result
+}
+
+/// Values computed over the views, with the samples dropped as non-finite.
+pub struct Computed<T> {
+    pub values: T,
+    pub paths: u64,
+    pub non_finite: u64,
+}
+
+/// Every camera's image, one after another (each through every thread).
+pub fn render_views(
+    scene: &mut RustScene,
+    cameras: &[RustCamera],
+    sampling: &Sampling,
+) -> Result<Computed<Vec<f32>>> {
+    let mut values = Vec::new();
+    let (mut paths, mut non_finite) = (0, 0);
+    for (i, camera) in cameras.iter().enumerate() {
+        scene.camera = *camera;
+        let options = RenderOptions {
+            spp: sampling.spp,
+            seed: sampling.seed_of(i),
+            max_depth: sampling.max_depth,
+            progress: false,
+        };
+        let (image, stats) = image_loop::render(scene, &options);
+        values.extend(image.pixels.iter().flat_map(|p| p.to_array()));
+        paths += stats.paths;
+        non_finite += stats.non_finite;
+    }
+    Ok(Computed {
+        values,
+        paths,
+        non_finite,
+    })
+}
+
+/// Images as an (H, W, 3) array, or (N, H, W, 3) when the cameras were `listed`.
+pub fn image_array<'py>(
+    py: Python<'py>,
+    values: Computed<Vec<f32>>,
+    cameras: &[RustCamera],
+    listed: bool,
+) -> PyResult<Bound<'py, PyArrayDyn<f32>>> {
+    let (w, h) = (cameras[0].width as usize, cameras[0].height as usize);
+    let shape = match listed {
+        true => vec![cameras.len(), h, w, 3],
+        false => vec![h, w, 3],
+    };
+    let array = ArrayD::from_shape_vec(IxDyn(&shape), values.values).map_err(|e| {
+        pyo3::exceptions::PyRuntimeError::new_err(format!("image of the wrong size: {e}"))
+    })?;
+    Ok(array.into_pyarray(py))
+}
+
+/// The adjoint images of the views: (H, W, 3) for the scene's camera, (N, H, W, 3) for a list.
+pub fn adjoint_images(
+    adjoint: &PyReadonlyArrayDyn<f32>,
+    cameras: &[RustCamera],
+    listed: bool,
+) -> Result<Vec<Vec<Vec3>>> {
+    let (w, h) = (cameras[0].width as usize, cameras[0].height as usize);
+    let expected = match listed {
+        true => vec![cameras.len(), h, w, 3],
+        false => vec![h, w, 3],
+    };
+    if adjoint.shape() != expected.as_slice() {
+        bail!(
+            "adjoint has shape {:?}; the images of these cameras are {:?}",
+            adjoint.shape(),
+            expected
+        );
+    }
+    let view = adjoint.as_array();
+    let flat: Vec<f32> = view.iter().copied().collect();
+    if let Some(bad) = flat.iter().find(|v| !v.is_finite()) {
+        bail!(
+            "adjoint holds non-finite values ({bad}): an adjoint image must be finite everywhere"
+        );
+    }
+    Ok(flat
+        .chunks(w * h * 3)
+        .map(|image| image.chunks(3).map(Vec3::from_slice).collect())
+        .collect())
+}
+
+/// The box of values a parameter's gradient comes back in, its number of colour channels and the
+/// domain the passes sum over: the density's box, or the albedo or emission grid's active box.
+fn parameter_box(
+    scene: &RustScene,
+    parameter: Parameter,
+    density_box: VoxelBox,
+) -> Result<(VoxelBox, usize)> {
+    let active = |grid: &volgrad::volume::brickmap::BrickMap| match grid.active_bounds() {
+        Some((lo, hi)) => VoxelBox::spanning(lo, hi),
+        None => VoxelBox::of_array([0, 0, 0]),
+    };
+    let medium = &scene.medium;
+    Ok(match parameter {
+        Parameter::Extinction => (density_box, 1),
+        Parameter::Emission => match &medium.emission {
+            Some(e) => (active(&e.grid), 1),
+            None => bail!(
+                "parameter \"emission\": the scene's medium has no emission (medium.emission)"
+            ),
+        },
+        Parameter::Albedo => match medium.albedo.grid() {
+            Some(a) => (active(&a.channels[0]), a.channels.len()),
+            None => bail!("parameter \"albedo\": the scene's albedo is a constant, not a grid"),
+        },
+    })
+}
+
+/// Σ over the views' pixels of δ · ∂image/∂θ, dense over the parameter's box (a last axis of 3
+/// for an RGB albedo grid, one pass per channel with the same paths, as `volgrad grad` does).
+pub fn grad(
+    scene: &mut RustScene,
+    cameras: &[RustCamera],
+    deltas: &[Vec<Vec3>],
+    estimator: Estimator,
+    parameter: Parameter,
+    sampling: &Sampling,
+    density_box: VoxelBox,
+) -> Result<Computed<ArrayD<f32>>> {
+    let (place, channels) = parameter_box(scene, parameter, density_box)?;
+    let quantum = quantum_for(deltas.iter().map(|d| &d[..]), sampling.spp);
+    let pass = GradOptions {
+        adjoint: AdjointOptions {
+            estimator,
+            suffix: Suffix::PerPath,
+            suffix_paths: DEFAULT_SUFFIX_PATHS,
+            max_depth: sampling.max_depth,
+        },
+        quantum: Some(quantum),
+        parameter,
+        measured: Measured::Radiance,
+        ..GradOptions::new(estimator, sampling.spp, sampling.seed, sampling.max_depth)
+    };
+    let (mut paths, mut non_finite) = (0, 0);
+    let mut planes = Vec::with_capacity(channels);
+    for c in 0..channels {
+        let channel = (channels > 1).then_some(c);
+        let mut total: GradientGrid<Quanta> =
+            gradient_grid_for(scene, &GradOptions { channel, ..pass });
+        for (i, (camera, delta)) in cameras.iter().zip(deltas).enumerate() {
+            scene.camera = *camera;
+            let options = GradOptions {
+                seed: sampling.seed_of(i),
+                channel,
+                ..pass
+            };
+            let run = gradient(scene, delta, &options);
+            total.add_grid(&run.gradient);
+            paths += run.stats.paths;
+            non_finite += run.stats.non_finite;
+        }
+        planes.push(arrays::gradient_in(&total, quantum, place));
+    }
+    let values = match channels {
+        1 => planes.pop().expect("one channel").into_dyn(),
+        _ => {
+            let views: Vec<_> = planes.iter().map(|p| p.view()).collect();
+            numpy::ndarray::stack(numpy::ndarray::Axis(3), &views)?.into_dyn()
+        }
+    };
+    Ok(Computed {
+        values,
+        paths,
+        non_finite,
+    })
+}
+
+/// A Python warning when paths came out NaN or infinite (they count as 0), as the command line
+/// warns on stderr.
+pub fn warn_non_finite(py: Python<'_>, non_finite: u64, paths: u64) -> PyResult<()> {
+    if non_finite == 0 {
+        return Ok(());
+    }
+    let message =
+        format!("{non_finite} non-finite samples were dropped (counted as 0) out of {paths} paths");
+    let message = std::ffi::CString::new(message).expect("the message holds no NUL");
+    PyErr::warn(py, &py.get_type::<PyRuntimeWarning>(), &message, 1)
+}

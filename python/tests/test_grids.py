@@ -1,0 +1,82 @@
+"""read_grid and write_grid: axis order, transforms, sparsity, what they refuse."""
+
+import numpy as np
+import pytest
+
+import volgrad
+from conftest import ball, voxel_map
+
+
+def test_the_axis_order_is_x_y_z(cli, tmp_path):
+    # make-grid's slab is size × size × thickness voxels: thin along z, the array's last axis.
+    path = tmp_path / "slab.vdb"
+    cli("make-grid", "slab", "--size", 12, "--thickness", 3, "--output", path)
+    values, index_to_world = volgrad.read_grid(path)
+    assert values.shape == (12, 12, 3)
+    assert values.dtype == np.float32 and index_to_world.shape == (4, 4)
+    assert np.all(values > 0)
+
+
+def test_a_grid_comes_back_as_written(tmp_path):
+    values = ball()
+    index_to_world = voxel_map()
+    path = tmp_path / "ball.vdb"
+    volgrad.write_grid(path, values, index_to_world, name="density")
+    back, back_map = volgrad.read_grid(path, name="density")
+    # read_grid returns the active box: the ball's non-zero voxels, shifted by its first corner.
+    nonzero = np.argwhere(values != 0)
+    lo, hi = nonzero.min(axis=0), nonzero.max(axis=0)
+    assert back.shape == tuple(hi - lo + 1)
+    np.testing.assert_array_equal(back, values[lo[0] : hi[0] + 1, lo[1] : hi[1] + 1, lo[2] : hi[2] + 1])
+    # The same voxel lands on the same world point either way.
+    corner = np.append(lo, 1.0)
+    np.testing.assert_allclose(back_map @ np.array([0, 0, 0, 1.0]), index_to_world @ corner, atol=1e-12)
+    np.testing.assert_allclose(back_map[:3, :3], index_to_world[:3, :3])
+
+
+def test_only_bricks_with_values_are_stored(tmp_path):
+    sparse = np.zeros((64, 64, 64), np.float32)
+    sparse[3, 5, 7] = 2.0
+    sparse[60, 60, 60] = 1.0
+    # Values OpenVDB cannot prune into tiles: 512 leaves stored.
+    dense = np.random.default_rng(1).uniform(0.5, 1.0, (64, 64, 64)).astype(np.float32)
+    for name, values in [("sparse", sparse), ("dense", dense)]:
+        volgrad.write_grid(tmp_path / f"{name}.vdb", values, np.eye(4))
+    small, large = ((tmp_path / f"{n}.vdb").stat().st_size for n in ["sparse", "dense"])
+    assert small * 50 < large  # 2 bricks of 512 against 512 bricks
+
+
+def test_an_existing_file_is_kept_unless_asked(tmp_path):
+    path = tmp_path / "a.vdb"
+    volgrad.write_grid(path, ball(), voxel_map())
+    with pytest.raises(ValueError, match="exists"):
+        volgrad.write_grid(path, ball() * 2, voxel_map())
+    assert volgrad.read_grid(path)[0].max() == ball().max()
+    volgrad.write_grid(path, ball() * 2, voxel_map(), overwrite=True)
+    assert volgrad.read_grid(path)[0].max() == 2 * ball().max()
+
+
+@pytest.mark.parametrize(
+    "array, matrix, error, message",
+    [
+        (ball().astype(np.float64), voxel_map(), TypeError, "array must be a float32"),
+        (ball()[0], voxel_map(), TypeError, "array must be a float32 numpy array of shape"),
+        (np.full((4, 4, 4), np.nan, np.float32), voxel_map(), ValueError, "NaN"),
+        (ball(), np.eye(3), ValueError, "4×4"),
+        (ball(), np.zeros((4, 4)), ValueError, "last row"),
+        (ball(), np.diag([1.0, 0.0, 1.0, 1.0]), ValueError, "singular"),
+    ],
+)
+def test_bad_arrays_are_refused_by_name(tmp_path, array, matrix, error, message):
+    with pytest.raises(error, match=message):
+        volgrad.write_grid(tmp_path / "x.vdb", array, matrix)
+    assert not (tmp_path / "x.vdb").exists()
+
+
+def test_missing_files_raise_file_not_found(tmp_path):
+    with pytest.raises(FileNotFoundError, match="does not exist"):
+        volgrad.read_grid(tmp_path / "none.vdb")
+    path = tmp_path / "ball.vdb"
+    volgrad.write_grid(path, ball(), voxel_map())
+    with pytest.raises(ValueError, match="nope"):
+        volgrad.read_grid(path, name="nope")

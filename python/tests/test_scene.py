@@ -1,0 +1,183 @@
+"""Scenes, renders and gradients: the same bits as the command line, at any thread count; the
+gradient against finite differences; refusals by argument name; Ctrl-C."""
+
+import signal
+import subprocess
+import sys
+import textwrap
+import time
+
+import numpy as np
+import pytest
+
+import volgrad
+from conftest import REPO, ball, read_exr, voxel_map
+
+SPHERE = REPO / "scenes" / "sphere.toml"
+
+LIGHTS = [
+    {"type": "constant", "radiance": [0.4, 0.5, 0.6]},
+    {"type": "directional", "direction": [-0.6, -1.0, -0.4], "irradiance": 4.0},
+]
+
+
+def small_scene(**parts):
+    camera = volgrad.Camera((0.3, 0.5, 4.0), (0, 0, 0), fov_deg=40, width=24, height=24)
+    args = dict(density_scale=4.0, albedo=0.8, phase_g=0.3, lights=LIGHTS, camera=camera)
+    args.update(parts)
+    return volgrad.Scene.from_parts(ball(), voxel_map(), **args)
+
+
+def test_a_render_is_the_command_lines(cli, tmp_path):
+    out = tmp_path / "sphere.exr"
+    cli("render", SPHERE, "--spp", 4, "--seed", 3, "--output", out, "--quiet")
+    image = volgrad.Scene.load(SPHERE).render(spp=4, seed=3)
+    assert image.shape == (128, 128, 3) and image.dtype == np.float32
+    np.testing.assert_array_equal(image, read_exr(out))
+
+
+def test_a_gradient_is_the_command_lines(cli, tmp_path):
+    target = tmp_path / "target.exr"
+    cli("render", SPHERE, "--spp", 16, "--seed", 9, "--output", target, "--quiet")
+    out = tmp_path / "g.vdb"
+    cli("grad", SPHERE, "--loss", "l2", "--target", target, "--spp", 4, "--seed", 5, "--output", out, "--quiet")
+    scene = volgrad.Scene.load(SPHERE)
+    # The command line's adjoint: ∂/∂I of mean((I − T)²) over pixels and channels, from a render
+    # with the gradient's seed and spp (on the forward stream; the gradient's paths are on the
+    # adjoint stream).
+    image = scene.render(spp=4, seed=5)
+    adjoint = (np.float32(2) * (image - read_exr(target))) / np.float32(image.size)
+    ours = scene.grad(adjoint, spp=4, seed=5)
+    theirs, their_map = volgrad.read_grid(out)
+    _, our_map = scene.density
+    # The command line's grid also holds the ring of voxels around the density's box that
+    # trilinear lookups reach; compare where both have values.
+    shift = np.rint(np.linalg.inv(our_map) @ their_map @ [0, 0, 0, 1])[:3].astype(int)
+    assert np.all(shift <= 0)
+    lo = -shift
+    window = theirs[lo[0] : lo[0] + ours.shape[0], lo[1] : lo[1] + ours.shape[1], lo[2] : lo[2] + ours.shape[2]]
+    assert window.shape == ours.shape
+    assert np.count_nonzero(ours) > 1000
+    np.testing.assert_array_equal(ours, window)
+
+
+def test_threads_do_not_change_a_bit():
+    scene = small_scene()
+    cameras = [scene.camera, volgrad.Camera((4, 0.5, 0), (0, 0, 0), width=24, height=24)]
+    images = [scene.render(cameras, spp=8, seed=1, threads=t) for t in (1, 2)]
+    np.testing.assert_array_equal(*images)
+    adjoint = np.random.default_rng(0).normal(size=images[0].shape).astype(np.float32)
+    grads = [scene.grad(adjoint, cameras, spp=4, seed=2, threads=t) for t in (1, 2)]
+    np.testing.assert_array_equal(*grads)
+    assert grads[0].shape == ball().shape
+
+
+def test_views_of_one_call_are_independent():
+    scene = small_scene()
+    two = scene.render([scene.camera, scene.camera], spp=2, seed=4)
+    assert not np.array_equal(two[0], two[1])
+    np.testing.assert_array_equal(two[0], scene.render(spp=2, seed=4))
+    np.testing.assert_array_equal(two[1], scene.render(spp=2, seed=5))
+
+
+def test_the_gradient_matches_finite_differences():
+    """⟨grad, d⟩ for d = +x half of the ball (relative): against a central difference of the
+    render with common random numbers. An array whose axes were swapped (x for z: the camera looks
+    along z) gives another number, which the margin tells apart."""
+    scene = small_scene()
+    density, _ = scene.density
+    weights = np.random.default_rng(3).uniform(0.5, 1.5, (24, 24, 3)).astype(np.float32)
+    half = np.zeros_like(density)
+    half[:8] = 1.0
+    direction = half * density
+    eps = 0.05
+
+    def loss(values):
+        return float((weights * scene.render(spp=2048, seed=11, density=values)).sum())
+
+    fd = (loss(density + eps * direction) - loss(density - eps * direction)) / (2 * eps)
+    g = scene.grad(weights, spp=512, seed=12)
+    ours = float((g * direction).sum())
+    swapped = float((g.transpose(2, 1, 0) * direction).sum())
+    print(f"finite differences {fd:.5g}, gradient {ours:.5g}, axes swapped {swapped:.5g}")
+    assert abs(ours - fd) < 0.08 * abs(fd), (ours, fd)
+    assert abs(swapped - fd) > 0.08 * abs(fd), (swapped, fd)
+
+
+def test_the_scene_is_unchanged_by_a_density_argument():
+    scene = small_scene()
+    before = scene.render(spp=2, seed=1)
+    other = scene.render(spp=2, seed=1, density=2 * scene.density[0])
+    assert other.mean() != before.mean()
+    np.testing.assert_array_equal(scene.render(spp=2, seed=1), before)
+    scene.set_density(2 * scene.density[0])
+    np.testing.assert_array_equal(scene.render(spp=2, seed=1), other)
+
+
+def test_albedo_arrays_and_their_gradient():
+    albedo = np.full(ball().shape + (3,), 0.8, np.float32)
+    grid = small_scene(albedo=albedo)
+    constant = small_scene(albedo=0.8)
+    # A grid of 0.8 everywhere the ball is renders as the constant does (up to the lookups'
+    # rounding).
+    np.testing.assert_allclose(grid.render(spp=4, seed=1), constant.render(spp=4, seed=1), rtol=1e-4, atol=1e-6)
+    adjoint = np.ones((24, 24, 3), np.float32)
+    g = grid.grad(adjoint, parameter="albedo", spp=16, seed=2)
+    assert g.shape[-1] == 3 and np.all(g.sum(axis=(0, 1, 2)) > 0)
+    with pytest.raises(ValueError, match="albedo.*constant"):
+        constant.grad(adjoint, parameter="albedo")
+
+
+def bad_calls():
+    scene = small_scene()
+    density = scene.density[0]
+    adjoint = np.zeros((24, 24, 3), np.float32)
+    yield lambda: scene.render(spp=0), ValueError, "spp must be at least 1"
+    yield lambda: scene.render(threads=0), ValueError, "threads must be at least 1"
+    yield lambda: scene.render(cameras=[]), ValueError, "cameras: the list is empty"
+    yield lambda: scene.render(density=density.astype(np.float64)), TypeError, "density must be a float32"
+    yield lambda: scene.render(density=density[:4]), ValueError, "density has shape"
+    yield lambda: scene.render(density=-density), ValueError, "density: .* negative"
+    yield lambda: scene.render(density=density * np.nan), ValueError, "density: .* NaN"
+    yield lambda: scene.grad(adjoint[:3]), ValueError, "adjoint has shape"
+    yield lambda: scene.grad(np.full_like(adjoint, np.inf)), ValueError, "adjoint holds non-finite"
+    yield lambda: scene.grad(adjoint, estimator="fast"), ValueError, "estimator must be"
+    yield lambda: scene.grad(adjoint, parameter="emission"), ValueError, "no emission"
+    yield lambda: volgrad.Camera((0, 0, 0), (0, 0, 0)), ValueError, "camera"
+    yield lambda: volgrad.Camera((0, 0, 1), (0, 0, 0), width=0), ValueError, "width"
+    yield lambda: volgrad.Camera((0, 0, 1), (0, 0, 0), fx=-1.0), ValueError, "focal length"
+    yield lambda: small_scene(lights=[{"type": "sun"}]), ValueError, "sun"
+    yield lambda: small_scene(phase_g=1.5), ValueError, "phase_g"
+    yield lambda: small_scene(albedo=np.ones((2, 2, 2), np.float32)), ValueError, "albedo has shape"
+    yield lambda: volgrad.Scene.load(REPO / "none.toml"), FileNotFoundError, "does not exist"
+
+
+def test_bad_arguments_raise_by_name():
+    for call, error, message in bad_calls():
+        with pytest.raises(error, match=message):
+            call()
+
+
+def test_ctrl_c_interrupts_a_render_within_a_second():
+    script = textwrap.dedent(
+        f"""
+        import sys, volgrad
+        scene = volgrad.Scene.load({str(SPHERE)!r})
+        camera = volgrad.Camera((0, 2, 12), (0, 0, 0), width=512, height=512)
+        print("rendering", flush=True)
+        try:
+            scene.render([camera], spp=100000)
+        except KeyboardInterrupt:
+            print("interrupted", flush=True)
+            sys.exit(3)
+        """
+    )
+    child = subprocess.Popen([sys.executable, "-c", script], stdout=subprocess.PIPE, text=True)
+    assert child.stdout.readline().strip() == "rendering"
+    time.sleep(0.5)
+    sent = time.monotonic()
+    child.send_signal(signal.SIGINT)
+    code = child.wait(timeout=10)
+    elapsed = time.monotonic() - sent
+    assert code == 3 and child.stdout.read().strip() == "interrupted"
+    assert elapsed < 1.0, elapsed
