@@ -21,6 +21,17 @@ pub struct VoxelBox {
 }
 
 impl VoxelBox {
+    pub const EMPTY: VoxelBox = VoxelBox {
+        origin: IVec3::ZERO,
+        shape: [0, 0, 0],
+    };
+
+    /// The bounding box of `grid`'s active voxels.
+    pub fn active(grid: &BrickMap) -> Self {
+        grid.active_bounds()
+            .map_or(Self::EMPTY, |(lo, hi)| Self::spanning(lo, hi))
+    }
+
     /// The inclusive box `[lo, hi]`.
     pub fn spanning(lo: IVec3, hi: IVec3) -> Self {
         let size = (hi - lo + 1).max(IVec3::ZERO);

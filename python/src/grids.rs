@@ -35,10 +35,7 @@ pub fn read_grid<'py>(
             anyhow::bail!("file '{}' does not exist", path.display());
         }
         let grid = vdb::read_grid(&path, &selector)?;
-        let place = match grid.bricks.active_bounds() {
-            Some((lo, hi)) => VoxelBox::spanning(lo, hi),
-            None => VoxelBox::of_array([0, 0, 0]),
-        };
+        let place = VoxelBox::active(&grid.bricks);
         let values = arrays::from_brickmap(&grid.bricks, place);
         Ok((
             values,

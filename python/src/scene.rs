@@ -8,10 +8,13 @@ use numpy::{IntoPyArray, PyArrayDyn};
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
+use volgrad::render::medium_grids::check_emission_limit;
 use volgrad::render::scene::{Scene as RustScene, SceneFile, SceneNeeds};
 use volgrad::render::scene_check::MAX_EXTINCTION;
+use volgrad::render::scene_file::EmissionFile;
 use volgrad::volume::albedo::{Albedo, AlbedoGrid};
 use volgrad::volume::brickmap::BrickMap;
+use volgrad::volume::emission::{Emission, EmissionKind};
 use volgrad::volume::medium::Medium;
 use volgrad::volume::transform::IndexTransform;
 
@@ -20,15 +23,16 @@ use crate::camera::Camera;
 use crate::detached;
 use crate::errors::OrRaise;
 use crate::grids::{matrix, GridArrays};
-use crate::views::{self, Sampling};
+use crate::views::{self, Boxes, Sampling};
 
 /// A scene ready to render and differentiate. Its density is the box of voxels `density` returns;
 /// gradients with respect to it come back in the same box.
 #[pyclass(name = "Scene", module = "volgrad")]
 pub struct Scene {
     pub scene: RustScene,
-    /// The voxels the density array covers, in the grid's index space.
-    pub density_box: VoxelBox,
+    /// The voxels the density array (and the albedo and emission grids' arrays) cover, in each
+    /// grid's index space.
+    pub boxes: Boxes,
 }
 
 /// The scene's medium with `grid` (placed as `place` says, under `transform`) as its density: the
@@ -86,11 +90,11 @@ impl Scene {
         let (nx, ny, nz) = values.dim();
         let (place, transform) = match index_to_world {
             Some(transform) => (VoxelBox::of_array([nx, ny, nz]), transform),
-            None if [nx, ny, nz] == self.density_box.shape => (self.density_box, self.scene.medium.transform),
+            None if [nx, ny, nz] == self.boxes.density.shape => (self.boxes.density, self.scene.medium.transform),
             None => anyhow::bail!(
                 "{argument} has shape {:?} but the scene's density is {:?}: give index_to_world with an array of another shape",
                 [nx, ny, nz],
-                self.density_box.shape
+                self.boxes.density.shape
             ),
         };
         let grid = density_grid(
@@ -100,14 +104,6 @@ impl Scene {
             argument,
         )?;
         Ok((medium_over(&self.scene, grid, transform, place), place))
-    }
-}
-
-/// The index box a loaded scene's density array covers: its active voxels'.
-fn active_box(grid: &BrickMap) -> VoxelBox {
-    match grid.active_bounds() {
-        Some((lo, hi)) => VoxelBox::spanning(lo, hi),
-        None => VoxelBox::of_array([0, 0, 0]),
     }
 }
 
@@ -122,15 +118,15 @@ impl Scene {
             }
             RustScene::load(&path)
         })?;
-        let density_box = active_box(&scene.medium.grid);
-        Ok(Scene { scene, density_box })
+        let boxes = Boxes::active(&scene);
+        Ok(Scene { scene, boxes })
     }
 
     /// A scene from parts: `density` (nx, ny, nz) float32 with `index_to_world` (4×4, array
     /// indices to world), the medium's constants, `lights` as scene-file light tables (dicts), a
     /// `camera`, and the render settings a scene file's `[render]` table holds.
     #[staticmethod]
-    #[pyo3(signature = (density, index_to_world, density_scale = 1.0, albedo = None, phase_g = 0.0, lights = None, camera = None, spp = None, seed = None, max_depth = None))]
+    #[pyo3(signature = (density, index_to_world, density_scale = 1.0, albedo = None, phase_g = 0.0, lights = None, camera = None, spp = None, seed = None, max_depth = None, emission = None, emission_kind = None))]
     #[allow(clippy::too_many_arguments)]
     fn from_parts(
         py: Python<'_>,
@@ -144,6 +140,8 @@ impl Scene {
         spp: Option<u32>,
         seed: Option<u64>,
         max_depth: Option<u32>,
+        emission: Option<&Bound<'_, PyAny>>,
+        emission_kind: Option<&Bound<'_, PyDict>>,
     ) -> PyResult<Scene> {
         let transform = arrays::matrix_argument(index_to_world, "index_to_world")?;
         let density =
@@ -206,17 +204,39 @@ impl Scene {
                 albedo_grid(&albedo.as_array(), place, transform, scene.medium.filter)
                     .or_raise()?;
         }
+        if let Some(values) = emission {
+            let values = arrays::float32_argument::<numpy::Ix3>(
+                values,
+                "emission",
+                "shaped like the density",
+            )?;
+            let kind = emission_file(py, emission_kind)?
+                .emission_kind()
+                .or_raise()?;
+            scene.medium.emission = Some(
+                emission_grid(
+                    &values.as_array(),
+                    place,
+                    transform,
+                    kind,
+                    scene.medium.filter,
+                )
+                .or_raise()?,
+            );
+        }
         scene.grid_name = "density".into();
-        Ok(Scene {
-            scene,
-            density_box: place,
-        })
+        let boxes = Boxes {
+            density: place,
+            albedo: place,
+            emission: place,
+        };
+        Ok(Scene { scene, boxes })
     }
 
     /// The density as (array (nx, ny, nz) float32, 4×4 index_to_world of the array's indices).
     #[getter]
     fn density<'py>(&self, py: Python<'py>) -> PyResult<GridArrays<'py>> {
-        let place = self.density_box;
+        let place = self.boxes.density;
         let values = detached::run(py, None, || {
             Ok(arrays::from_brickmap(&self.scene.medium.grid, place))
         })?;
@@ -244,7 +264,7 @@ impl Scene {
         let (medium, place) =
             detached::run(py, None, || self.medium_with(&values, transform, "density"))?;
         self.scene.medium = medium;
-        self.density_box = place;
+        self.boxes.density = place;
         Ok(())
     }
 
@@ -330,7 +350,7 @@ impl Scene {
             arrays::float32_argument::<numpy::IxDyn>(adjoint, "adjoint", "shaped like the images")?;
         let deltas = views::adjoint_images(&adjoint, &cameras, listed).or_raise()?;
         let values = density.as_ref().map(|d| d.as_array());
-        let density_box = self.density_box;
+        let boxes = self.boxes;
         let gradient = detached::run(py, threads, || {
             let swapped = values
                 .as_ref()
@@ -338,13 +358,7 @@ impl Scene {
                 .transpose()?;
             views::with_medium(&mut self.scene, swapped.map(|m| m.0), |scene| {
                 views::grad(
-                    scene,
-                    &cameras,
-                    &deltas,
-                    estimator,
-                    parameter,
-                    &sampling,
-                    density_box,
+                    scene, &cameras, &deltas, estimator, parameter, &sampling, &boxes,
                 )
             })
         })?;
@@ -357,8 +371,8 @@ impl Scene {
         format!(
             "Scene('{}', density {:?} at index {:?}, density_scale {}, {} leaves)",
             self.scene.path.display(),
-            self.density_box.shape,
-            self.density_box.origin.to_array(),
+            self.boxes.density.shape,
+            self.boxes.density.origin.to_array(),
             m.density_scale,
             m.grid.leaves().len()
         )
@@ -368,10 +382,60 @@ impl Scene {
 impl Scene {
     fn index_to_world_rows(&self) -> [f64; 16] {
         arrays::rows_of(
-            self.density_box
+            self.boxes
+                .density
                 .array_to_world(&self.scene.medium.transform),
         )
     }
+}
+
+/// What an emission array's values mean, as a scene file's `medium.emission` table without its
+/// grid: `{"radiance": [r, g, b]}` (the default, white) or `{"blackbody": {…}, "strength": s}`.
+fn emission_file(py: Python<'_>, kind: Option<&Bound<'_, PyDict>>) -> PyResult<EmissionFile> {
+    let table = PyDict::new(py);
+    table.set_item("grid", "emission")?;
+    match kind {
+        Some(kind) => table.update(kind.as_mapping())?,
+        None => table.set_item("radiance", [1.0, 1.0, 1.0])?,
+    }
+    let json: String = py
+        .import("json")?
+        .call_method1("dumps", (table,))?
+        .extract()?;
+    serde_json::from_str(&json).map_err(|e| PyValueError::new_err(format!("emission_kind: {e}")))
+}
+
+/// An emission array shaped like the density as the medium's emission grid: non-negative where
+/// it scales a radiance, its brightest voxel within the light cap.
+fn emission_grid(
+    values: &numpy::ndarray::ArrayView3<f32>,
+    place: VoxelBox,
+    transform: IndexTransform,
+    kind: EmissionKind,
+    filter: volgrad::volume::medium::Filter,
+) -> anyhow::Result<Emission> {
+    let (nx, ny, nz) = values.dim();
+    if [nx, ny, nz] != place.shape {
+        anyhow::bail!(
+            "emission has shape {:?}: it is shaped like the density, {:?}",
+            [nx, ny, nz],
+            place.shape
+        );
+    }
+    arrays::check_values(
+        values,
+        "emission",
+        matches!(kind, EmissionKind::Blackbody { .. }),
+    )?;
+    let emission = Emission::new(
+        "emission".into(),
+        arrays::to_brickmap(values, place.origin),
+        transform,
+        kind,
+        filter,
+    );
+    check_emission_limit(&emission, "emission")?;
+    Ok(emission)
 }
 
 /// An albedo array shaped like the density ((nx, ny, nz) grey or (nx, ny, nz, 3)) as the

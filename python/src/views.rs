@@ -195,28 +195,50 @@ pub fn adjoint_images(
         .collect())
 }
 
-/// The box of values a parameter's gradient comes back in, its number of colour channels and the
-/// domain the passes sum over: the density's box, or the albedo or emission grid's active box.
+/// The boxes of voxels a scene's grids are arrays over: what `Scene.density` returns and what
+/// each parameter's gradient comes back in.
+#[derive(Debug, Clone, Copy)]
+pub struct Boxes {
+    pub density: VoxelBox,
+    pub albedo: VoxelBox,
+    pub emission: VoxelBox,
+}
+
+impl Boxes {
+    /// A loaded scene's: each grid's active voxels.
+    pub fn active(scene: &RustScene) -> Self {
+        let m = &scene.medium;
+        let albedo = m.albedo.grid().map(|a| &a.channels[0]);
+        Boxes {
+            density: VoxelBox::active(&m.grid),
+            albedo: albedo.map_or(VoxelBox::EMPTY, VoxelBox::active),
+            emission: m
+                .emission
+                .as_ref()
+                .map_or(VoxelBox::EMPTY, |e| VoxelBox::active(&e.grid)),
+        }
+    }
+}
+
+/// The box of values a parameter's gradient comes back in (and the passes' domain, so that voxels
+/// at 0 get theirs too) and its number of colour channels; refused where the scene has no such
+/// grid.
 fn parameter_box(
     scene: &RustScene,
     parameter: Parameter,
-    density_box: VoxelBox,
+    boxes: &Boxes,
 ) -> Result<(VoxelBox, usize)> {
-    let active = |grid: &volgrad::volume::brickmap::BrickMap| match grid.active_bounds() {
-        Some((lo, hi)) => VoxelBox::spanning(lo, hi),
-        None => VoxelBox::of_array([0, 0, 0]),
-    };
     let medium = &scene.medium;
     Ok(match parameter {
-        Parameter::Extinction => (density_box, 1),
+        Parameter::Extinction => (boxes.density, 1),
         Parameter::Emission => match &medium.emission {
-            Some(e) => (active(&e.grid), 1),
+            Some(_) => (boxes.emission, 1),
             None => bail!(
                 "parameter \"emission\": the scene's medium has no emission (medium.emission)"
             ),
         },
         Parameter::Albedo => match medium.albedo.grid() {
-            Some(a) => (active(&a.channels[0]), a.channels.len()),
+            Some(a) => (boxes.albedo, a.channels.len()),
             None => bail!("parameter \"albedo\": the scene's albedo is a constant, not a grid"),
         },
     })
@@ -231,9 +253,21 @@ pub fn grad(
     estimator: Estimator,
     parameter: Parameter,
     sampling: &Sampling,
-    density_box: VoxelBox,
+    boxes: &Boxes,
 ) -> Result<Computed<ArrayD<f32>>> {
-    let (place, channels) = parameter_box(scene, parameter, density_box)?;
+    let (place, channels) = parameter_box(scene, parameter, boxes)?;
+    if place.is_empty() {
+        let shape = [
+            &place.shape[..],
+            if channels > 1 { &[3][..] } else { &[][..] },
+        ]
+        .concat();
+        return Ok(Computed {
+            values: ArrayD::zeros(IxDyn(&shape)),
+            paths: 0,
+            non_finite: 0,
+        });
+    }
     let quantum = quantum_for(deltas.iter().map(|d| &d[..]), sampling.spp);
     let pass = GradOptions {
         adjoint: AdjointOptions {
@@ -244,6 +278,7 @@ pub fn grad(
         },
         quantum: Some(quantum),
         parameter,
+        domain: Some((place.origin, place.last())),
         measured: Measured::Radiance,
         ..GradOptions::new(estimator, sampling.spp, sampling.seed, sampling.max_depth)
     };

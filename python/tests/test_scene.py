@@ -128,6 +128,20 @@ def test_albedo_arrays_and_their_gradient():
         constant.grad(adjoint, parameter="albedo")
 
 
+def test_an_emission_array_and_its_gradient():
+    """The image is linear in the emission, so ⟨∂(w·image)/∂E, E⟩ = w · (image(E) − image(0)):
+    the gradient's paths (the adjoint stream) against two renders' difference."""
+    emission = (ball() > 0).astype(np.float32) * 0.5
+    glowing = small_scene(emission=emission, emission_kind={"radiance": [1.0, 0.6, 0.2]})
+    dark = small_scene(emission=np.zeros_like(emission), emission_kind={"radiance": [1.0, 0.6, 0.2]})
+    weights = np.random.default_rng(5).uniform(0.5, 1.5, (24, 24, 3)).astype(np.float32)
+    difference = float((weights * (glowing.render(spp=1024, seed=1) - dark.render(spp=1024, seed=1))).sum())
+    g = glowing.grad(weights, parameter="emission", spp=256, seed=2)
+    assert g.shape == emission.shape
+    ours = float((g * emission).sum())
+    assert difference > 0 and abs(ours - difference) < 0.05 * difference, (ours, difference)
+
+
 def bad_calls():
     scene = small_scene()
     density = scene.density[0]
@@ -150,6 +164,10 @@ def bad_calls():
     yield lambda: small_scene(phase_g=1.5), ValueError, "phase_g"
     yield lambda: small_scene(albedo=np.ones((2, 2, 2), np.float32)), ValueError, "albedo has shape"
     yield lambda: volgrad.Scene.load(REPO / "none.toml"), FileNotFoundError, "does not exist"
+    yield lambda: small_scene(emission=-ball()), ValueError, "emission: .* negative"
+    yield lambda: small_scene(emission=ball()[:4]), ValueError, "emission has shape"
+    yield lambda: small_scene(emission=ball(), emission_kind={"radiance": [1e30, 1, 1]}), ValueError, "at most"
+    yield lambda: small_scene(emission=ball(), emission_kind={"colour": 1}), ValueError, "emission_kind: unknown field"
 
 
 def test_bad_arguments_raise_by_name():

@@ -73,8 +73,11 @@ class Scene:
         spp: Optional[int] = None,
         seed: Optional[int] = None,
         max_depth: Optional[int] = None,
+        emission: Optional[_F32] = None,
+        emission_kind: Optional[Dict[str, Any]] = None,
     ) -> "Scene":
-        """A scene from a density array and the medium's constants; lights as scene-file tables."""
+        """A scene from a density array and the medium's constants; lights as scene-file tables;
+        an emission array with what its values mean (a scene file's medium.emission keys)."""
     @property
     def density(self) -> Tuple[_F32, _F64]:
         """(values (nx, ny, nz), 4×4 index_to_world of the array's indices)."""

@@ -157,15 +157,18 @@ pub fn load_emission(
         grid.name,
         path.display()
     );
-    let (largest_value, emission) = (
-        grid.bricks.max_value(),
-        Emission::new(grid.name, grid.bricks, grid.transform, kind, filter),
-    );
+    let emission = Emission::new(grid.name, grid.bricks, grid.transform, kind, filter);
+    check_emission_limit(&emission, &what)?;
+    Ok(emission)
+}
+
+/// Refuses an emission whose largest possible radiance exceeds the light cap; `what` names it.
+pub fn check_emission_limit(emission: &Emission, what: &str) -> Result<()> {
     let (largest, kelvin) = emission.largest_radiance();
     if largest > f64::from(MAX_LIGHT) {
         let how = match emission.kind {
             EmissionKind::Radiance(_) => {
-                format!("radiance × its largest value {largest_value}")
+                format!("radiance × its largest value {}", emission.grid.max_value())
             }
             EmissionKind::Blackbody { .. } => {
                 format!("strength × the blackbody up to its hottest voxel's {kelvin:.0} K")
@@ -179,5 +182,5 @@ pub fn load_emission(
             }
         );
     }
-    Ok(emission)
+    Ok(())
 }
