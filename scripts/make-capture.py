@@ -29,8 +29,8 @@ voxel, where cycles_reference.py takes 0.05 — 20× slower on the smoke plume, 
   `transform_matrix` (camera to world, rows; the camera looks down its −z with +y up: Blender's
   camera matrix as it is);
 - `relit.toml`: the relit views as a run file's `[[holdout]]` tables (camera, image, lights) for a run
-  file beside the capture's folder, since a run file's `[holdouts]` takes one transforms file under
-  one set of lights;
+  file beside the capture's folder (a `[[holdouts]]` table with `transforms_relit.json` and the
+  relit lights says the same in two lines, as `scenes/capture/plume.toml` does);
 - `capture.json`: the arguments, the lights and the seconds each set took (not a transforms file).
 
 Every image has its own Cycles seed (its index in the whole capture, from 1). `capture_check.py`

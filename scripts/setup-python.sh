@@ -1,8 +1,8 @@
 #!/usr/bin/env bash
 # The Python package in a virtual environment (default .venv/ at the repository's top): volgrad
 # built from python/ by maturin against the system libraries setup.sh installs, numpy, PyTorch
-# (PyPI's wheel, used on the CPU), and the tests' own needs (pytest; OpenEXR, an EXR reader that
-# is not volgrad's). Does little when they are there already.
+# (PyPI's wheel, used on the CPU), JAX (CPU), and the tests' own needs (pytest; OpenEXR, an EXR
+# reader that is not volgrad's). Does little when they are there already.
 #
 #   scripts/setup-python.sh [VENV]
 set -euo pipefail
@@ -21,5 +21,5 @@ if [ ! -x "$venv/bin/python" ]; then
   fi
 fi
 "$venv/bin/python" -m pip install -q --upgrade pip
-"$venv/bin/python" -m pip install -q "./python[torch,test]"
+"$venv/bin/python" -m pip install -q "./python[torch,jax,test]"
 "$venv/bin/python" -c "import volgrad, torch; print('volgrad for Python in $venv (torch', torch.__version__ + ')')"

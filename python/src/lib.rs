@@ -12,6 +12,7 @@ mod camera;
 mod detached;
 mod errors;
 mod grids;
+mod media;
 mod scene;
 mod views;
 

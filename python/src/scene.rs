@@ -3,18 +3,13 @@
 
 use std::path::{Path, PathBuf};
 
-use glam::{IVec3, Vec3};
+use glam::IVec3;
 use numpy::{IntoPyArray, PyArrayDyn};
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
-use volgrad::render::medium_grids::check_emission_limit;
 use volgrad::render::scene::{Scene as RustScene, SceneFile, SceneNeeds};
-use volgrad::render::scene_check::MAX_EXTINCTION;
 use volgrad::render::scene_file::EmissionFile;
-use volgrad::volume::albedo::{Albedo, AlbedoGrid};
-use volgrad::volume::brickmap::BrickMap;
-use volgrad::volume::emission::{Emission, EmissionKind};
 use volgrad::volume::medium::Medium;
 use volgrad::volume::transform::IndexTransform;
 
@@ -23,6 +18,7 @@ use crate::camera::Camera;
 use crate::detached;
 use crate::errors::OrRaise;
 use crate::grids::{matrix, GridArrays};
+use crate::media;
 use crate::views::{self, Boxes, Sampling};
 
 /// A scene ready to render and differentiate. Its density is the box of voxels `density` returns;
@@ -33,49 +29,6 @@ pub struct Scene {
     /// The voxels the density array (and the albedo and emission grids' arrays) cover, in each
     /// grid's index space.
     pub boxes: Boxes,
-}
-
-/// The scene's medium with `grid` (placed as `place` says, under `transform`) as its density: the
-/// optical constants, emission and majorant settings kept, the medium filling the box.
-fn medium_over(
-    scene: &RustScene,
-    grid: BrickMap,
-    transform: IndexTransform,
-    place: VoxelBox,
-) -> Medium {
-    let m = &scene.medium;
-    let bounds = match place.is_empty() {
-        true => (Vec3::ZERO, Vec3::ZERO),
-        false => (place.origin.as_vec3() - 0.5, place.last().as_vec3() + 0.5),
-    };
-    let mut medium = Medium::with_bounds(
-        grid,
-        transform,
-        bounds,
-        m.density_scale,
-        m.filter,
-        scene.settings.majorant(),
-    );
-    medium.albedo = m.albedo.clone();
-    medium.phase_g = m.phase_g;
-    medium.emission = m.emission.clone();
-    medium
-}
-
-/// `values` checked as densities of a medium with `density_scale`, as a brick map at `origin`.
-fn density_grid(
-    values: &numpy::ndarray::ArrayView3<f32>,
-    origin: IVec3,
-    density_scale: f32,
-    argument: &str,
-) -> anyhow::Result<BrickMap> {
-    arrays::check_values(values, argument, false)?;
-    let grid = arrays::to_brickmap(values, origin);
-    let extinction = density_scale as f64 * grid.max_value() as f64;
-    if extinction > MAX_EXTINCTION {
-        anyhow::bail!("{argument}: density_scale × its largest value is {extinction:.3e}: too large to track (at most {MAX_EXTINCTION:e} per world unit)");
-    }
-    Ok(grid)
 }
 
 impl Scene {
@@ -97,13 +50,16 @@ impl Scene {
                 self.boxes.density.shape
             ),
         };
-        let grid = density_grid(
+        let grid = media::density_grid(
             values,
             place.origin,
             self.scene.medium.density_scale,
             argument,
         )?;
-        Ok((medium_over(&self.scene, grid, transform, place), place))
+        Ok((
+            media::medium_over(&self.scene, grid, transform, place),
+            place,
+        ))
     }
 }
 
@@ -197,11 +153,12 @@ impl Scene {
             let (nx, ny, nz) = values.dim();
             [nx, ny, nz]
         });
-        let grid = density_grid(&values, IVec3::ZERO, density_scale, "density").or_raise()?;
-        scene.medium = medium_over(&scene, grid, transform, place);
+        let grid =
+            media::density_grid(&values, IVec3::ZERO, density_scale, "density").or_raise()?;
+        scene.medium = media::medium_over(&scene, grid, transform, place);
         if let Some(albedo) = albedo_array {
             scene.medium.albedo =
-                albedo_grid(&albedo.as_array(), place, transform, scene.medium.filter)
+                media::albedo_grid(&albedo.as_array(), place, transform, scene.medium.filter)
                     .or_raise()?;
         }
         if let Some(values) = emission {
@@ -214,7 +171,7 @@ impl Scene {
                 .emission_kind()
                 .or_raise()?;
             scene.medium.emission = Some(
-                emission_grid(
+                media::emission_grid(
                     &values.as_array(),
                     place,
                     transform,
@@ -403,74 +360,4 @@ fn emission_file(py: Python<'_>, kind: Option<&Bound<'_, PyDict>>) -> PyResult<E
         .call_method1("dumps", (table,))?
         .extract()?;
     serde_json::from_str(&json).map_err(|e| PyValueError::new_err(format!("emission_kind: {e}")))
-}
-
-/// An emission array shaped like the density as the medium's emission grid: non-negative where
-/// it scales a radiance, its brightest voxel within the light cap.
-fn emission_grid(
-    values: &numpy::ndarray::ArrayView3<f32>,
-    place: VoxelBox,
-    transform: IndexTransform,
-    kind: EmissionKind,
-    filter: volgrad::volume::medium::Filter,
-) -> anyhow::Result<Emission> {
-    let (nx, ny, nz) = values.dim();
-    if [nx, ny, nz] != place.shape {
-        anyhow::bail!(
-            "emission has shape {:?}: it is shaped like the density, {:?}",
-            [nx, ny, nz],
-            place.shape
-        );
-    }
-    arrays::check_values(
-        values,
-        "emission",
-        matches!(kind, EmissionKind::Blackbody { .. }),
-    )?;
-    let emission = Emission::new(
-        "emission".into(),
-        arrays::to_brickmap(values, place.origin),
-        transform,
-        kind,
-        filter,
-    );
-    check_emission_limit(&emission, "emission")?;
-    Ok(emission)
-}
-
-/// An albedo array shaped like the density ((nx, ny, nz) grey or (nx, ny, nz, 3)) as the
-/// medium's albedo grid, its values checked to lie in [0, 1].
-fn albedo_grid(
-    values: &numpy::ndarray::ArrayViewD<f32>,
-    place: VoxelBox,
-    transform: IndexTransform,
-    filter: volgrad::volume::medium::Filter,
-) -> anyhow::Result<Albedo> {
-    let shape = values.shape();
-    let channels = match shape {
-        [x, y, z] if [*x, *y, *z] == place.shape => 1,
-        [x, y, z, 3] if [*x, *y, *z] == place.shape => 3,
-        _ => anyhow::bail!("albedo has shape {shape:?}: an array of albedos is shaped like the density, {:?}, or with a last axis of 3 (RGB)", place.shape),
-    };
-    if values.iter().any(|v| !(0.0..=1.0).contains(v)) {
-        anyhow::bail!("albedo: every value must lie in [0, 1]");
-    }
-    let maps = (0..channels)
-        .map(|c| {
-            let channel = match channels {
-                1 => values.view().into_dimensionality::<numpy::ndarray::Ix3>(),
-                _ => values
-                    .index_axis(numpy::ndarray::Axis(3), c)
-                    .into_dimensionality::<numpy::ndarray::Ix3>(),
-            }?;
-            Ok(arrays::to_brickmap(&channel, place.origin))
-        })
-        .collect::<anyhow::Result<Vec<_>>>()?;
-    Ok(Albedo::Grid(Box::new(AlbedoGrid::new(
-        "albedo".into(),
-        maps,
-        Vec3::ZERO,
-        transform,
-        filter,
-    ))))
 }

@@ -8,11 +8,9 @@ use numpy::ndarray::{ArrayD, IxDyn};
 use numpy::{IntoPyArray, PyArrayDyn, PyReadonlyArrayDyn, PyUntypedArrayMethods};
 use pyo3::exceptions::PyRuntimeWarning;
 use pyo3::prelude::*;
-use volgrad::gradient::adjoint::{AdjointOptions, Estimator, Suffix, DEFAULT_SUFFIX_PATHS};
+use volgrad::gradient::adjoint::Estimator;
 use volgrad::gradient::grid::{GradientGrid, Quanta};
-use volgrad::gradient::passes::{
-    gradient, gradient_grid_for, quantum_for, GradOptions, Measured, Parameter,
-};
+use volgrad::gradient::passes::{gradient, gradient_grid_for, quantum_for, GradOptions, Parameter};
 use volgrad::render::camera::Camera as RustCamera;
 use volgrad::render::image::{self as image_loop, RenderOptions};
 use volgrad::render::scene::Scene as RustScene;
@@ -269,17 +267,11 @@ pub fn grad(
         });
     }
     let quantum = quantum_for(deltas.iter().map(|d| &d[..]), sampling.spp);
+    // `volgrad grad`'s defaults: per-path suffixes, radiance.
     let pass = GradOptions {
-        adjoint: AdjointOptions {
-            estimator,
-            suffix: Suffix::PerPath,
-            suffix_paths: DEFAULT_SUFFIX_PATHS,
-            max_depth: sampling.max_depth,
-        },
         quantum: Some(quantum),
         parameter,
         domain: Some((place.origin, place.last())),
-        measured: Measured::Radiance,
         ..GradOptions::new(estimator, sampling.spp, sampling.seed, sampling.max_depth)
     };
     let (mut paths, mut non_finite) = (0, 0);

@@ -12,7 +12,9 @@ use serde::{Deserialize, Serialize};
 use crate::optimize::optimizer_file::OptimizerFile;
 use crate::optimize::resample::Moments;
 use crate::optimize::scene_units::MAX_LEVELS;
-use crate::optimize::view_files::{check_sizes, check_view_lights, ViewFile, ViewSetFile};
+use crate::optimize::view_files::{
+    check_sizes, check_view_lights, one_set, view_sets, view_tables, ViewFile, ViewSetFile,
+};
 use crate::render::scene_file::{table_or_value, TableOr};
 
 #[derive(Debug, Clone, Deserialize, Serialize)]
@@ -46,12 +48,14 @@ pub struct RunFile {
     pub target_seed: Option<u64>,
     #[serde(default)]
     pub view: Vec<ViewFile>,
-    #[serde(default)]
-    pub views: ViewSetFile,
+    /// `[views]`, or `[[views]]` for sets under lights of their own (never empty).
+    #[serde(default = "one_set", deserialize_with = "view_sets")]
+    pub views: Vec<ViewSetFile>,
     #[serde(default)]
     pub holdout: Vec<ViewFile>,
-    #[serde(default)]
-    pub holdouts: ViewSetFile,
+    /// `[holdouts]`, or `[[holdouts]]` for sets under lights of their own (never empty).
+    #[serde(default = "one_set", deserialize_with = "view_sets")]
+    pub holdouts: Vec<ViewSetFile>,
     pub unknown: UnknownFile,
     #[serde(default)]
     pub optimizer: OptimizerFile,
@@ -167,10 +171,10 @@ impl RunFile {
 
     /// The checks that need no file: numbers in range, keys that go together.
     pub fn validate(&self) -> Result<()> {
-        if !self.views.has_views(&self.view) {
+        if !(self.views.iter()).any(|set| set.has_views(&self.view)) {
             bail!("no views: give [[view]] entries or a [views.orbit]");
         }
-        if !self.holdouts.has_views(&self.holdout) {
+        if !(self.holdouts.iter()).any(|set| set.has_views(&self.holdout)) {
             bail!("no held-out views: give [[holdout]] entries or a [holdouts.orbit] (quality is measured on views the gradients never see)");
         }
         for (key, spp) in [("target_spp", self.target_spp), ("eval_spp", self.eval_spp)] {
@@ -191,15 +195,12 @@ impl RunFile {
             .iter()
             .chain(&self.holdout)
             .any(|v| v.image.is_none())
-            || !self.views.orbit.is_empty()
-            || !self.holdouts.orbit.is_empty();
+            || (self.views.iter().chain(&self.holdouts)).any(|set| !set.orbit.is_empty());
         if needs_truth && self.truth.is_none() {
             bail!("truth: views without an image ([views.orbit], [holdouts.orbit], or a [[view]] without `image`) are rendered from a true grid; give `truth = \"file.vdb\"` or an image per view");
         }
-        let sets = [
-            ("view", &self.view[..], &self.views),
-            ("holdout", &self.holdout[..], &self.holdouts),
-        ];
+        let mut sets = view_tables("view", &self.view, &self.views);
+        sets.extend(view_tables("holdout", &self.holdout, &self.holdouts));
         check_sizes(&sets)?;
         check_view_lights(&sets)?;
         self.unknown.validate(self.truth.is_some())?;
@@ -330,6 +331,26 @@ mod tests {
         assert_eq!(f.optimizer.loss, Loss::L2);
         assert_eq!(f.unknown.moments, Moments::Resample);
         assert_eq!(f.eval_spp, 256);
+    }
+
+    /// `[[holdouts]]` gives several sets, each under its own lights; one `[holdouts]` table is one
+    /// set, and none is one empty set. A set's errors name it by its place.
+    #[test]
+    fn view_sets_are_a_table_or_several() {
+        assert_eq!(check(GOOD).unwrap().holdouts.len(), 1);
+        let relit = "[{ type = \"constant\", radiance = 0.5 }]";
+        let two = format!(
+            "{GOOD}\n[[holdouts]]\ntransforms = \"a.json\"\n[[holdouts]]\ntransforms = \"b.json\"\nlight = {relit}\n"
+        );
+        let f = check(&two).unwrap();
+        assert_eq!(f.holdouts.len(), 2);
+        assert!(f.holdouts[0].light.is_empty() && f.holdouts[1].light.len() == 1);
+        assert_eq!(f.holdouts[1].transforms.as_deref(), Some("b.json"));
+        let one = format!("{GOOD}\n[holdouts]\ntransforms = \"a.json\"\n");
+        assert_eq!(check(&one).unwrap().holdouts.len(), 1);
+        let bad = two.replace("radiance = 0.5", "radiance = -1");
+        let error = format!("{:#}", check(&bad).unwrap_err());
+        assert!(error.contains("holdouts[1].light"), "{error}");
     }
 
     /// Each bad value is refused with a message naming its key.

@@ -26,10 +26,10 @@ pub fn resolved(run_file: &RunFile, run_path: &Path, notes: &str) -> Result<Stri
         view.image = view.image.as_ref().map(absolute);
         absolute_envmaps(&mut view.light, &absolute);
     }
-    for orbit in file.views.orbit.iter_mut().chain(&mut file.holdouts.orbit) {
-        absolute_envmaps(&mut orbit.light, &absolute);
-    }
-    for set in [&mut file.views, &mut file.holdouts] {
+    for set in file.views.iter_mut().chain(&mut file.holdouts) {
+        for orbit in &mut set.orbit {
+            absolute_envmaps(&mut orbit.light, &absolute);
+        }
         set.transforms = set.transforms.as_ref().map(absolute);
         if let Some(colmap) = &mut set.colmap {
             colmap.model = absolute(&colmap.model);

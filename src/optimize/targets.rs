@@ -14,7 +14,7 @@ use crate::cluster::Cluster;
 use crate::io::images::{self, ColorSpace, RgbImage};
 use crate::optimize::run_file::RunFile;
 use crate::optimize::target_cache::TargetCache;
-use crate::optimize::view_files::{ViewFile, ViewSetFile, MAX_VIEWS};
+use crate::optimize::view_files::{view_tables, ViewFile, ViewSetFile, MAX_VIEWS};
 use crate::render::camera::Camera;
 use crate::render::image::RenderOptions;
 use crate::render::lights::{Environment, Lights};
@@ -97,12 +97,29 @@ impl LightSets {
     }
 }
 
-/// The cameras of one set's listed views, orbits and transforms file (`key` is "view" or
-/// "holdout"), checked to lie outside the unknown's `world_box` (`None` while it is not known:
-/// the box is being found from these cameras, and there are no orbits around it).
+/// The cameras of every set of one kind (`key` is "view" or "holdout"): its listed views, orbits,
+/// transforms files and COLMAP models, checked to lie outside the unknown's `world_box` (`None`
+/// while it is not known: the box is being found from these cameras, and there are no orbits
+/// around it).
 pub fn view_specs(
     run_path: &Path,
     key: &str,
+    listed: &[ViewFile],
+    sets: &[ViewSetFile],
+    world_box: Option<(Vec3, Vec3)>,
+) -> Result<Vec<ViewSpec>> {
+    let mut specs = Vec::new();
+    for (key, name, listed, set) in view_tables(key, listed, sets) {
+        specs.extend(set_specs(run_path, key, &name, listed, set, world_box)?);
+    }
+    Ok(specs)
+}
+
+/// `view_specs` of one set, named `set_name` in messages.
+fn set_specs(
+    run_path: &Path,
+    key: &str,
+    set_name: &str,
     listed: &[ViewFile],
     set: &ViewSetFile,
     world_box: Option<(Vec3, Vec3)>,
@@ -134,7 +151,7 @@ pub fn view_specs(
     let mut captured = Vec::new();
     if let Some(file) = &set.transforms {
         let path = RunFile::resolve(run_path, file);
-        let views = transforms::read(&path).with_context(|| format!("{key}s.transforms"))?;
+        let views = transforms::read(&path).with_context(|| format!("{set_name}.transforms"))?;
         captured.push(("transforms", views));
     }
     if let Some(colmap) = &set.colmap {
@@ -143,19 +160,19 @@ pub fn view_specs(
             Some(images) => RunFile::resolve(run_path, images),
             None => model.join("../../images"),
         };
-        let views = colmap::read(&model, &images).with_context(|| format!("{key}s.colmap"))?;
+        let views = colmap::read(&model, &images).with_context(|| format!("{set_name}.colmap"))?;
         captured.push(("colmap", views));
     }
     for (source, views) in captured {
         if views.len() as u64 > MAX_VIEWS {
             bail!(
-                "{key}s.{source}: {} cameras; at most {MAX_VIEWS} views per set",
+                "{set_name}.{source}: {} cameras; at most {MAX_VIEWS} views per set",
                 views.len()
             );
         }
         for (i, v) in views.into_iter().enumerate() {
             specs.push(ViewSpec {
-                name: format!("{key}s.{source} camera {i}"),
+                name: format!("{set_name}.{source} camera {i}"),
                 camera: v.camera,
                 light: set.light.clone(),
                 image: v.image,
@@ -165,9 +182,9 @@ pub fn view_specs(
     }
     for (k, o) in orbits.iter().enumerate() {
         let name = if orbits.len() == 1 {
-            format!("{key}s.orbit")
+            format!("{set_name}.orbit")
         } else {
-            format!("{key}s.orbit[{k}]")
+            format!("{set_name}.orbit[{k}]")
         };
         let (lo, hi) = world_box.with_context(|| {
             format!("{name}: orbits circle the unknown's box, which bounds = \"views\" finds from the listed cameras; list the cameras instead")

@@ -118,16 +118,46 @@ impl OrbitFile {
     }
 }
 
-/// One set of views as a run file gives it: its key ("view" or "holdout"), the listed views and
-/// the set's table (orbits, transforms file, lights).
-pub type ViewTables<'a> = (&'a str, &'a [ViewFile], &'a ViewSetFile);
+/// One set of views as a run file gives it: its views' key ("view" or "holdout"), the set's name
+/// in messages (`views`, or `holdouts[1]` among several), the listed views (the first set's) and
+/// the set's table (orbits, transforms file, COLMAP model, lights).
+pub type ViewTables<'a> = (&'a str, String, &'a [ViewFile], &'a ViewSetFile);
+
+/// The sets of one kind (`[views]` or `[[views]]`, with the `[[view]]`s listed beside them),
+/// each with its name.
+pub fn view_tables<'a>(
+    key: &'a str,
+    listed: &'a [ViewFile],
+    sets: &'a [ViewSetFile],
+) -> Vec<ViewTables<'a>> {
+    (sets.iter().enumerate())
+        .map(|(j, set)| {
+            let name = match sets.len() {
+                1 => format!("{key}s"),
+                _ => format!("{key}s[{j}]"),
+            };
+            (key, name, if j == 0 { listed } else { &[] }, set)
+        })
+        .collect()
+}
+
+/// A run file's sets of one kind when it gives none: one empty set (its listed views alone).
+pub fn one_set() -> Vec<ViewSetFile> {
+    vec![ViewSetFile::default()]
+}
+
+/// `one_or_many`, with no set read as one empty set.
+pub fn view_sets<'de, D: serde::Deserializer<'de>>(d: D) -> Result<Vec<ViewSetFile>, D::Error> {
+    let sets: Vec<ViewSetFile> = one_or_many(d)?;
+    Ok(if sets.is_empty() { one_set() } else { sets })
+}
 
 /// Every view's target is an image kept in memory for the whole run, and a truth renders it
 /// before the first iteration: the counts and pixels are checked before anything is
 /// allocated or rendered.
 pub fn check_sizes(sets: &[ViewTables]) -> Result<()> {
     let mut pixels = 0u64;
-    for &(key, listed, set) in sets {
+    for (_, name, listed, set) in sets {
         let listed_pixels = listed
             .iter()
             .map(|v| u64::from(v.width) * u64::from(v.height));
@@ -139,7 +169,7 @@ pub fn check_sizes(sets: &[ViewTables]) -> Result<()> {
         }
         if count > MAX_VIEWS {
             bail!(
-                "{key}s: {count} views (listed and on orbits): at most {MAX_VIEWS} per set (each is a target image held in memory, rendered before the first iteration when it comes from a truth)"
+                "{name}: {count} views (listed and on orbits): at most {MAX_VIEWS} per set (each is a target image held in memory, rendered before the first iteration when it comes from a truth)"
             );
         }
     }
@@ -159,14 +189,14 @@ pub fn target_pixels(pixels: u64) -> Result<()> {
 
 /// Every view's and orbit's own lights, as a scene file's are checked.
 pub fn check_view_lights(sets: &[ViewTables]) -> Result<()> {
-    for &(key, listed, set) in sets {
+    for (key, name, listed, set) in sets {
         for (i, v) in listed.iter().enumerate() {
             check_lights(&v.light).with_context(|| format!("{key}[{i}]"))?;
         }
         for (i, o) in set.orbit.iter().enumerate() {
-            check_lights(&o.light).with_context(|| format!("{key}s.orbit[{i}]"))?;
+            check_lights(&o.light).with_context(|| format!("{name}.orbit[{i}]"))?;
         }
-        check_lights(&set.light).with_context(|| format!("{key}s.light"))?;
+        check_lights(&set.light).with_context(|| format!("{name}.light"))?;
     }
     Ok(())
 }
