@@ -9,7 +9,7 @@
 use std::sync::mpsc;
 use std::time::Duration;
 
-use pyo3::exceptions::{PyRuntimeError, PyValueError};
+use pyo3::exceptions::{PyKeyboardInterrupt, PyRuntimeError, PyValueError};
 use pyo3::prelude::*;
 use volgrad::render::interrupt;
 
@@ -33,6 +33,7 @@ pub fn run<T: Send>(
         ),
         None => None,
     };
+    let generation = interrupt::generation();
     let (result, signal) = py.detach(|| {
         std::thread::scope(|scope| {
             let (sender, receiver) = mpsc::channel();
@@ -67,6 +68,12 @@ pub fn run<T: Send>(
     });
     if let Some(signal) = signal {
         return Err(signal);
+    }
+    if interrupt::generation() != generation {
+        // Ctrl-C stopped another thread's call while this one ran: its pixels were skipped too.
+        return Err(PyKeyboardInterrupt::new_err(
+            "interrupted: Ctrl-C stopped every volgrad call running at the time",
+        ));
     }
     match result {
         Some(result) => result.or_raise(),

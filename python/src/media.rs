@@ -3,6 +3,7 @@
 
 use glam::{IVec3, Vec3};
 use numpy::ndarray::{ArrayView3, ArrayViewD, Axis, Ix3};
+use volgrad::optimize::unknown::medium_like;
 use volgrad::render::medium_grids::check_emission_limit;
 use volgrad::render::scene::Scene as RustScene;
 use volgrad::render::scene_check::MAX_EXTINCTION;
@@ -22,22 +23,12 @@ pub fn medium_over(
     transform: IndexTransform,
     place: VoxelBox,
 ) -> Medium {
-    let m = &scene.medium;
     let bounds = match place.is_empty() {
         true => (Vec3::ZERO, Vec3::ZERO),
         false => (place.origin.as_vec3() - 0.5, place.last().as_vec3() + 0.5),
     };
-    let mut medium = Medium::with_bounds(
-        grid,
-        transform,
-        bounds,
-        m.density_scale,
-        m.filter,
-        scene.settings.majorant(),
-    );
-    medium.albedo = m.albedo.clone();
-    medium.phase_g = m.phase_g;
-    medium.emission = m.emission.clone();
+    let mut medium = medium_like(scene, grid, transform, bounds);
+    medium.emission = scene.medium.emission.clone();
     medium
 }
 

@@ -250,23 +250,11 @@ impl Scene {
         threads: Option<usize>,
         density: Option<&Bound<'py, PyAny>>,
     ) -> PyResult<Bound<'py, PyArrayDyn<f32>>> {
-        let density = density
-            .map(|d| {
-                arrays::float32_argument::<numpy::Ix3>(d, "density", "shaped like Scene.density")
-            })
-            .transpose()?;
         let sampling = Sampling::resolve(&self.scene, spp, seed, max_depth).or_raise()?;
         let listed = cameras.is_some();
         let cameras = views::cameras(&self.scene, cameras).or_raise()?;
-        let values = density.as_ref().map(|d| d.as_array());
-        let image = detached::run(py, threads, || {
-            let swapped = values
-                .as_ref()
-                .map(|v| self.medium_with(v, None, "density"))
-                .transpose()?;
-            views::with_medium(&mut self.scene, swapped.map(|m| m.0), |scene| {
-                views::render_views(scene, &cameras, &sampling)
-            })
+        let image = self.run_with_density(py, threads, density, |scene, _| {
+            views::render_views(scene, &cameras, &sampling)
         })?;
         views::warn_non_finite(py, image.non_finite, image.paths)?;
         views::image_array(py, image, &cameras, listed)
@@ -293,11 +281,6 @@ impl Scene {
         threads: Option<usize>,
         density: Option<&Bound<'py, PyAny>>,
     ) -> PyResult<Bound<'py, PyArrayDyn<f32>>> {
-        let density = density
-            .map(|d| {
-                arrays::float32_argument::<numpy::Ix3>(d, "density", "shaped like Scene.density")
-            })
-            .transpose()?;
         let sampling = Sampling::resolve(&self.scene, spp, seed, max_depth).or_raise()?;
         let estimator = views::estimator(estimator).or_raise()?;
         let parameter = views::parameter(parameter).or_raise()?;
@@ -306,18 +289,10 @@ impl Scene {
         let adjoint =
             arrays::float32_argument::<numpy::IxDyn>(adjoint, "adjoint", "shaped like the images")?;
         let deltas = views::adjoint_images(&adjoint, &cameras, listed).or_raise()?;
-        let values = density.as_ref().map(|d| d.as_array());
-        let boxes = self.boxes;
-        let gradient = detached::run(py, threads, || {
-            let swapped = values
-                .as_ref()
-                .map(|v| self.medium_with(v, None, "density"))
-                .transpose()?;
-            views::with_medium(&mut self.scene, swapped.map(|m| m.0), |scene| {
-                views::grad(
-                    scene, &cameras, &deltas, estimator, parameter, &sampling, &boxes,
-                )
-            })
+        let gradient = self.run_with_density(py, threads, density, |scene, boxes| {
+            views::grad(
+                scene, &cameras, &deltas, estimator, parameter, &sampling, boxes,
+            )
         })?;
         views::warn_non_finite(py, gradient.non_finite, gradient.paths)?;
         Ok(gradient.values.into_pyarray(py))
@@ -337,6 +312,32 @@ impl Scene {
 }
 
 impl Scene {
+    /// Runs `work` without the GIL on `threads` threads, on the scene with the `density` argument,
+    /// if given, in place of its own for this call only.
+    fn run_with_density<T: Send>(
+        &mut self,
+        py: Python<'_>,
+        threads: Option<usize>,
+        density: Option<&Bound<'_, PyAny>>,
+        work: impl FnOnce(&mut RustScene, &Boxes) -> anyhow::Result<T> + Send,
+    ) -> PyResult<T> {
+        let density = density
+            .map(|d| {
+                arrays::float32_argument::<numpy::Ix3>(d, "density", "shaped like Scene.density")
+            })
+            .transpose()?;
+        let values = density.as_ref().map(|d| d.as_array());
+        let boxes = self.boxes;
+        detached::run(py, threads, || {
+            let swapped = (values.as_ref())
+                .map(|v| self.medium_with(v, None, "density"))
+                .transpose()?;
+            views::with_medium(&mut self.scene, swapped.map(|m| m.0), |scene| {
+                work(scene, &boxes)
+            })
+        })
+    }
+
     fn index_to_world_rows(&self) -> [f64; 16] {
         arrays::rows_of(
             self.boxes

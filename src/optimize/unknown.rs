@@ -192,8 +192,9 @@ pub fn without_unknown(mut scene: Scene, unknown: UnknownGrid, domain: &Domain) 
     Ok(scene)
 }
 
-/// A medium with `scene`'s optical constants and majorant settings over `grid`.
-fn medium_like(
+/// A medium with `scene`'s optical constants and majorant settings over `grid` (its emission, the
+/// unknown's business, left out).
+pub fn medium_like(
     scene: &Scene,
     grid: BrickMap,
     transform: IndexTransform,
