@@ -4,8 +4,10 @@
 //! and every 50 ms takes the GIL for a moment to let Python run its signal handlers. When one
 //! raises (Ctrl-C's `KeyboardInterrupt`), the image loops are asked to skip their remaining pixels
 //! (`render::interrupt`), the work drains within milliseconds and the exception is raised in its
-//! place.
+//! place. The request stops every call under way, in any thread, and each raises: none returns
+//! an image with pixels skipped. The last call to drain clears it.
 
+use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::mpsc;
 use std::time::Duration;
 
@@ -16,6 +18,9 @@ use volgrad::render::interrupt;
 use crate::errors::OrRaise;
 
 const SIGNAL_POLL: Duration = Duration::from_millis(50);
+
+/// The calls under way, of every Python thread.
+static RUNNING: AtomicUsize = AtomicUsize::new(0);
 
 /// Runs `work` without the GIL, on `threads` worker threads (rayon's global pool for `None`).
 pub fn run<T: Send>(
@@ -33,6 +38,7 @@ pub fn run<T: Send>(
         ),
         None => None,
     };
+    RUNNING.fetch_add(1, Ordering::SeqCst);
     let generation = interrupt::generation();
     let (result, signal) = py.detach(|| {
         std::thread::scope(|scope| {
@@ -62,14 +68,20 @@ pub fn run<T: Send>(
             // A panic in the work ends its thread without a result: joined here, it is reported
             // below as an error instead of unwinding into Python.
             let panicked = worker.join().is_err();
-            interrupt::clear();
             (result.filter(|_| !panicked), signal)
         })
     });
+    // Skipped pixels: an interrupt came (this call's or another's) or is still draining.
+    let skipped = interrupt::generation() != generation || interrupt::requested();
+    // The request stands until the last running call has drained: cleared earlier, a call still
+    // in a pixel would go on to its end.
+    if RUNNING.fetch_sub(1, Ordering::SeqCst) == 1 {
+        interrupt::clear();
+    }
     if let Some(signal) = signal {
         return Err(signal);
     }
-    if interrupt::generation() != generation {
+    if skipped {
         // Ctrl-C stopped another thread's call while this one ran: its pixels were skipped too.
         return Err(PyKeyboardInterrupt::new_err(
             "interrupted: Ctrl-C stopped every volgrad call running at the time",

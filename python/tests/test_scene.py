@@ -186,11 +186,14 @@ def test_ctrl_c_interrupts_a_render_within_a_second():
         import sys, threading, volgrad
         camera = volgrad.Camera((0, 2, 12), (0, 0, 0), width=512, height=512)
         other = []
+        started = threading.Event()
 
         def render_in_a_thread():
             try:
+                scene = volgrad.Scene.load({str(SPHERE)!r})
+                started.set()
                 # A pool of its own: calls on rayon's global pool would queue behind each other.
-                volgrad.Scene.load({str(SPHERE)!r}).render([camera], spp=100000, threads=1)
+                scene.render([camera], spp=100000, threads=1)
                 other.append("finished")
             except KeyboardInterrupt:
                 other.append("interrupted")
@@ -198,6 +201,7 @@ def test_ctrl_c_interrupts_a_render_within_a_second():
         thread = threading.Thread(target=render_in_a_thread)
         thread.start()
         scene = volgrad.Scene.load({str(SPHERE)!r})
+        started.wait()  # both renders are under way (or about to be) when the signal comes
         print("rendering", flush=True)
         try:
             scene.render([camera], spp=100000)
@@ -217,7 +221,10 @@ def test_ctrl_c_interrupts_a_render_within_a_second():
     time.sleep(0.5)
     sent = time.monotonic()
     child.send_signal(signal.SIGINT)
-    code = child.wait(timeout=10)
+    try:
+        code = child.wait(timeout=10)
+    finally:
+        child.kill()
     elapsed = time.monotonic() - sent
     assert code == 3 and child.stdout.read().strip() == "interrupted interrupted"
     assert elapsed < 1.0, elapsed

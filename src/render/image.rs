@@ -216,10 +216,11 @@ fn trace_pixel(
 ) -> Vec3 {
     let camera = &scene.camera;
     let mut sum = Vec3::ZERO;
-    if interrupt::requested() {
-        return sum;
-    }
     for sample in 0..options.spp {
+        // Checked per path, not per pixel: a pixel of many samples stops within one path.
+        if interrupt::requested() {
+            break;
+        }
         let mut rng = sample_rng(
             options.seed,
             (y * camera.width + x) as u64,

@@ -1,7 +1,8 @@
 //! A request to stop the image loops early, for a host that cannot kill a render: the Python
-//! binding sets it when Ctrl-C reaches the interpreter, waits for the loops to drain (each
-//! checks it once per pixel or unit of pixels, so within milliseconds), then clears it and
-//! discards what they returned. The command line never sets it: Ctrl-C ends the process.
+//! binding sets it when Ctrl-C reaches the interpreter, waits for the loops to drain (the render
+//! checks it once per path, the gradient passes once per pixel: within milliseconds), discards
+//! what they returned and clears it once no call is left running. The command line never sets
+//! it: Ctrl-C ends the process.
 //!
 //! The request stops every loop of the process, so each request is counted: a caller whose work
 //! overlapped one (`generation` changed) knows its result is incomplete even if the request was
