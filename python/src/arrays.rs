@@ -13,6 +13,9 @@ use volgrad::volume::transform::IndexTransform;
 
 const BRICK: i32 = 8;
 
+/// The most voxels of a dense array made from a sparse grid (2^30: 4 GiB of f32).
+pub const MAX_DENSE_VOXELS: u64 = 1 << 30;
+
 /// A box of voxels: its first voxel and its size per axis.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct VoxelBox {
@@ -34,11 +37,27 @@ impl VoxelBox {
 
     /// The inclusive box `[lo, hi]`.
     pub fn spanning(lo: IVec3, hi: IVec3) -> Self {
-        let size = (hi - lo + 1).max(IVec3::ZERO);
+        // In i64: a box across the whole i32 range has more voxels per axis than i32 holds.
+        let size = (hi.as_i64vec3() - lo.as_i64vec3() + 1).max(glam::I64Vec3::ZERO);
         VoxelBox {
             origin: lo,
             shape: [size.x as usize, size.y as usize, size.z as usize],
         }
+    }
+
+    /// Its voxel count, refused (naming `what`) above `MAX_DENSE_VOXELS` before anything is
+    /// allocated: a sparse grid with two voxels far apart has a box of billions.
+    pub fn checked_len(&self, what: &str) -> Result<usize> {
+        let count = self.shape.iter().map(|&n| n as u128).product::<u128>();
+        if count > u128::from(MAX_DENSE_VOXELS) {
+            bail!(
+                "{what}: its box of {} × {} × {} voxels is too large for a dense array (at most 2^30 = {MAX_DENSE_VOXELS} voxels, 4 GiB); the grid is sparse over a wide box",
+                self.shape[0],
+                self.shape[1],
+                self.shape[2]
+            );
+        }
+        Ok(count as usize)
     }
 
     /// The box at index 0 of an array of `shape`.
@@ -175,8 +194,9 @@ pub fn to_brickmap(values: &ArrayView3<f32>, origin: IVec3) -> BrickMap {
     BrickMap::new(leaves, Vec::new())
 }
 
-/// The voxels of `grid` in `place`, dense.
-pub fn from_brickmap(grid: &BrickMap, place: VoxelBox) -> Array3<f32> {
+/// The voxels of `grid` in `place`, dense; refused (naming `what`) when `place` is too large.
+pub fn from_brickmap(grid: &BrickMap, place: VoxelBox, what: &str) -> Result<Array3<f32>> {
+    place.checked_len(what)?;
     let [nx, ny, nz] = place.shape;
     let mut dense = Array3::<f32>::zeros((nx, ny, nz));
     if let Some(slice) = dense.as_slice_mut() {
@@ -190,15 +210,17 @@ pub fn from_brickmap(grid: &BrickMap, place: VoxelBox) -> Array3<f32> {
                 }
             });
     }
-    dense
+    Ok(dense)
 }
 
-/// The voxels of a gradient grid that lie in `place`, dense (0 where no path reached).
+/// The voxels of a gradient grid that lie in `place`, dense (0 where no path reached); refused
+/// when `place` is too large.
 pub fn gradient_in<T: Accumulator>(
     gradient: &GradientGrid<T>,
     factor: f64,
     place: VoxelBox,
-) -> Array3<f32> {
+) -> Result<Array3<f32>> {
+    place.checked_len("the gradient")?;
     let mut dense = Array3::<f32>::zeros((place.shape[0], place.shape[1], place.shape[2]));
     if let Some(slice) = dense.as_slice_mut() {
         for (v, value) in gradient.voxels() {
@@ -207,7 +229,7 @@ pub fn gradient_in<T: Accumulator>(
             }
         }
     }
-    dense
+    Ok(dense)
 }
 
 /// Argument `name` as a float32 array of `D`'s dimensions, or a `TypeError` that names it and says

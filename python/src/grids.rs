@@ -36,7 +36,7 @@ pub fn read_grid<'py>(
         }
         let grid = vdb::read_grid(&path, &selector)?;
         let place = VoxelBox::active(&grid.bricks);
-        let values = arrays::from_brickmap(&grid.bricks, place);
+        let values = arrays::from_brickmap(&grid.bricks, place, &format!("grid '{}'", grid.name))?;
         Ok((
             values,
             arrays::rows_of(place.array_to_world(&grid.transform)),

@@ -195,7 +195,7 @@ impl Scene {
     fn density<'py>(&self, py: Python<'py>) -> PyResult<GridArrays<'py>> {
         let place = self.boxes.density;
         let values = detached::run(py, None, || {
-            Ok(arrays::from_brickmap(&self.scene.medium.grid, place))
+            arrays::from_brickmap(&self.scene.medium.grid, place, "the density")
         })?;
         Ok((
             values.into_pyarray(py),

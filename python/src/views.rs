@@ -254,6 +254,8 @@ pub fn grad(
     boxes: &Boxes,
 ) -> Result<Computed<ArrayD<f32>>> {
     let (place, channels) = parameter_box(scene, parameter, boxes)?;
+    // Before any path is traced: the result is a dense array of this box.
+    place.checked_len("the gradient")?;
     if place.is_empty() {
         let shape = [
             &place.shape[..],
@@ -292,7 +294,7 @@ pub fn grad(
             paths += run.stats.paths;
             non_finite += run.stats.non_finite;
         }
-        planes.push(arrays::gradient_in(&total, quantum, place));
+        planes.push(arrays::gradient_in(&total, quantum, place)?);
     }
     let values = match channels {
         1 => planes.pop().expect("one channel").into_dyn(),

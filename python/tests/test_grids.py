@@ -1,5 +1,7 @@
 """read_grid and write_grid: axis order, transforms, sparsity, what they refuse."""
 
+import pathlib
+
 import numpy as np
 import pytest
 
@@ -80,3 +82,11 @@ def test_missing_files_raise_file_not_found(tmp_path):
     volgrad.write_grid(path, ball(), voxel_map())
     with pytest.raises(ValueError, match="nope"):
         volgrad.read_grid(path, name="nope")
+
+
+def test_a_sparse_grid_over_a_wide_box_is_refused_before_allocating():
+    # Two voxels 100,000 apart on each axis (written by the library's brick map builder): a dense
+    # array of their box would be 10^15 voxels.
+    path = pathlib.Path(__file__).parent / "data" / "two-voxels-far-apart.vdb"
+    with pytest.raises(ValueError, match="too large for a dense array"):
+        volgrad.read_grid(path)
