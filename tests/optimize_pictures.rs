@@ -300,6 +300,54 @@ fn an_unknown_exposure_is_fitted_with_the_volume() {
     assert!(with > without + 2.0, "{with} vs {without}");
 }
 
+/// Two captures at their own exposures (× 1.3 and × 0.8), named as two view sets: each set's
+/// factor is fitted on its own, and a held-out set compared at its capture's. Without naming the
+/// held-out views' capture, the run refuses to guess it.
+#[test]
+fn each_capture_has_its_own_exposure() {
+    let bright = fixture(&run_file("0.2", ""));
+    let dim = fixture(&run_file("0.2", ""));
+    write_pictures(dim.path(), 0.8, "");
+    let d = bright.path();
+    write_pictures(d, 1.3, "iterations = 80\nfit_exposure = true");
+    let run = std::fs::read_to_string(d.join("images.toml")).unwrap();
+    let one_set = "[views]\ntransforms = \"transforms.json\"\n";
+    assert!(run.contains(one_set), "{run}");
+    let two_sets = format!(
+        "[[views]]\ntransforms = \"transforms.json\"\ncapture = \"bright\"\n\n[[views]]\ntransforms = \"{}\"\ncapture = \"dim\"\n",
+        dim.path().join("transforms.json").display()
+    );
+    let run = run.replace(one_set, &two_sets);
+    std::fs::write(d.join("unnamed.toml"), &run).unwrap();
+    assert_clean_error(
+        &volgrad_in(d, &["optimize", "unnamed.toml", "--out", "x", "-q"]),
+        &["holdout[0]", "capture \"\" is no training set's"],
+    );
+    std::fs::write(
+        d.join("named.toml"),
+        format!("{run}\n[holdouts]\ncapture = \"bright\"\n"),
+    )
+    .unwrap();
+    ok(volgrad_in(
+        d,
+        &["optimize", "named.toml", "--out", "out", "-q"],
+    ));
+    let rows = log(&d.join("out"));
+    let last = rows.last().unwrap();
+    let fitted: Vec<f64> = (last["exposure"].split_whitespace())
+        .map(|x| x.parse().unwrap())
+        .collect();
+    eprintln!(
+        "exposures {fitted:?}, held-out PSNR {}",
+        last["heldout_psnr"]
+    );
+    assert_eq!(fitted.len(), 2, "{fitted:?}");
+    assert!((fitted[0] - 1.3).abs() < 0.05, "{fitted:?}");
+    assert!((fitted[1] - 0.8).abs() < 0.04, "{fitted:?}");
+    let settings = std::fs::read_to_string(d.join("out/settings.toml")).unwrap();
+    assert!(settings.contains("capture = \"dim\""), "{settings}");
+}
+
 /// Alpha targets pin the density down: from the same start and at the same iterations, the run
 /// that fits alpha beside colour (alpha targets rendered from the truth) ends nearer the true
 /// grid than the run that fits colour alone.

@@ -74,7 +74,7 @@ fn projections(problem: &Problem, iterations: u64) -> [Vec<f64>; 4] {
             &mut scene,
             Estimator::Joint,
             iteration,
-            1.0,
+            &[1.0],
             problem.domain.voxel_box(0),
         )
         .unwrap();

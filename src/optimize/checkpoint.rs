@@ -4,8 +4,8 @@
 //! that `--resume` continues exactly where the run stopped.
 //!
 //! The state file is little-endian binary: the magic line, the run's fingerprint, the stop rule
-//! (`Stop::to_text`), the counters and the global scale's (m, v), the exposure's x and (m, v)
-//! (f32 each), the log text, then the bricks in
+//! (`Stop::to_text`), the counters and the global scale's (m, v), the number of fitted exposures
+//! (u32) and each one's x and (m, v) (f32 each), the log text, then the bricks in
 //! key order (origin as 3 × i32, then θ, m, v as 512 × f32 each, the brick's log-scale (m, v) as
 //! 2 × f32 and its idle steps as u32).
 
@@ -25,7 +25,7 @@ use crate::optimize::schedule::Stop;
 use crate::volume::brickmap::BRICK_VOXELS;
 use crate::volume::transform::IndexTransform;
 
-const MAGIC: &[u8] = b"volgrad optimizer state 7\n";
+const MAGIC: &[u8] = b"volgrad optimizer state 8\n";
 
 /// Where a run is, apart from θ and Adam's moments.
 #[derive(Debug, Clone, Default, PartialEq)]
@@ -93,8 +93,11 @@ pub fn write_state(
         w.write_all(&position.level.to_le_bytes())?;
         w.write_all(&parameters.steps().to_le_bytes())?;
         write_moments(w, parameters.scale_moments())?;
-        w.write_all(&parameters.exposure.log.to_le_bytes())?;
-        write_moments(w, parameters.exposure.moments)?;
+        w.write_all(&(parameters.exposures.len() as u32).to_le_bytes())?;
+        for exposure in &parameters.exposures {
+            w.write_all(&exposure.log.to_le_bytes())?;
+            write_moments(w, exposure.moments)?;
+        }
         w.write_all(&position.optimisation_seconds.to_le_bytes())?;
         w.write_all(&position.evaluation_seconds.to_le_bytes())?;
         write_text(w, &position.log)?;
@@ -170,12 +173,20 @@ pub fn read_state(path: &Path, fingerprint: &str) -> Result<(Position, Parameter
         let level = u32::from_le_bytes(read_array(&mut r)?);
         let steps = u32::from_le_bytes(read_array(&mut r)?);
         let scale = read_moments(&mut r, "the global scale")?;
-        let exposure = Exposure {
-            log: f32::from_le_bytes(read_array(&mut r)?),
-            moments: read_moments(&mut r, "the exposure")?,
-        };
-        if !exposure.log.is_finite() {
-            bail!("a non-finite exposure");
+        let exposure_count = u32::from_le_bytes(read_array(&mut r)?);
+        if u64::from(exposure_count) * 12 > size {
+            bail!("{exposure_count} exposures do not fit in {size} bytes");
+        }
+        let mut exposures = Vec::with_capacity(exposure_count as usize);
+        for _ in 0..exposure_count {
+            let exposure = Exposure {
+                log: f32::from_le_bytes(read_array(&mut r)?),
+                moments: read_moments(&mut r, "an exposure")?,
+            };
+            if !exposure.log.is_finite() {
+                bail!("a non-finite exposure");
+            }
+            exposures.push(exposure);
         }
         let optimisation_seconds = f64::from_le_bytes(read_array(&mut r)?);
         let evaluation_seconds = f64::from_le_bytes(read_array(&mut r)?);
@@ -206,7 +217,7 @@ pub fn read_state(path: &Path, fingerprint: &str) -> Result<(Position, Parameter
             p.insert_brick(IVec3::from_array(key), theta, m, v, scale, idle);
         }
         p.set_steps(steps, scale);
-        p.exposure = exposure;
+        p.exposures = exposures;
         let position = Position {
             iteration,
             level,
@@ -289,10 +300,21 @@ mod tests {
             log: "1,2,3\n".into(),
             stop: Some(Stop::Replay(vec![0.0, 0.5])),
         };
+        // Two captures' exposures, each with its own moments.
+        for (k, log) in [0.125f32, -0.25].into_iter().enumerate() {
+            p.exposures.push(Exposure {
+                log,
+                moments: ScalarMoments {
+                    m: k as f32,
+                    v: 0.5,
+                },
+            });
+        }
         let path = dir.path().join("checkpoint-0042.state");
         write_state(&path, "abc", &position, &p).unwrap();
         let (back, q) = read_state(&path, "abc").unwrap();
         assert_eq!(back, position);
+        assert_eq!(q.exposures, p.exposures);
         assert_eq!(q.steps(), p.steps());
         assert_ne!(p.scale_moments(), ScalarMoments::default());
         assert_eq!(q.scale_moments(), p.scale_moments());

@@ -70,15 +70,15 @@ pub struct Evaluation {
     pub renders: Vec<RgbImage>,
 }
 
-/// Evaluates `scene` (the unknown at level `level`) on the held-out views, its renders scaled by
-/// the fitted exposure factor `exposure` (1 when none is fitted: the held-out views are of the
-/// same capture), and against the truth; every rank renders its share of each view's pixels, and
+/// Evaluates `scene` (the unknown at level `level`) on the held-out views, each render scaled by
+/// its capture's fitted exposure factor (`exposures`, 1 when none is fitted), and against the
+/// truth; every rank renders its share of each view's pixels, and
 /// all get the same evaluation.
 pub fn evaluate(
     problem: &Problem,
     scene: &Scene,
     level: usize,
-    exposure: f32,
+    exposures: &[f32],
     cluster: &Cluster,
 ) -> Evaluation {
     let mut scene = scene.clone();
@@ -86,6 +86,7 @@ pub fn evaluate(
     let (mut lit, mut relit) = (0, Vec::new());
     for view in &problem.holdouts {
         problem.look_through(&mut scene, &mut lit, view);
+        let exposure = exposures[view.capture];
         let options = RenderOptions {
             spp: problem.settings.eval_spp,
             seed: problem.settings.seed ^ EVALUATION_SEED_SALT,

@@ -1,6 +1,7 @@
-//! The capture's exposure, fitted with the volume: pictures whose absolute brightness nobody
+//! The captures' exposures, fitted with the volume: pictures whose absolute brightness nobody
 //! wrote down (a photograph's exposure, a render's sun strength known to ±30 %) are compared with
-//! the render scaled by one factor k = e^x, and x is a parameter like θ.
+//! the render scaled by one factor k = e^x per capture (`ViewSetFile::capture`), and each x is a
+//! parameter like θ.
 //!
 //! With I′ = k·I the image compared to the targets and δ′ = ∂loss/∂I′ its adjoint:
 //! ∂loss/∂θ = Σ δ′·k·∂I/∂θ (the gradient pass runs on k·δ′), and ∂loss/∂x = Σ δ′·I′ over the
@@ -12,6 +13,17 @@ use crate::optimize::adam::{Adam, AdamStep, ScalarMoments};
 /// Adam's step size for x: the most one step moves the factor is e^0.02 (2 %), so that ±30 %
 /// is some 15 steps away, slow beside θ's first steps but without overshoot from their noise.
 pub const EXPOSURE_STEP: f32 = 0.02;
+
+/// The factor k of capture `capture` among the fitted `exposures` (1 for one never stepped: a run
+/// that does not fit exposures has none).
+pub fn factor_of(exposures: &[Exposure], capture: usize) -> f32 {
+    exposures.get(capture).map_or(1.0, Exposure::factor)
+}
+
+/// Every capture's factor, `captures` of them.
+pub fn factors(exposures: &[Exposure], captures: usize) -> Vec<f32> {
+    (0..captures).map(|c| factor_of(exposures, c)).collect()
+}
 
 /// x = ln k and its Adam moments (checkpointed with θ).
 #[derive(Debug, Clone, Copy, Default, PartialEq)]

@@ -167,6 +167,7 @@ mod tests {
             target,
             alpha: None,
             background: None,
+            capture: 0,
         }
     }
 

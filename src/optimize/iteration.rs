@@ -48,8 +48,9 @@ pub struct ImagesGradient {
     pub voxels: Vec<(glam::IVec3, f64)>,
     /// The batch's loss.
     pub loss: f64,
-    /// ∂loss/∂x of the exposure's log-factor x (`exposure`): Σ δ′·I′ over the batch.
-    pub exposure_gradient: f64,
+    /// ∂loss/∂x of each capture's exposure log-factor x (`exposure`): Σ δ′·I′ over the batch's
+    /// views of that capture.
+    pub exposure_gradients: Vec<f64>,
     pub traffic: Traffic,
 }
 
@@ -74,28 +75,30 @@ impl Piece {
 }
 
 /// The images' gradient at iteration `iteration` of the scene `scene` (θ at the current level,
-/// whose voxels span `level_box`), its renders scaled by the exposure factor `exposure` before
-/// they meet the targets.
+/// whose voxels span `level_box`), each view's render scaled by its capture's exposure factor
+/// (`exposures`) before it meets its target.
 pub fn images_gradient(
     problem: &Problem,
     cluster: &Cluster,
     scene: &mut Scene,
     estimator: Estimator,
     iteration: u64,
-    exposure: f32,
+    exposures: &[f32],
     level_box: (IVec3, IVec3),
 ) -> Result<ImagesGradient> {
     let s = &problem.settings;
     let pieces = batch_pieces(problem, iteration);
     let (mut loss, mut deltas, mut lit) = (0.0, Vec::with_capacity(pieces.len()), 0);
-    let mut exposure_gradient = 0.0;
+    let mut exposure_gradients = vec![0.0; exposures.len()];
     let view_weight = 1.0 / pieces.len() as f64;
     let mut alpha_deltas = Vec::with_capacity(pieces.len());
     for piece in &pieces {
-        problem.look_through(scene, &mut lit, &problem.views[piece.view]);
+        let view = &problem.views[piece.view];
+        problem.look_through(scene, &mut lit, view);
+        let exposure = exposures[view.capture];
         let adjoint = piece_adjoint(problem, cluster, scene, piece, view_weight, exposure)?;
         loss += adjoint.loss;
-        exposure_gradient += adjoint.exposure_gradient;
+        exposure_gradients[view.capture] += adjoint.exposure_gradient;
         deltas.push(adjoint.delta);
         let alpha = alpha_adjoint(problem, cluster, scene, piece, view_weight);
         if let Some((alpha_loss, _)) = &alpha {
@@ -142,7 +145,7 @@ pub fn images_gradient(
     Ok(ImagesGradient {
         voxels,
         loss,
-        exposure_gradient,
+        exposure_gradients,
         traffic,
     })
 }

@@ -35,8 +35,9 @@ pub struct LogRow {
     /// process), and its seconds, included in `seconds`.
     pub reduce_bytes: u64,
     pub reduce_seconds: f64,
-    /// The exposure factor after this iteration's step (1 unless fitted).
-    pub exposure: f32,
+    /// Each capture's exposure factor after this iteration's step (1 unless fitted), written
+    /// separated by spaces.
+    pub exposure: Vec<f32>,
 }
 
 /// The columns of `log.csv`, in order (the manual documents each: `tests/manual.rs`).
@@ -93,7 +94,9 @@ impl LogRow {
             self.state_bytes.to_string(),
             self.reduce_bytes.to_string(),
             format!("{}", self.reduce_seconds),
-            self.exposure.to_string(),
+            (self.exposure.iter().map(f32::to_string))
+                .collect::<Vec<_>>()
+                .join(" "),
             optional(self.noise_psnr),
         ]
     }
@@ -150,7 +153,7 @@ impl LogRow {
             state_bytes: cells[12].parse()?,
             reduce_bytes: cells[13].parse()?,
             reduce_seconds: cells[14].parse()?,
-            exposure: cells[15].parse()?,
+            exposure: (cells[15].split_whitespace().map(str::parse)).collect::<Result<_, _>>()?,
             noise_psnr: opt(16)?,
         })
     }
@@ -185,7 +188,7 @@ mod tests {
                 state_bytes: 4096,
                 reduce_bytes: 123456,
                 reduce_seconds: 0.25,
-                exposure: 1.3,
+                exposure: vec![1.3, 0.75],
                 ..Default::default()
             },
         ];

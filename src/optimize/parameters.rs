@@ -70,8 +70,9 @@ pub struct Parameters {
     pub(super) steps: u32,
     /// The moments of the global log-scale (`Adam::fit_scale`).
     pub(super) scale: ScalarMoments,
-    /// The capture's exposure, when it is fitted (`exposure`; 1 otherwise).
-    pub exposure: Exposure,
+    /// Each capture's exposure (`Problem::captures`), when they are fitted (`exposure`; none
+    /// otherwise: every factor 1).
+    pub exposures: Vec<Exposure>,
 }
 
 impl Parameters {

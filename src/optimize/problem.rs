@@ -21,7 +21,8 @@ use crate::optimize::scene_units::{self, SceneUnits};
 use crate::optimize::settings_toml;
 use crate::optimize::target_cache::TargetCache;
 use crate::optimize::targets::{
-    image_power, read_views, view_specs, LightSets, ReadView, TargetRenderer,
+    captures, check_captures, image_power, read_views, view_specs, LightSets, ReadView,
+    TargetRenderer,
 };
 use crate::optimize::view_bounds::seen_by_all;
 use crate::optimize::view_files::target_pixels;
@@ -75,6 +76,9 @@ pub struct Problem {
     pub holdouts: Vec<View>,
     /// The lights of the views (`View::light_set`); set 0 is the scene's.
     pub light_sets: Vec<Lights>,
+    /// The training views' captures (`View::capture`; "" unnamed), each with its own exposure
+    /// when it is fitted.
+    pub captures: Vec<String>,
     /// The true grid, in the final level's index space.
     pub truth: Option<BrickMap>,
     pub domain: Domain,
@@ -114,6 +118,7 @@ impl Problem {
             held_out,
             light_sets,
         } = cluster.agree(Inputs::read(run_path, seed))?;
+        let captures = captures(&training);
         let world_box = domain.world_box();
         let cameras: Vec<Camera> = training.iter().map(|v| v.camera()).collect();
         let centre = (world_box.0 + world_box.1) / 2.0;
@@ -155,8 +160,8 @@ impl Problem {
             alpha: file.optimizer.alpha_weight.is_some_and(|w| w > 0.0),
             rendered_alpha: 0,
         };
-        let views = targets.complete(training, &light_sets)?;
-        let mut holdouts = targets.complete(held_out, &light_sets)?;
+        let views = targets.complete(training, &light_sets, &captures)?;
+        let mut holdouts = targets.complete(held_out, &light_sets, &captures)?;
         if let Some(cache) = targets.cache.as_ref().filter(|_| progress) {
             eprintln!(
                 "{} of {} targets read from the target cache '{}'",
@@ -232,6 +237,7 @@ impl Problem {
             views,
             holdouts,
             light_sets: light_sets.lights,
+            captures,
             truth,
             domain,
             start,
@@ -320,6 +326,9 @@ impl Inputs {
         let mut light_sets = LightSets::new(scene.lights.clone());
         let training = read_views(run_path, training, &mut light_sets)?;
         let held_out = read_views(run_path, held_out, &mut light_sets)?;
+        if file.optimizer.fit_exposure {
+            check_captures(&held_out, &captures(&training))?;
+        }
         Ok(Inputs {
             file,
             scene,

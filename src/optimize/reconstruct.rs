@@ -39,6 +39,7 @@ use crate::optimize::adam::Adam;
 use crate::optimize::brick_gradient::BrickGradient;
 use crate::optimize::checkpoint::{self, Position};
 use crate::optimize::evaluate::{evaluate, write_holdout_picture, Evaluation};
+use crate::optimize::exposure::{factors, Exposure};
 use crate::optimize::iteration::images_gradient;
 use crate::optimize::log::LogRow;
 use crate::optimize::parameters::Parameters;
@@ -173,8 +174,19 @@ impl<'a> Run<'a> {
     fn evaluate(&self) -> Evaluation {
         let level = self.position.level as usize;
         let scene = self.problem.scene_at(self.parameters.to_brickmap(), level);
-        let exposure = self.parameters.exposure.factor();
-        evaluate(self.problem, &scene, level, exposure, self.options.cluster)
+        let exposures = self.exposures();
+        evaluate(
+            self.problem,
+            &scene,
+            level,
+            &exposures,
+            self.options.cluster,
+        )
+    }
+
+    /// Each capture's exposure factor (`Problem::captures`).
+    fn exposures(&self) -> Vec<f32> {
+        factors(&self.parameters.exposures, self.problem.captures.len())
     }
 
     /// This iteration's row of the log, before any evaluation.
@@ -188,7 +200,7 @@ impl<'a> Run<'a> {
             loss,
             active_voxels: self.parameters.active_voxels(),
             state_bytes: self.parameters.memory_bytes() as u64,
-            exposure: self.parameters.exposure.factor(),
+            exposure: self.exposures(),
             ..Default::default()
         }
     }
@@ -333,8 +345,14 @@ impl<'a> Run<'a> {
             m.push(meta("volgrad_heldout_psnr", "double", self.evaluation.psnr));
         }
         if s.fit_exposure {
-            let exposure = self.parameters.exposure.factor();
-            m.push(meta("volgrad_exposure", "double", exposure));
+            // One factor per capture, named as the run file names it (the unnamed one plainly).
+            for (name, exposure) in self.problem.captures.iter().zip(self.exposures()) {
+                let key = match name.as_str() {
+                    "" => "volgrad_exposure".to_string(),
+                    name => format!("volgrad_exposure_{name}"),
+                };
+                m.push(meta(&key, "double", exposure));
+            }
         }
         m
     }
@@ -404,7 +422,7 @@ fn step(
     adam: &Adam,
 ) -> Result<(f64, Traffic)> {
     let s = &problem.settings;
-    let exposure = parameters.exposure.factor();
+    let exposures = factors(&parameters.exposures, problem.captures.len());
     let (lo, hi) = problem.domain.voxel_box(level);
     let images = images_gradient(
         problem,
@@ -412,7 +430,7 @@ fn step(
         scene,
         estimator,
         iteration,
-        exposure,
+        &exposures,
         (lo, hi),
     )?;
     let passes = if s.smooth_gradient { level as u32 } else { 0 };
@@ -421,9 +439,13 @@ fn step(
     let loss = images.loss + parameters.descend(adam, &gradient, &s.priors, level_voxels);
     if s.fit_exposure {
         let steps = parameters.steps();
+        let gradients = &images.exposure_gradients;
         parameters
-            .exposure
-            .step(adam, steps, images.exposure_gradient);
+            .exposures
+            .resize(gradients.len(), Exposure::default());
+        for (exposure, &g) in parameters.exposures.iter_mut().zip(gradients) {
+            exposure.step(adam, steps, g);
+        }
     }
     Ok((loss, images.traffic))
 }

@@ -106,8 +106,8 @@ pub fn upsample(
         }
     }
     fine.prune();
-    // The capture's exposure is no voxel's: whatever becomes of θ's moments, it stays as fitted.
-    fine.exposure = p.exposure;
+    // The captures' exposures are no voxel's: whatever becomes of θ's moments, they stay as fitted.
+    fine.exposures = p.exposures.clone();
     if moments == Moments::Resample {
         fine.continue_steps_of(p);
         fine.inherit_brick_scales(p, FINE_GRADIENT_SCALE);
@@ -182,7 +182,8 @@ mod tests {
         };
         let gradient = crate::optimize::brick_gradient::BrickGradient::from_voxels([(v, 1.0)]);
         p.adam_step(&adam, &gradient, &Default::default());
-        p.exposure.log = 0.25;
+        p.exposures = vec![crate::optimize::exposure::Exposure::default(); 2];
+        p.exposures[1].log = 0.25;
         let (kept, _) = upsample(
             &p,
             &IndexTransform::uniform(1.0, DVec3::ZERO),
@@ -200,7 +201,8 @@ mod tests {
         assert_eq!(kept.steps(), 1);
         assert_eq!(reset.steps(), 0);
         // The fitted exposure survives either way (a reset once dropped it back to 1).
-        assert_eq!((kept.exposure, reset.exposure), (p.exposure, p.exposure));
+        assert_eq!(kept.exposures, p.exposures);
+        assert_eq!(reset.exposures, p.exposures);
         // New voxel 2v sits at old index v − ¼: weight (¾)³ on v.
         let m_at =
             |q: &Parameters, j: IVec3| q.voxels().find(|(w, ..)| *w == j).map(|(_, _, m, _)| m);

@@ -37,6 +37,9 @@ pub struct View {
     /// The part of `target` that is the environment seen through the medium, where a picture
     /// with alpha was composited over it (`pictures::background_seen`).
     pub background: Option<RgbImage>,
+    /// The capture its picture was taken in: an index into `Problem::captures`, whose fitted
+    /// exposure it is compared at.
+    pub capture: usize,
 }
 
 impl View {
@@ -69,6 +72,8 @@ pub struct ViewSpec {
     pub image: Option<PathBuf>,
     /// How its stored values decode to radiance (default: as the file says; see `io::images`).
     pub color_space: Option<ColorSpace>,
+    /// Its set's capture (`ViewSetFile::capture`; "" unnamed).
+    pub capture: String,
 }
 
 /// The distinct sets of lights a run's views were taken under; set 0 is the scene's own.
@@ -125,6 +130,7 @@ fn set_specs(
     world_box: Option<(Vec3, Vec3)>,
 ) -> Result<Vec<ViewSpec>> {
     let orbits = &set.orbit;
+    let capture = set.capture.clone().unwrap_or_default();
     let mut specs = Vec::new();
     for (i, v) in listed.iter().enumerate() {
         let name = format!("{key}[{i}]");
@@ -146,6 +152,7 @@ fn set_specs(
             light: v.light.clone(),
             image: v.image.as_ref().map(|i| RunFile::resolve(run_path, i)),
             color_space: set.color_space,
+            capture: capture.clone(),
         });
     }
     let mut captured = Vec::new();
@@ -177,6 +184,7 @@ fn set_specs(
                 light: set.light.clone(),
                 image: v.image,
                 color_space: set.color_space,
+                capture: capture.clone(),
             });
         }
     }
@@ -198,6 +206,7 @@ fn set_specs(
                 light: o.light.clone(),
                 image: None,
                 color_space: None,
+                capture: capture.clone(),
             });
         }
     }
@@ -224,6 +233,7 @@ pub struct ReadView {
     target: Option<RgbImage>,
     alpha: Option<RgbImage>,
     background: Option<RgbImage>,
+    capture: String,
 }
 
 impl ReadView {
@@ -248,6 +258,7 @@ pub fn read_views(
         light,
         image,
         color_space,
+        capture,
     } in specs
     {
         let light_set = sets.index(&light, dir).with_context(|| name.clone())?;
@@ -266,9 +277,35 @@ pub fn read_views(
             target,
             alpha,
             background,
+            capture,
         });
     }
     Ok(views)
+}
+
+/// The captures of the training views `training`, in order of first appearance: each has an
+/// exposure of its own when one is fitted.
+pub fn captures(training: &[ReadView]) -> Vec<String> {
+    let mut names: Vec<String> = Vec::new();
+    for v in training {
+        if !names.contains(&v.capture) {
+            names.push(v.capture.clone());
+        }
+    }
+    names
+}
+
+/// With the exposure fitted, a held-out view is compared at its capture's factor: one no
+/// training view was taken in has none.
+pub fn check_captures(held_out: &[ReadView], captures: &[String]) -> Result<()> {
+    match held_out.iter().find(|v| !captures.contains(&v.capture)) {
+        Some(v) => bail!(
+            "{}: capture \"{}\" is no training set's, so its exposure cannot be fitted (give the set the `capture` of the training set its pictures were taken with)",
+            v.name,
+            v.capture
+        ),
+        None => Ok(()),
+    }
 }
 
 /// Gives views their targets, rendering from the truth the ones no image gives (every rank its
@@ -292,10 +329,18 @@ pub struct TargetRenderer<'a> {
 }
 
 impl TargetRenderer<'_> {
-    /// The views of `read` with their targets (`relit` still false).
-    pub fn complete(&mut self, read: Vec<ReadView>, sets: &LightSets) -> Result<Vec<View>> {
+    /// The views of `read` with their targets (`relit` still false), their captures indexed in
+    /// `captures` (0 for a name not there: `check_captures` refuses it where it matters).
+    pub fn complete(
+        &mut self,
+        read: Vec<ReadView>,
+        sets: &LightSets,
+        captures: &[String],
+    ) -> Result<Vec<View>> {
         read.into_iter()
             .map(|v| {
+                let capture = captures.iter().position(|c| *c == v.capture);
+                let capture = capture.unwrap_or(0);
                 let (target, alpha) = match v.target {
                     Some(image) => (image, v.alpha),
                     None => {
@@ -312,6 +357,7 @@ impl TargetRenderer<'_> {
                     target,
                     alpha,
                     background: v.background,
+                    capture,
                 })
             })
             .collect()

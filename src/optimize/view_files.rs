@@ -58,6 +58,11 @@ pub struct ViewSetFile {
     /// "linear" (default: as each file declares, else sRGB for 8/16-bit and linear for float).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub color_space: Option<ColorSpace>,
+    /// The capture the set's pictures were taken in: with `fit_exposure`, the views of one capture
+    /// share one fitted exposure (default: the unnamed capture every unnamed set is part of). A
+    /// held-out set names a capture some training set names.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub capture: Option<String>,
 }
 
 /// A COLMAP text model and the folder of its images.
