@@ -247,14 +247,9 @@ impl<R: Rng> Replay<'_, R> {
     /// traces its camera paths here, so that passes with the same seed follow the same paths.
     pub fn trace_recorded(&mut self, origin: Vec3, dir: Vec3, scratch: &mut Scratch) -> Vec3 {
         scratch.clear();
-        // One shadow ray per scattering event, as in the suffixes: the pass's cost is mostly
-        // shadow walks, and one light picked by its contribution costs little variance.
         trace(
             self.scene,
-            PathState {
-                one_light_nee: true,
-                ..PathState::camera(origin, dir)
-            },
+            PathState::camera(origin, dir),
             self.options.max_depth,
             self.rng,
             self.stats,

@@ -37,11 +37,6 @@ pub struct PathState {
     pub phase_pdf: Option<f32>,
     /// Scattering events so far.
     pub depth: u32,
-    /// NEE with one shadow ray, to a light picked by its unoccluded contribution
-    /// (`direct_light_one`), instead of one per light: what the gradient passes trace (their
-    /// camera paths and suffixes), where variance × time decides; the forward renderer traces
-    /// every light.
-    pub one_light_nee: bool,
 }
 
 impl PathState {
@@ -52,12 +47,11 @@ impl PathState {
             throughput: Vec3::ONE,
             phase_pdf: None,
             depth: 0,
-            one_light_nee: false,
         }
     }
 
     /// A suffix of a gradient pass leaving scattering point `p` (reached along `dir` after
-    /// `depth` events) in a phase-sampled direction, with one-light NEE.
+    /// `depth` events) in a phase-sampled direction.
     pub fn scattered(scene: &Scene, p: Vec3, dir: Vec3, depth: u32, rng: &mut impl Rng) -> Self {
         let phase = HenyeyGreenstein {
             g: scene.medium.phase_g,
@@ -69,7 +63,6 @@ impl PathState {
             throughput: Vec3::ONE,
             phase_pdf: Some(phase.eval(dir.dot(new_dir))),
             depth,
-            one_light_nee: true,
         }
     }
 }
@@ -203,9 +196,11 @@ fn shadow_ray(
     ))
 }
 
-/// Next-event estimation at a scattering point `p` reached along `dir`: the in-scattered radiance
-/// from all directional lights and one environment sample (MIS-weighted against phase sampling),
-/// before the albedo. With `shadows`, each shadow ray's contribution (times `throughput`) is kept.
+/// Next-event estimation at a scattering point `p` reached along `dir` with one shadow ray per
+/// light: the in-scattered radiance from all directional lights and one environment sample
+/// (MIS-weighted against phase sampling), before the albedo. With `shadows`, each shadow ray's
+/// contribution (times `throughput`) is kept. Paths use `direct_light_one`; this is the estimate
+/// its pick must match in the mean (`tests/forward.rs`).
 pub fn direct_light(
     scene: &Scene,
     p: Vec3,
@@ -257,9 +252,10 @@ fn through_shadow_ray(
 /// Next-event estimation as `direct_light`, but with one shadow ray: the light is picked with
 /// probability ∝ the luminance of its unoccluded contribution (a weighted reservoir over the
 /// lights, no allocation) and its contribution divided by that probability; with `shadows`, that
-/// ray is kept as `direct_light` keeps its rays. The gradient passes use it at every scattering
-/// event and probe: on the cloud at 8 spp it cuts joint's time 24 % for 8 % more per-voxel
-/// variance (variance × time 0.82×; `cargo bench --bench gradients`, README).
+/// ray is kept as `direct_light` keeps its rays. Every path uses it at every scattering event (and
+/// the gradient passes at every probe): shadow walks are most of a path's density lookups, and
+/// one walk per event instead of one per light costs the cloud's render 14 % more variance per
+/// path for 1.3–1.4× the paths per second (`cargo bench --bench speed`).
 pub fn direct_light_one(
     scene: &Scene,
     p: Vec3,
@@ -315,7 +311,6 @@ pub fn trace(
         mut throughput,
         mut phase_pdf,
         mut depth,
-        one_light_nee,
     } = state;
     let mut radiance = Vec3::ZERO;
     loop {
@@ -356,11 +351,7 @@ pub fn trace(
                 } else {
                     let light_sample = LightSample::draw(rng);
                     let shadows = record.as_deref_mut().map(|r| (&mut r.shadows, throughput));
-                    let nee = if one_light_nee {
-                        direct_light_one(scene, p, dir, &light_sample, rng, stats, shadows)
-                    } else {
-                        direct_light(scene, p, dir, &light_sample, rng, stats, shadows)
-                    };
+                    let nee = direct_light_one(scene, p, dir, &light_sample, rng, stats, shadows);
                     radiance += throughput * nee;
                     let new_dir = phase.sample(dir, [rng.gen(), rng.gen()]);
                     phase_pdf = Some(phase.eval(dir.dot(new_dir)));
