@@ -8,7 +8,8 @@
 //! Variance is measured from two seeds of the same command, E[(A − B)²]/2 per pixel or voxel,
 //! averaged; variance × time compares estimators at equal spp whatever their speed (below 1 is
 //! better). `VOLGRAD_BENCH_ROUNDS` (default 2) sets how many times each command runs per seed: the
-//! fastest counts.
+//! fastest counts; `VOLGRAD_BENCH_ONLY=render` (or `joint`, `drt`) keeps the commands whose name
+//! holds it.
 //!
 //! Then the physical limit: the work no tracker avoids per tentative collision (one trilinear
 //! density read at a random point of the grid's leaves, one exponential sample, one uniform draw),
@@ -208,7 +209,8 @@ fn main() {
                 "vdb",
             ),
         ];
-        for (name, args, ext) in &commands {
+        let only = std::env::var("VOLGRAD_BENCH_ONLY").unwrap_or_default();
+        for (name, args, ext) in commands.iter().filter(|c| c.0.contains(&only)) {
             for threads in [1, 2] {
                 let mut args: Vec<String> = args.iter().map(|a| a.to_string()).collect();
                 args.extend(["--threads".into(), threads.to_string()]);

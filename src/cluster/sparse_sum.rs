@@ -1,7 +1,8 @@
 //! The sum of every rank's gradient grid, moving only the blocks some rank touched: the ranks
 //! agree on the union of their block keys, then add the union's values in one allreduce of i64
 //! quanta. Integer addition is exact, so the result is the same bits whatever order MPI adds the
-//! ranks in, and the same as one process would get.
+//! ranks in, and the same as one process would get. A sum that could pass ±2⁶³ saturates there, as
+//! one process's does, instead of wrapping (`sum_quanta`).
 //!
 //! The union is agreed on as a bitmap over the grid's block range (one bit per 4³ block, OR-ed
 //! across ranks: 26 KB for the ×8 cloud's box, whatever the number of ranks) when the range is
@@ -83,7 +84,7 @@ pub fn sum_over_ranks(
             *slot = q.0;
         }
     }
-    cluster.sum_in_place(&mut values);
+    let limbs = sum_quanta(cluster, &mut values);
     let mut sum = grid.empty_like();
     for (origin, chunk) in union.iter().zip(values.chunks_exact(BLOCK_VOXELS)) {
         let block: [Quanta; BLOCK_VOXELS] = std::array::from_fn(|i| Quanta(chunk[i]));
@@ -92,8 +93,72 @@ pub fn sum_over_ranks(
     let n = cluster.size() as u64;
     let traffic = Traffic {
         blocks: union.len() as u64,
-        bytes_sent: key_bytes + 2 * (n - 1) * (values.len() as u64 * 8) / n,
+        bytes_sent: key_bytes + 2 * (n - 1) * (values.len() as u64 * 8 * limbs) / n,
         seconds: started.elapsed().as_secs_f64(),
     };
     (sum, traffic)
+}
+
+/// `values` (i64 quanta) summed over the ranks in place, saturating at ±2⁶³ as a rank's own sums
+/// do, never wrapping; returns how many i64 each value took in the allreduce (1 or 2).
+///
+/// The ranks first agree on the largest |q| (one value): while it times the rank count stays below
+/// 2⁶², a plain i64 sum cannot overflow. Otherwise each value travels as two limbs, hi = q >> 32
+/// and lo = q mod 2³², whose sums cannot overflow below 2³¹ ranks, and is put back together in
+/// i128 and saturated.
+fn sum_quanta(cluster: &Cluster, values: &mut [i64]) -> u64 {
+    let largest = values.iter().map(|q| q.unsigned_abs()).max().unwrap_or(0);
+    let [largest] = cluster.max_each([largest as f64]);
+    if largest * (cluster.size() as f64) < 2f64.powi(62) {
+        cluster.sum_in_place(values);
+        return 1;
+    }
+    let mut limbs: Vec<i64> = values.iter().flat_map(|&q| split(q)).collect();
+    cluster.sum_in_place(&mut limbs);
+    for (q, pair) in values.iter_mut().zip(limbs.chunks_exact(2)) {
+        *q = join(pair[0], pair[1]);
+    }
+    2
+}
+
+/// q as (hi, lo): q = hi·2³² + lo, lo in [0, 2³²).
+fn split(q: i64) -> [i64; 2] {
+    [q >> 32, q & 0xffff_ffff]
+}
+
+/// Σhi·2³² + Σlo, saturated to i64.
+fn join(hi: i64, lo: i64) -> i64 {
+    let exact = (i128::from(hi) << 32) + i128::from(lo);
+    exact.clamp(i128::from(i64::MIN), i128::from(i64::MAX)) as i64
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Summed limb by limb, any values of any number of ranks give their exact sum, saturated:
+    /// near ±2⁶³, where a plain i64 sum wraps to the other sign.
+    #[test]
+    fn limbs_sum_to_the_saturated_exact_sum() {
+        let near = i64::MAX - 5;
+        let cases: [&[i64]; 5] = [
+            &[1, 2, 3],
+            &[-7, 1 << 40, -(1 << 33) + 5],
+            &[near, near],
+            &[i64::MIN, -1, i64::MIN],
+            &[near, near, -near, -near, 17],
+        ];
+        for values in cases {
+            let exact: i128 = values.iter().map(|&q| i128::from(q)).sum();
+            let (mut hi, mut lo) = (0i64, 0i64);
+            for &q in values {
+                let [h, l] = split(q);
+                hi += h;
+                lo += l;
+            }
+            let want = exact.clamp(i128::from(i64::MIN), i128::from(i64::MAX)) as i64;
+            assert_eq!(join(hi, lo), want, "{values:?}");
+        }
+        assert!(near.wrapping_add(near) < 0, "a plain sum would wrap");
+    }
 }
