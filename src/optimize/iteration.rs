@@ -113,12 +113,13 @@ pub fn images_gradient(
     // apron (outside the box). The density's domain is the medium's bounds already.
     let parameter = problem.unknown.parameter();
     let domain = (parameter != Parameter::Extinction).then_some(level_box);
-    let pass = GradOptions {
+    let mut pass = GradOptions {
         quantum: Some(quantum),
         parameter,
         domain,
         ..GradOptions::new(estimator, s.spp, 0, s.max_depth)
     };
+    pass.adjoint.suffix_paths = s.suffix_paths;
     let mut total = gradient_grid_for::<Quanta>(scene, &pass);
     for ((piece, delta), alpha_delta) in pieces.iter().zip(&deltas).zip(&alpha_deltas) {
         problem.look_through(scene, &mut lit, &problem.views[piece.view]);

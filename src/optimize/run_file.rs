@@ -366,6 +366,14 @@ mod tests {
                 "optimizer.primal_spp",
             ),
             (
+                format!("{GOOD}\n[optimizer]\nsuffix_paths = 0"),
+                "optimizer.suffix_paths",
+            ),
+            (
+                format!("{GOOD}\n[optimizer]\nsuffix_paths = 65"),
+                "optimizer.suffix_paths",
+            ),
+            (
                 format!("{GOOD}\n[optimizer]\nbrick_scale_lr = 0"),
                 "optimizer.brick_scale_lr",
             ),
