@@ -425,6 +425,45 @@ fn the_noise_ceiling_is_what_the_truth_scores() {
     );
 }
 
+/// `eval_spp = "auto"` renders each held-out view until its noise is a tenth of its error
+/// (noise_psnr at least 10 dB above psnr), or the 4,096 spp cap: the true grid, whose error is
+/// the targets' own small noise, takes the cap; a fog far from the ball, whose error is large,
+/// far fewer; and every evaluation of a run from the fog obeys the rule.
+#[test]
+fn auto_evaluation_spp_follows_the_error() {
+    let evaluations = |start: &str, iterations: u32| {
+        let run = run_file(start, &format!("iterations = {iterations}"))
+            .replace("eval_spp = 128", "eval_spp = \"auto\"")
+            .replace("eval_every = 10", "eval_every = 4");
+        let dir = fixture(&run);
+        ok(volgrad_in(
+            dir.path(),
+            &["optimize", "run.toml", "--out", "out", "-q"],
+        ));
+        let rows = log(&dir.path().join("out"));
+        (rows.into_iter())
+            .filter(|r| !r["heldout_psnr"].is_empty())
+            .map(|r| {
+                let get = |k: &str| r[k].parse::<f64>().unwrap();
+                (
+                    get("heldout_spp"),
+                    get("heldout_psnr"),
+                    get("heldout_noise_psnr"),
+                )
+            })
+            .collect::<Vec<_>>()
+    };
+    assert_eq!(evaluations("\"ball.vdb\"", 1)[0].0, 4096.0);
+    let fog = evaluations("0.5", 12);
+    assert!(fog[0].0 < 1024.0, "{fog:?}");
+    for &(spp, psnr, noise_psnr) in &fog {
+        assert!(
+            spp == 4096.0 || noise_psnr - psnr >= 10.0 - 1e-6,
+            "{spp} spp: {psnr} dB with a noise ceiling of {noise_psnr}: {fog:?}"
+        );
+    }
+}
+
 /// The worked example's pictures, as Blender's Cycles wrote them: every 8-bit sRGB PNG with alpha,
 /// decoded and composited over the sky, is the linear EXR of the same render to 0.5 % in the mean
 /// of each channel (read as linear, the PNGs would be several times brighter); the run file loads

@@ -166,11 +166,12 @@ pub fn run(args: &Args, cluster: &Cluster) -> Result<()> {
     }
     let e = &outcome.evaluation;
     println!(
-        "{} iterations in {:.1} s (+ {:.1} s evaluating): held-out PSNR {:.2} dB (the evaluation's noise allows {:.1}){}, relative RMSE {:.4}{}",
+        "{} iterations in {:.1} s (+ {:.1} s evaluating): held-out PSNR {:.2} dB (at {:.0} spp, whose noise allows {:.1}){}, relative RMSE {:.4}{}",
         p.iteration,
         p.optimisation_seconds,
         p.evaluation_seconds,
         e.psnr,
+        e.spp,
         e.noise_psnr,
         e.relit_psnr
             .map_or(String::new(), |r| format!(" (relit {r:.2} dB)")),

@@ -56,6 +56,17 @@ impl RgbImage {
         }
     }
 
+    /// a·(1 − t) + b·t, pixelwise, for images of one size (renders of n and m samples per pixel
+    /// are one of n + m with t = m/(n + m)).
+    pub fn blend(a: &RgbImage, b: &RgbImage, t: f32) -> RgbImage {
+        RgbImage {
+            pixels: (a.pixels.iter().zip(&b.pixels))
+                .map(|(x, y)| x.lerp(*y, t))
+                .collect(),
+            ..a.clone()
+        }
+    }
+
     pub fn mean(&self) -> Vec3 {
         self.pixels.iter().copied().sum::<Vec3>() / self.pixels.len().max(1) as f32
     }

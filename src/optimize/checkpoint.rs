@@ -25,7 +25,7 @@ use crate::optimize::schedule::Stop;
 use crate::volume::brickmap::BRICK_VOXELS;
 use crate::volume::transform::IndexTransform;
 
-const MAGIC: &[u8] = b"volgrad optimizer state 8\n";
+const MAGIC: &[u8] = b"volgrad optimizer state 9\n";
 
 /// Where a run is, apart from θ and Adam's moments.
 #[derive(Debug, Clone, Default, PartialEq)]

@@ -22,6 +22,8 @@ pub struct LogRow {
     pub psnr: Option<f64>,
     /// What the evaluation's own noise allows (`Evaluation::noise_psnr`).
     pub noise_psnr: Option<f64>,
+    /// The held-out renders' samples per pixel (`Evaluation::spp`).
+    pub heldout_spp: Option<f64>,
     /// Over the relit held-out views only (`Evaluation::relit_psnr`).
     pub relit_psnr: Option<f64>,
     pub relative_rmse: Option<f64>,
@@ -41,7 +43,7 @@ pub struct LogRow {
 }
 
 /// The columns of `log.csv`, in order (the manual documents each: `tests/manual.rs`).
-pub const COLUMNS: [&str; 17] = [
+pub const COLUMNS: [&str; 18] = [
     "iteration",
     "level",
     "fraction",
@@ -59,6 +61,7 @@ pub const COLUMNS: [&str; 17] = [
     "reduce_seconds",
     "exposure",
     "heldout_noise_psnr",
+    "heldout_spp",
 ];
 
 fn optional(v: Option<f64>) -> String {
@@ -70,13 +73,14 @@ impl LogRow {
     pub fn record(&mut self, e: &Evaluation) {
         self.psnr = Some(e.psnr);
         self.noise_psnr = Some(e.noise_psnr);
+        self.heldout_spp = Some(e.spp);
         self.relit_psnr = e.relit_psnr;
         self.relative_rmse = Some(e.relative_rmse);
         self.volume_rmse = e.volume_rmse;
         self.haze = e.haze;
     }
 
-    fn cells(&self) -> [String; 17] {
+    fn cells(&self) -> [String; 18] {
         [
             self.iteration.to_string(),
             self.level.to_string(),
@@ -98,6 +102,7 @@ impl LogRow {
                 .collect::<Vec<_>>()
                 .join(" "),
             optional(self.noise_psnr),
+            optional(self.heldout_spp),
         ]
     }
 
@@ -155,6 +160,7 @@ impl LogRow {
             reduce_seconds: cells[14].parse()?,
             exposure: (cells[15].split_whitespace().map(str::parse)).collect::<Result<_, _>>()?,
             noise_psnr: opt(16)?,
+            heldout_spp: opt(17)?,
         })
     }
 }
@@ -181,6 +187,7 @@ mod tests {
                 loss: 1e-3,
                 psnr: Some(31.5),
                 noise_psnr: Some(40.25),
+                heldout_spp: Some(1536.5),
                 relit_psnr: Some(29.25),
                 relative_rmse: Some(0.1),
                 volume_rmse: Some(0.02),

@@ -16,7 +16,7 @@ use crate::optimize::hull::{self, Hull};
 use crate::optimize::parameters::{Parameters, MAX_VOXELS};
 use crate::optimize::prior::Prior;
 use crate::optimize::resample::Moments;
-use crate::optimize::run_file::{BoundsFile, RunFile, StartFile, UnknownGrid};
+use crate::optimize::run_file::{BoundsFile, EvalSpp, RunFile, StartFile, UnknownGrid};
 use crate::optimize::scene_units::{self, SceneUnits};
 use crate::optimize::settings_toml;
 use crate::optimize::target_cache::TargetCache;
@@ -65,7 +65,7 @@ pub struct Settings {
     /// Fractions of the budget at which level k + 1 begins.
     pub level_starts: Vec<f32>,
     pub iterations: u32,
-    pub eval_spp: u32,
+    pub eval_spp: EvalSpp,
     pub eval_every: u32,
     pub checkpoint_every: u32,
     pub seed: u64,

@@ -38,7 +38,7 @@ use crate::io::vdb::meta;
 use crate::optimize::adam::Adam;
 use crate::optimize::brick_gradient::BrickGradient;
 use crate::optimize::checkpoint::{self, Position};
-use crate::optimize::evaluate::{evaluate, write_holdout_picture, Evaluation};
+use crate::optimize::evaluate::{evaluate, spp_range, write_holdout_picture, Evaluation};
 use crate::optimize::exposure::{factors, Exposure};
 use crate::optimize::iteration::images_gradient;
 use crate::optimize::log::LogRow;
@@ -263,8 +263,8 @@ impl<'a> Run<'a> {
         let evaluated = row.psnr.is_some();
         self.log.push(row);
         self.bar.set_message(format!(
-            "it {it} · level {level} · loss {loss:.3e} · held-out PSNR {:.2} dB (noise allows {:.1})",
-            self.evaluation.psnr, self.evaluation.noise_psnr
+            "it {it} · level {level} · loss {loss:.3e} · held-out PSNR {:.2} dB ({:.0} spp, noise allows {:.1})",
+            self.evaluation.psnr, self.evaluation.spp, self.evaluation.noise_psnr
         ));
         let p = &self.position;
         self.bar
@@ -375,8 +375,15 @@ impl<'a> Run<'a> {
                 ),
                 Stop::Replay(_) => String::new(),
             };
+            let spp = match spp_range(self.problem) {
+                (first, max) if first < max => format!(
+                    "{:.0} spp; \"auto\" takes up to {max} as the error falls",
+                    self.evaluation.spp
+                ),
+                (spp, _) => format!("{spp} spp"),
+            };
             self.bar.println(format!(
-                "one iteration took {seconds:.2} s and one evaluation {evaluation:.2} s (every {} iterations){total}",
+                "one iteration took {seconds:.2} s and one evaluation {evaluation:.2} s ({spp}; every {} iterations){total}",
                 self.problem.settings.eval_every
             ));
         }

@@ -30,10 +30,10 @@ pub struct RunFile {
     pub truth_grid: Option<String>,
     #[serde(default = "default_target_spp")]
     pub target_spp: u32,
-    /// Samples per pixel of the held-out renders (fixed seed), far above the training spp so that
-    /// evaluation noise stays below the error measured.
-    #[serde(default = "default_eval_spp")]
-    pub eval_spp: u32,
+    /// Samples per pixel of the held-out renders (fixed seed): a number, or "auto" (as many as
+    /// keep the evaluation's noise below the error it measures).
+    #[serde(default)]
+    pub eval_spp: EvalSpp,
     /// Held-out evaluation every this many iterations (and at the end).
     #[serde(default = "default_eval_every")]
     pub eval_every: u32,
@@ -64,9 +64,6 @@ pub struct RunFile {
 fn default_target_spp() -> u32 {
     1024
 }
-fn default_eval_spp() -> u32 {
-    256
-}
 fn default_eval_every() -> u32 {
     10
 }
@@ -75,6 +72,38 @@ fn default_checkpoint_every() -> u32 {
 }
 fn default_seed() -> u64 {
     1
+}
+
+/// The held-out renders' samples per pixel (`evaluate::evaluate` says how "auto" chooses them).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub enum EvalSpp {
+    #[default]
+    Auto,
+    Fixed(u32),
+}
+
+impl<'de> Deserialize<'de> for EvalSpp {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> std::result::Result<Self, D::Error> {
+        use serde::de::Error;
+        match toml::Value::deserialize(d)? {
+            toml::Value::String(word) if word == "auto" => Ok(EvalSpp::Auto),
+            toml::Value::Integer(n) => u32::try_from(n)
+                .map(EvalSpp::Fixed)
+                .map_err(|_| D::Error::custom(format!("{n} samples per pixel is out of range"))),
+            other => Err(D::Error::custom(format!(
+                "{other} is neither a number of samples per pixel nor \"auto\""
+            ))),
+        }
+    }
+}
+
+impl Serialize for EvalSpp {
+    fn serialize<S: serde::Serializer>(&self, s: S) -> std::result::Result<S::Ok, S::Error> {
+        match self {
+            EvalSpp::Auto => s.serialize_str("auto"),
+            EvalSpp::Fixed(n) => s.serialize_u32(*n),
+        }
+    }
 }
 
 /// The unknown grid.
@@ -177,10 +206,11 @@ impl RunFile {
         if !(self.holdouts.iter()).any(|set| set.has_views(&self.holdout)) {
             bail!("no held-out views: give [[holdout]] entries or a [holdouts.orbit] (quality is measured on views the gradients never see)");
         }
-        for (key, spp) in [("target_spp", self.target_spp), ("eval_spp", self.eval_spp)] {
-            if spp == 0 {
-                bail!("{key} must be at least 1");
-            }
+        if self.target_spp == 0 {
+            bail!("target_spp must be at least 1");
+        }
+        if self.eval_spp == EvalSpp::Fixed(0) {
+            bail!("eval_spp must be at least 1, or \"auto\"");
         }
         for (key, n) in [
             ("eval_every", self.eval_every),
@@ -330,7 +360,26 @@ mod tests {
         assert_eq!(f.optimizer.prior.len(), 2, "the default priors");
         assert_eq!(f.optimizer.loss, Loss::L2);
         assert_eq!(f.unknown.moments, Moments::Resample);
-        assert_eq!(f.eval_spp, 256);
+        assert_eq!(f.eval_spp, EvalSpp::Auto);
+    }
+
+    /// `eval_spp` is a positive number or "auto", and writes back as it was read.
+    #[test]
+    fn eval_spp_is_a_number_or_auto() {
+        let with = |value: &str| check(&format!("eval_spp = {value}\n{GOOD}"));
+        assert_eq!(with("512").unwrap().eval_spp, EvalSpp::Fixed(512));
+        assert_eq!(with("\"auto\"").unwrap().eval_spp, EvalSpp::Auto);
+        for bad in ["0", "-3", "\"many\"", "2.5"] {
+            assert!(with(bad).is_err(), "eval_spp = {bad} accepted");
+        }
+        for spp in [EvalSpp::Auto, EvalSpp::Fixed(64)] {
+            let text = toml::to_string(&RunFile {
+                eval_spp: spp,
+                ..check(GOOD).unwrap()
+            })
+            .unwrap();
+            assert_eq!(check(&text).unwrap().eval_spp, spp, "{text}");
+        }
     }
 
     /// `[[holdouts]]` gives several sets, each under its own lights; one `[holdouts]` table is one
