@@ -116,12 +116,15 @@ fn exr_pixels(path: &Path) -> Vec<[u32; 3]> {
         .collect()
 }
 
-/// One run's outputs at 1, 2 and 3 ranks: `final.vdb`, `grad.vdb` and a render's EXR, bit for bit.
+/// One run's outputs at 1, 2 and 3 ranks: `final.vdb`, `grad.vdb` and a render's EXR, bit for bit,
+/// and the held-out evaluations (`eval_spp = "auto"`, whose rounds every rank decides alone from
+/// the same images): the same spp and the same PSNR.
 #[test]
 fn results_do_not_depend_on_the_number_of_ranks() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
-    std::fs::write(d.join("run.toml"), run_file("batch = 3\niterations = 6")).unwrap();
+    let run = run_file("batch = 3\niterations = 6").replace("eval_spp = 64", "eval_spp = \"auto\"");
+    std::fs::write(d.join("run.toml"), run).unwrap();
     let scene = repo("scenes/inverse/quick-scene.toml");
     let scene = scene.to_str().unwrap();
     let mut finals = Vec::new();
@@ -167,6 +170,25 @@ fn results_do_not_depend_on_the_number_of_ranks() {
     // Only rank 0 writes the log: one header, one row per iteration.
     let log = std::fs::read_to_string(d.join("o3/log.csv")).unwrap();
     assert_eq!(log.lines().count(), 1 + 7, "{log}");
+    let evaluations = |n: usize| -> Vec<String> {
+        let log = std::fs::read_to_string(d.join(format!("o{n}/log.csv"))).unwrap();
+        let header: Vec<&str> = log.lines().next().unwrap().split(',').collect();
+        let column = |name: &str| header.iter().position(|c| *c == name).unwrap();
+        let (psnr, spp) = (column("heldout_psnr"), column("heldout_spp"));
+        (log.lines().skip(1))
+            .map(|row| row.split(',').collect::<Vec<_>>())
+            .filter(|cells| !cells[psnr].is_empty())
+            .map(|cells| format!("{} at {} spp", cells[psnr], cells[spp]))
+            .collect()
+    };
+    assert_eq!(evaluations(1).len(), 3, "{:?}", evaluations(1));
+    for n in 2..=3 {
+        assert_eq!(
+            evaluations(n),
+            evaluations(1),
+            "held-out evaluations at {n} ranks"
+        );
+    }
 }
 
 /// A target cache filled by 2 ranks (rank 0 writes) serves one process and 3 ranks (rank 0 reads
