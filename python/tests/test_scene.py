@@ -192,7 +192,10 @@ def test_ctrl_c_interrupts_a_render_within_a_second():
     image)."""
     script = textwrap.dedent(
         f"""
-        import sys, threading, volgrad
+        import signal, sys, threading, volgrad
+        # Python turns SIGINT into KeyboardInterrupt only if it was not ignored when it started,
+        # and a shell's background job starts with it ignored: restore it, as a terminal has it.
+        signal.signal(signal.SIGINT, signal.default_int_handler)
         camera = volgrad.Camera((0, 2, 12), (0, 0, 0), width=512, height=512)
         other = []
         started = threading.Event()
