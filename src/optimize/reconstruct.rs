@@ -375,10 +375,12 @@ impl<'a> Run<'a> {
                 ),
                 Stop::Replay(_) => String::new(),
             };
+            // An evaluation's time is about proportional to its spp: what "auto" may come to.
             let spp = match spp_range(self.problem) {
                 (first, max) if first < max => format!(
-                    "{:.0} spp; \"auto\" takes up to {max} as the error falls",
-                    self.evaluation.spp
+                    "{:.0} spp; \"auto\" takes up to {max}, about {:.0} s, as the error falls",
+                    self.evaluation.spp,
+                    evaluation * f64::from(max) / self.evaluation.spp.max(1.0)
                 ),
                 (spp, _) => format!("{spp} spp"),
             };
