@@ -83,7 +83,8 @@ const AUTO_NOISE_SHARE: f64 = 0.1;
 /// needs while the error is large.
 const AUTO_FIRST_SPP: u32 = 16;
 /// What an "auto" evaluation may spend: at most this many samples per pixel, and this many paths
-/// over all held-out pixels (about 80 s on 2 cores for the worked example's 16 views of 96²).
+/// over all held-out pixels (about 80 s on 2 cores for the worked example's 16 views of 96²), but
+/// never fewer than 2 spp.
 const AUTO_MAX_SPP: u32 = 4096;
 const AUTO_MAX_PATHS: u64 = 1 << 28;
 
@@ -174,9 +175,10 @@ pub fn spp_range(problem: &Problem) -> (u32, u32) {
     match problem.settings.eval_spp {
         EvalSpp::Fixed(spp) => (spp, spp),
         EvalSpp::Auto => {
+            // At least one sample per half, to measure the noise, however many the pixels.
             let affordable = (AUTO_MAX_PATHS / heldout_pixels(problem).max(1))
-                .min(u64::from(AUTO_MAX_SPP)) as u32;
-            (AUTO_FIRST_SPP, affordable.max(AUTO_FIRST_SPP))
+                .clamp(2, u64::from(AUTO_MAX_SPP)) as u32;
+            (AUTO_FIRST_SPP.min(affordable), affordable)
         }
     }
 }

@@ -362,8 +362,20 @@ impl<'a> Run<'a> {
     /// the defaults assume says so in its first seconds, not after its budget.
     fn say_costs(&self, seconds: f64) {
         if !self.bar.is_hidden() {
-            let evaluations = self.log.iter().filter(|r| r.psnr.is_some()).count().max(1);
-            let evaluation = self.position.evaluation_seconds / evaluations as f64;
+            // Every evaluation so far (a resumed run's too) and the spp each took: an
+            // evaluation's time is about proportional to its spp, which tells what "auto" may
+            // come to.
+            let spps: Vec<f64> = self.log.iter().filter_map(|r| r.heldout_spp).collect();
+            let evaluation_seconds = self.position.evaluation_seconds;
+            let evaluation = evaluation_seconds / spps.len().max(1) as f64;
+            let spp = match spp_range(self.problem) {
+                (first, max) if first < max => format!(
+                    "{:.0} spp; \"auto\" takes up to {max}, about {:.0} s, as the error falls",
+                    spps.last().copied().unwrap_or(0.0),
+                    evaluation_seconds * f64::from(max) / spps.iter().sum::<f64>().max(1.0)
+                ),
+                (spp, _) => format!("{spp} spp"),
+            };
             let total = match &self.stop {
                 Stop::Budget(budget) => format!(
                     ": about {:.0} iterations in the budget",
@@ -374,15 +386,6 @@ impl<'a> Run<'a> {
                     seconds * *n as f64
                 ),
                 Stop::Replay(_) => String::new(),
-            };
-            // An evaluation's time is about proportional to its spp: what "auto" may come to.
-            let spp = match spp_range(self.problem) {
-                (first, max) if first < max => format!(
-                    "{:.0} spp; \"auto\" takes up to {max}, about {:.0} s, as the error falls",
-                    self.evaluation.spp,
-                    evaluation * f64::from(max) / self.evaluation.spp.max(1.0)
-                ),
-                (spp, _) => format!("{spp} spp"),
             };
             self.bar.println(format!(
                 "one iteration took {seconds:.2} s and one evaluation {evaluation:.2} s ({spp}; every {} iterations){total}",
