@@ -206,6 +206,14 @@ fn bad_run_files_name_the_key() {
             vec!["smooth_gradient"],
         ),
         (
+            good.replace("first_level_smoothing = 0", "first_level_smoothing = 9"),
+            vec!["optimizer.first_level_smoothing", "at most 8"],
+        ),
+        (
+            good.replace("first_level_smoothing = 0", "first_level_smoothing = -1"),
+            vec!["first_level_smoothing"],
+        ),
+        (
             good.replace("batch = 3", "batch = 3\nfit_scale = \"yes\""),
             vec!["fit_scale"],
         ),

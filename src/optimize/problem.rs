@@ -55,8 +55,9 @@ pub struct Settings {
     pub suffix_paths: u32,
     pub max_depth: u32,
     pub priors: Vec<Prior>,
-    /// Gradient smoothing at the finer levels (`smoothing::smooth`).
-    pub smooth_gradient: bool,
+    /// Gradient smoothing passes at the first level (`smoothing::smooth`), one more per
+    /// upsampling; `None`: no smoothing.
+    pub first_level_smoothing: Option<u32>,
     /// Fit the capture's exposure with the volume (`exposure`).
     pub fit_exposure: bool,
     /// The alpha loss's weight beside the colour's (0: colour only).
@@ -442,7 +443,7 @@ impl Settings {
             suffix_paths: o.suffix_paths,
             max_depth,
             priors: o.priors(units),
-            smooth_gradient: o.smooth_gradient,
+            first_level_smoothing: o.smooth_gradient.then_some(o.first_level_smoothing),
             fit_exposure: o.fit_exposure,
             alpha_weight: o.alpha_weight.unwrap_or(0.0),
             moments: file.unknown.moments,

@@ -4,7 +4,7 @@
 //! 2. builds the medium from θ over the domain's fixed bounds;
 //! 3. the images' gradient of a batch of views or pixels (`iteration`: primal renders, adjoint
 //!    images δ = ∂loss/∂pixel, the estimator's gradient passes, summed over the MPI ranks); plus
-//!    the priors' gradients; at the finer levels the gradient is smoothed (`smoothing`: a
+//!    the priors' gradients; the gradient is smoothed, more at the finer levels (`smoothing`: a
 //!    preconditioner);
 //! 4. one Adam step with θ ≥ 0 kept by projection; bricks that stay at 0 are dropped.
 //!
@@ -445,7 +445,9 @@ fn step(
         &exposures,
         (lo, hi),
     )?;
-    let passes = if s.smooth_gradient { level as u32 } else { 0 };
+    let passes = s
+        .first_level_smoothing
+        .map_or(0, |first| first + level as u32);
     let gradient = smooth(BrickGradient::from_voxels(images.voxels), passes, lo, hi);
     let level_voxels = problem.domain.voxel_count_at(level);
     let loss = images.loss + parameters.descend(adam, &gradient, &s.priors, level_voxels);
