@@ -139,7 +139,7 @@ pub const ALPHA_WEIGHT: f32 = 1.0;
 /// 33.9 to 34.6 dB and the worked example's by 0.2 dB; the quick ball, whose 12³ first level
 /// converges within its 150 steps, lost 0.5 dB and sets 0.
 pub const FIRST_LEVEL_SMOOTHING: u32 = 1;
-/// The most smoothing passes at the first level (each blurs by another 1/√2 voxel).
+/// The most smoothing passes at the first level (n passes blur by σ = √(n/2) voxels).
 pub const MAX_FIRST_LEVEL_SMOOTHING: u32 = 8;
 
 /// The most suffix paths per camera path (as `grad --suffix-paths`).
