@@ -203,12 +203,15 @@ fn primal_spp_sets_the_residuals_noise() {
 #[test]
 fn a_resumed_run_equals_the_uninterrupted_one_bit_for_bit() {
     // The global and brick scales on, so that their moments cross the checkpoint and the
-    // upsampling too; two priors, computed brick by brick in parallel.
+    // upsampling too; two priors, computed brick by brick in parallel; the average of θ from a
+    // quarter of the run on, so that it crosses the checkpoint (at iteration 4, averaging since 3)
+    // and starts afresh at the upsampling (at 6).
     // The run file says 5 iterations, the command line 12: a resumed run continues the stop
     // rule of the run it resumes (it once took the run file's and ended at 5).
     let run = run_file(
         "0.2",
         "spp = 2\nprimal_spp = 3\niterations = 5\nfit_scale = true\nfit_brick_scales = true\n\
+         average_from = 0.25\n\
          prior = [{ kind = \"tv\", weight = 0.01 }, { kind = \"log\", weight = 0.01, scale = 0.05 }]",
     )
     .replace("checkpoint_every = 50", "checkpoint_every = 4")
@@ -280,6 +283,8 @@ fn a_resumed_run_equals_the_uninterrupted_one_bit_for_bit() {
             .clone()
     };
     assert_eq!(meta("volgrad_iterations"), "12");
+    // Steps 6 to 11: the average began at step 3 and started afresh at the upsampling.
+    assert_eq!(meta("volgrad_averaged_steps"), "6");
     assert_eq!(meta("volgrad_estimator"), "joint");
     assert_eq!(meta("volgrad_primal_spp"), "3");
     assert!(meta("volgrad_heldout_psnr").parse::<f64>().unwrap() > 10.0);

@@ -214,6 +214,14 @@ fn bad_run_files_name_the_key() {
             vec!["first_level_smoothing"],
         ),
         (
+            good.replace("batch = 3", "batch = 3\naverage_from = 1.5"),
+            vec!["optimizer.average_from", "[0, 1]"],
+        ),
+        (
+            good.replace("batch = 3", "batch = 3\naverage_from = -0.1"),
+            vec!["optimizer.average_from", "[0, 1]"],
+        ),
+        (
             good.replace("batch = 3", "batch = 3\nfit_scale = \"yes\""),
             vec!["fit_scale"],
         ),

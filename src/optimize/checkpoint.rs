@@ -7,7 +7,8 @@
 //! (`Stop::to_text`), the counters and the global scale's (m, v), the number of fitted exposures
 //! (u32) and each one's x and (m, v) (f32 each), the log text, then the bricks in
 //! key order (origin as 3 × i32, then θ, m, v as 512 × f32 each, the brick's log-scale (m, v) as
-//! 2 × f32 and its idle steps as u32).
+//! 2 × f32 and its idle steps as u32), then the average: its steps (u32), its bricks' count (u64)
+//! and each brick in key order (origin as 3 × i32, θ̄ as 512 × f32).
 
 use std::io::{BufReader, Read, Write};
 use std::path::{Path, PathBuf};
@@ -19,13 +20,14 @@ use crate::io::bridge::MetaEntry;
 use crate::io::output::write_whole;
 use crate::io::vdb::{self, Grid};
 use crate::optimize::adam::ScalarMoments;
+use crate::optimize::average::Average;
 use crate::optimize::exposure::Exposure;
 use crate::optimize::parameters::Parameters;
 use crate::optimize::schedule::Stop;
 use crate::volume::brickmap::BRICK_VOXELS;
 use crate::volume::transform::IndexTransform;
 
-const MAGIC: &[u8] = b"volgrad optimizer state 9\n";
+const MAGIC: &[u8] = b"volgrad optimizer state 10\n";
 
 /// Where a run is, apart from θ and Adam's moments.
 #[derive(Debug, Clone, Default, PartialEq)]
@@ -104,19 +106,59 @@ pub fn write_state(
         let bricks = parameters.sorted_bricks();
         w.write_all(&(bricks.len() as u64).to_le_bytes())?;
         for (key, theta, m, v, scale, idle) in bricks {
-            for c in key.to_array() {
-                w.write_all(&c.to_le_bytes())?;
-            }
+            write_key(w, key)?;
             for values in [theta, m, v] {
-                for x in values {
-                    w.write_all(&x.to_le_bytes())?;
-                }
+                write_values(w, values)?;
             }
             write_moments(w, scale)?;
             w.write_all(&idle.to_le_bytes())?;
         }
+        let average = parameters.average.sorted();
+        w.write_all(&parameters.average.steps().to_le_bytes())?;
+        w.write_all(&(average.len() as u64).to_le_bytes())?;
+        for (key, values) in average {
+            write_key(w, key)?;
+            write_values(w, values)?;
+        }
         Ok(())
     })
+}
+
+fn write_key(w: &mut impl Write, key: IVec3) -> std::io::Result<()> {
+    key.to_array()
+        .iter()
+        .try_for_each(|c| w.write_all(&c.to_le_bytes()))
+}
+
+fn write_values(w: &mut impl Write, values: &[f32; BRICK_VOXELS]) -> std::io::Result<()> {
+    values
+        .iter()
+        .try_for_each(|x| w.write_all(&x.to_le_bytes()))
+}
+
+/// A brick's origin and values (a non-finite value is an error).
+fn read_brick(r: &mut impl Read) -> Result<(IVec3, [f32; BRICK_VOXELS])> {
+    let key = read_key(r)?;
+    Ok((key, read_values(r)?))
+}
+
+fn read_key(r: &mut impl Read) -> Result<IVec3> {
+    let mut key = [0i32; 3];
+    for c in &mut key {
+        *c = i32::from_le_bytes(read_array(r)?);
+    }
+    Ok(IVec3::from_array(key))
+}
+
+fn read_values(r: &mut impl Read) -> Result<[f32; BRICK_VOXELS]> {
+    let mut values = [0f32; BRICK_VOXELS];
+    for x in values.iter_mut() {
+        *x = f32::from_le_bytes(read_array(r)?);
+    }
+    if values.iter().any(|x| !x.is_finite()) {
+        bail!("non-finite values");
+    }
+    Ok(values)
 }
 
 fn write_moments(w: &mut impl Write, moments: ScalarMoments) -> std::io::Result<()> {
@@ -198,26 +240,23 @@ pub fn read_state(path: &Path, fingerprint: &str) -> Result<(Position, Parameter
         }
         let mut p = Parameters::default();
         for _ in 0..count {
-            let mut key = [0i32; 3];
-            for c in &mut key {
-                *c = i32::from_le_bytes(read_array(&mut r)?);
-            }
-            let mut arrays = [[0f32; BRICK_VOXELS]; 3];
-            for values in &mut arrays {
-                for x in values.iter_mut() {
-                    *x = f32::from_le_bytes(read_array(&mut r)?);
-                }
-                if values.iter().any(|x| !x.is_finite()) {
-                    bail!("non-finite values");
-                }
-            }
-            let [theta, m, v] = arrays;
+            let (key, theta) = read_brick(&mut r)?;
+            let (m, v) = (read_values(&mut r)?, read_values(&mut r)?);
             let scale = read_moments(&mut r, "a brick's scale")?;
             let idle = u32::from_le_bytes(read_array(&mut r)?);
-            p.insert_brick(IVec3::from_array(key), theta, m, v, scale, idle);
+            p.insert_brick(key, theta, m, v, scale, idle);
         }
+        let average_steps = u32::from_le_bytes(read_array(&mut r)?);
+        let average_count = u64::from_le_bytes(read_array(&mut r)?);
+        if average_count.saturating_mul((12 + 4 * BRICK_VOXELS) as u64) > size {
+            bail!("{average_count} averaged bricks do not fit in {size} bytes");
+        }
+        let average = (0..average_count)
+            .map(|_| read_brick(&mut r))
+            .collect::<Result<Vec<_>>>()?;
         p.set_steps(steps, scale);
         p.exposures = exposures;
+        p.average = Average::restore(average_steps, average);
         let position = Position {
             iteration,
             level,
@@ -247,7 +286,8 @@ fn read_text(r: &mut impl Read, file_size: u64) -> Result<String> {
     Ok(String::from_utf8(bytes)?)
 }
 
-/// Writes θ as a fog-volume float grid named `name`, with `metadata`.
+/// Writes the run's result (θ, or its average once begun: `Parameters::result`) as a fog-volume
+/// float grid named `name`, with `metadata`.
 pub fn write_grid(
     path: &Path,
     parameters: &Parameters,
@@ -259,7 +299,7 @@ pub fn write_grid(
         name: name.to_string(),
         grid_class: "fog volume".into(),
         transform,
-        bricks: parameters.to_brickmap(),
+        bricks: parameters.result(),
         background: 0.0,
         saved_as_half: false,
         metadata,
@@ -292,6 +332,10 @@ mod tests {
             &BrickGradient::from_voxels(gradient),
             &BrickGradient::default(),
         );
+        // An average of two iterates (three bricks), the second with a brick the first lacks.
+        p.add_to_average();
+        p.set(IVec3::new(40, 0, 0), 0.75);
+        p.add_to_average();
         let position = Position {
             iteration: 42,
             level: 1,
@@ -343,6 +387,17 @@ mod tests {
                 .collect()
         };
         assert_eq!(bits(&q), bits(&p));
+        let average = |p: &Parameters| -> Vec<(IVec3, Vec<u32>)> {
+            let a = &p.average;
+            a.sorted()
+                .into_iter()
+                .map(|(k, v)| (k, v.iter().map(|x| x.to_bits()).collect()))
+                .chain([(IVec3::splat(a.steps() as i32), Vec::new())])
+                .collect()
+        };
+        assert_eq!(p.average.steps(), 2);
+        assert_eq!(p.average.sorted().len(), 3);
+        assert_eq!(average(&q), average(&p));
         assert_eq!(latest(dir.path()).unwrap(), path);
 
         let err = read_state(&path, "other").err().unwrap().to_string();

@@ -4,6 +4,7 @@
 //! the equal-time study of estimators. Uses `volume`, `io`, `render` and `gradient`.
 
 pub mod adam;
+pub mod average;
 pub mod brick_gradient;
 pub mod checkpoint;
 pub mod descent;

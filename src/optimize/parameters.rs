@@ -8,6 +8,7 @@ use anyhow::{bail, Result};
 use glam::IVec3;
 
 use crate::optimize::adam::ScalarMoments;
+use crate::optimize::average::Average;
 use crate::optimize::exposure::Exposure;
 use crate::volume::brickmap::{leaf_offset, BrickMap, Leaf, BRICK_VOXELS};
 use crate::volume::sparse_index::KeyMap;
@@ -73,6 +74,9 @@ pub struct Parameters {
     /// Each capture's exposure (`Problem::captures`), when they are fitted (`exposure`; none
     /// otherwise: every factor 1).
     pub exposures: Vec<Exposure>,
+    /// The mean of θ over the steps since the average began (`average`; none: not begun). A
+    /// level's parameters start without one: the mean starts afresh at every upsampling.
+    pub average: Average,
 }
 
 impl Parameters {
@@ -161,9 +165,26 @@ impl Parameters {
             .sum()
     }
 
-    /// Bytes of θ and the moments (what a checkpoint reports).
+    /// Bytes of θ, the moments and the average (what a checkpoint reports).
     pub fn memory_bytes(&self) -> usize {
-        self.bricks.len() * (std::mem::size_of::<ParameterBrick>() + std::mem::size_of::<IVec3>())
+        let brick = std::mem::size_of::<ParameterBrick>() + std::mem::size_of::<IVec3>();
+        self.bricks.len() * brick + self.average.memory_bytes()
+    }
+
+    /// Adds θ as it is now to the average.
+    pub fn add_to_average(&mut self) {
+        let mut average = std::mem::take(&mut self.average);
+        average.add(self);
+        self.average = average;
+    }
+
+    /// The run's result: the average once it has begun, θ before.
+    pub fn result(&self) -> BrickMap {
+        if self.average.steps() > 0 {
+            self.average.to_brickmap()
+        } else {
+            self.to_brickmap()
+        }
     }
 
     /// Drops the bricks whose θ is all 0 and for which `keep` is false.

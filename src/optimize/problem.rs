@@ -58,6 +58,8 @@ pub struct Settings {
     /// Gradient smoothing passes at the first level (`smoothing::smooth`), one more per
     /// upsampling; `None`: no smoothing.
     pub first_level_smoothing: Option<u32>,
+    /// The fraction of the run from which the result is the mean of θ (`average`).
+    pub average_from: f32,
     /// Fit the capture's exposure with the volume (`exposure`).
     pub fit_exposure: bool,
     /// The alpha loss's weight beside the colour's (0: colour only).
@@ -444,6 +446,7 @@ impl Settings {
             max_depth,
             priors: o.priors(units),
             first_level_smoothing: o.smooth_gradient.then_some(o.first_level_smoothing),
+            average_from: o.average_from,
             fit_exposure: o.fit_exposure,
             alpha_weight: o.alpha_weight.unwrap_or(0.0),
             moments: file.unknown.moments,

@@ -6,7 +6,8 @@
 //!    images δ = ∂loss/∂pixel, the estimator's gradient passes, summed over the MPI ranks); plus
 //!    the priors' gradients; the gradient is smoothed, more at the finer levels (`smoothing`: a
 //!    preconditioner);
-//! 4. one Adam step with θ ≥ 0 kept by projection; bricks that stay at 0 are dropped.
+//! 4. one Adam step with θ ≥ 0 kept by projection; bricks that stay at 0 are dropped;
+//! 5. from `average_from` on, θ joins the running mean that is the run's result (`average`).
 //!
 //! One rule sets what changes from level to level: a voxel of the next level is 1/8 of its
 //! parent, so the image's derivative with respect to it is about 1/8 of the parent's while its
@@ -173,7 +174,7 @@ impl<'a> Run<'a> {
 
     fn evaluate(&self) -> Evaluation {
         let level = self.position.level as usize;
-        let scene = self.problem.scene_at(self.parameters.to_brickmap(), level);
+        let scene = self.problem.scene_at(self.parameters.result(), level);
         let exposures = self.exposures();
         evaluate(
             self.problem,
@@ -232,6 +233,9 @@ impl<'a> Run<'a> {
             level,
             &adam,
         )?;
+        if fraction >= s.average_from {
+            self.parameters.add_to_average();
+        }
         self.position.iteration += 1;
         // The ranks agree on the time (the budget's fraction) and on an interruption: mpirun
         // forwards Ctrl-C to every rank, but they may see it in different iterations.
@@ -317,7 +321,8 @@ impl<'a> Run<'a> {
         write_progress_chart(out, &with_row)
     }
 
-    /// θ as a VDB at the current level's transform, with the run's metadata.
+    /// The result (`Parameters::result`) as a VDB at the current level's transform, with the
+    /// run's metadata.
     fn write_grid(&self, path: &Path) -> Result<()> {
         let level = self.position.level as usize;
         checkpoint::write_grid(
@@ -340,6 +345,11 @@ impl<'a> Run<'a> {
             meta("volgrad_primal_spp", "int64", s.primal_spp),
             meta("volgrad_seed", "int64", s.seed),
             meta("volgrad_level", "int64", position.level),
+            meta(
+                "volgrad_averaged_steps",
+                "int64",
+                self.parameters.average.steps(),
+            ),
         ];
         if !self.problem.holdouts.is_empty() && !self.evaluation.renders.is_empty() {
             m.push(meta("volgrad_heldout_psnr", "double", self.evaluation.psnr));

@@ -1,0 +1,122 @@
+//! The mean of θ over a run's last steps (Polyak–Ruppert averaging), which is what the run
+//! writes and evaluates once it has begun.
+//!
+//! A budget-bound run ends while Adam's steps still carry the gradient's Monte Carlo noise: θ
+//! wanders about the volume the views ask for by an amount the learning rate sets. The mean of
+//! the iterates since `average_from` keeps the progress the steps made and averages most of that
+//! wander away, without slowing the steps themselves as a lower learning rate would. The mean
+//! starts afresh at every upsampling (the coarser iterates lack the new level's detail), so it
+//! covers the steps since `average_from` or since the last upsampling, whichever came later.
+//!
+//! θ̄_n = θ̄_{n−1} + (θ_n − θ̄_{n−1}) / n, voxel by voxel, where a voxel without a brick counts as
+//! θ = 0 (so a brick dropped or created during the average is averaged right).
+
+use glam::IVec3;
+use rayon::prelude::*;
+
+use crate::optimize::parameters::Parameters;
+use crate::volume::brickmap::{BrickMap, Leaf, BRICK_VOXELS};
+use crate::volume::sparse_index::KeyMap;
+
+/// The running mean θ̄ of θ over `steps` steps, sparse by brick as θ is.
+#[derive(Clone, Default)]
+pub struct Average {
+    steps: u32,
+    bricks: KeyMap<Box<[f32; BRICK_VOXELS]>>,
+}
+
+impl Average {
+    /// Steps averaged so far (0: the average has not begun).
+    pub fn steps(&self) -> u32 {
+        self.steps
+    }
+
+    /// Adds θ as the next iterate.
+    pub fn add(&mut self, parameters: &Parameters) {
+        self.steps += 1;
+        let n = self.steps as f32;
+        for key in parameters.brick_keys() {
+            self.bricks
+                .entry(key)
+                .or_insert_with(|| Box::new([0.0; BRICK_VOXELS]));
+        }
+        // Each brick's update reads only its own θ: in parallel, with the same result at any
+        // thread count.
+        self.bricks.par_iter_mut().for_each(|(key, mean)| {
+            let zero = [0.0; BRICK_VOXELS];
+            let theta = parameters.brick_theta(*key).unwrap_or(&zero);
+            for (m, &t) in mean.iter_mut().zip(theta) {
+                *m += (t - *m) / n;
+            }
+        });
+        self.bricks.retain(|_, mean| mean.iter().any(|&x| x > 0.0));
+    }
+
+    /// θ̄ as a brick map (every stored voxel active), as `Parameters::to_brickmap` gives θ.
+    pub fn to_brickmap(&self) -> BrickMap {
+        let leaves = self
+            .sorted()
+            .into_iter()
+            .map(|(key, values)| Leaf {
+                origin: key << 3,
+                values: *values,
+                active: [u64::MAX; BRICK_VOXELS / 64],
+            })
+            .collect();
+        BrickMap::new(leaves, Vec::new())
+    }
+
+    /// Every brick of θ̄ in key order: what a checkpoint stores.
+    pub fn sorted(&self) -> Vec<(IVec3, &[f32; BRICK_VOXELS])> {
+        let mut bricks: Vec<_> = self.bricks.iter().map(|(k, v)| (*k, &**v)).collect();
+        bricks.sort_by_key(|(k, _)| k.to_array());
+        bricks
+    }
+
+    /// An average as a checkpoint stored it.
+    pub fn restore(steps: u32, bricks: Vec<(IVec3, [f32; BRICK_VOXELS])>) -> Self {
+        Average {
+            steps,
+            bricks: bricks.into_iter().map(|(k, v)| (k, Box::new(v))).collect(),
+        }
+    }
+
+    /// Bytes of θ̄.
+    pub fn memory_bytes(&self) -> usize {
+        self.bricks.len()
+            * (std::mem::size_of::<[f32; BRICK_VOXELS]>() + std::mem::size_of::<IVec3>())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Three iterates: a voxel present throughout, one whose brick appears at the second step,
+    /// and one whose brick is gone at the third; the mean counts absent bricks as zeros.
+    #[test]
+    fn the_mean_counts_absent_bricks_as_zero() {
+        let (a, b, c) = (
+            IVec3::new(1, 2, 3),
+            IVec3::new(40, 0, 0),
+            IVec3::new(-9, 0, 0),
+        );
+        let mut average = Average::default();
+        let iterate = |values: &[(IVec3, f32)]| {
+            let mut p = Parameters::default();
+            for &(v, x) in values {
+                p.set(v, x);
+            }
+            p
+        };
+        average.add(&iterate(&[(a, 1.0), (c, 0.6)]));
+        average.add(&iterate(&[(a, 2.0), (b, 0.9), (c, 0.3)]));
+        average.add(&iterate(&[(a, 4.5), (b, 0.3)]));
+        let mean = average.to_brickmap();
+        assert_eq!(average.steps(), 3);
+        assert!((mean.voxel(a) - 2.5).abs() < 1e-6, "{}", mean.voxel(a));
+        assert!((mean.voxel(b) - 0.4).abs() < 1e-6, "{}", mean.voxel(b));
+        assert!((mean.voxel(c) - 0.3).abs() < 1e-6, "{}", mean.voxel(c));
+        assert_eq!(mean.voxel(IVec3::new(2, 2, 3)), 0.0);
+    }
+}
