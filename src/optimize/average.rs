@@ -14,8 +14,8 @@
 use glam::IVec3;
 use rayon::prelude::*;
 
-use crate::optimize::parameters::Parameters;
-use crate::volume::brickmap::{BrickMap, Leaf, BRICK_VOXELS};
+use crate::optimize::parameters::{brickmap_of, Parameters};
+use crate::volume::brickmap::{BrickMap, BRICK_VOXELS};
 use crate::volume::sparse_index::KeyMap;
 
 /// The running mean θ̄ of θ over `steps` steps, sparse by brick as θ is.
@@ -54,16 +54,7 @@ impl Average {
 
     /// θ̄ as a brick map (every stored voxel active), as `Parameters::to_brickmap` gives θ.
     pub fn to_brickmap(&self) -> BrickMap {
-        let leaves = self
-            .sorted()
-            .into_iter()
-            .map(|(key, values)| Leaf {
-                origin: key << 3,
-                values: *values,
-                active: [u64::MAX; BRICK_VOXELS / 64],
-            })
-            .collect();
-        BrickMap::new(leaves, Vec::new())
+        brickmap_of(self.sorted().into_iter())
     }
 
     /// Every brick of θ̄ in key order: what a checkpoint stores.
@@ -73,11 +64,14 @@ impl Average {
         bricks
     }
 
-    /// An average as a checkpoint stored it.
+    /// An average as a checkpoint stored it (clamped to ≥ 0, as restored θ is: a mean of θ ≥ 0).
     pub fn restore(steps: u32, bricks: Vec<(IVec3, [f32; BRICK_VOXELS])>) -> Self {
+        let clamped = bricks
+            .into_iter()
+            .map(|(k, v)| (k, Box::new(v.map(|x| x.max(0.0)))));
         Average {
             steps,
-            bricks: bricks.into_iter().map(|(k, v)| (k, Box::new(v))).collect(),
+            bricks: clamped.collect(),
         }
     }
 

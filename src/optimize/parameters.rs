@@ -63,6 +63,21 @@ pub(crate) fn local_of(i: usize) -> IVec3 {
     IVec3::new((i >> 6) as i32, ((i >> 3) & 7) as i32, (i & 7) as i32)
 }
 
+/// Bricks of values, given in key order, as a brick map whose every stored voxel is active (each
+/// brick a leaf as it is, same voxel order).
+pub(super) fn brickmap_of<'a>(
+    bricks: impl Iterator<Item = (IVec3, &'a [f32; BRICK_VOXELS])>,
+) -> BrickMap {
+    let leaves = bricks
+        .map(|(key, values)| Leaf {
+            origin: key << 3,
+            values: *values,
+            active: [u64::MAX; BRICK_VOXELS / 64],
+        })
+        .collect();
+    BrickMap::new(leaves, Vec::new())
+}
+
 /// The grid's values θ and Adam's state, sparse by brick (keyed by brick coordinate, voxel >> 3).
 #[derive(Clone, Default)]
 pub struct Parameters {
@@ -242,16 +257,8 @@ impl Parameters {
     /// θ as a brick map (every stored voxel active), e.g. to render or to write as a VDB: each
     /// brick becomes a leaf as it is (same voxel order), in key order.
     pub fn to_brickmap(&self) -> BrickMap {
-        let leaves = self
-            .sorted_keys()
-            .into_iter()
-            .map(|key| Leaf {
-                origin: key << 3,
-                values: self.bricks[&key].theta,
-                active: [u64::MAX; BRICK_VOXELS / 64],
-            })
-            .collect();
-        BrickMap::new(leaves, Vec::new())
+        let keys = self.sorted_keys();
+        brickmap_of(keys.iter().map(|key| (*key, &self.bricks[key].theta)))
     }
 
     /// Every brick as (key, θ, m, v), in key order: what a checkpoint stores.
