@@ -183,7 +183,13 @@ impl HotSpots {
             };
             t1 <= t0 || (in_cell && apart)
         };
-        let piece = |t0: f32, t1: f32, sigma_max: f32| MajorantSegment { t0, t1, sigma_max };
+        // Every piece bounds voxels: beside the hot box the rest is the max of the other voxels.
+        let piece = |t0: f32, t1: f32, sigma_max: f32| MajorantSegment {
+            t0,
+            t1,
+            sigma_max,
+            bounds_voxels: seg.bounds_voxels,
+        };
         let (before, after) = (beside(seg.t0, ta), beside(tb, seg.t1));
         if !before && !after {
             return None;

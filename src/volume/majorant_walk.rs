@@ -93,6 +93,7 @@ impl Iterator for FlatWalk<'_> {
             t0: self.t,
             t1,
             sigma_max: self.cells[cell_offset(dda.cell, self.dims)],
+            bounds_voxels: true,
         };
         self.t = t1;
         dda.advance(a);
@@ -235,6 +236,7 @@ impl Iterator for DdaWalk<'_> {
                     t0: self.t,
                     t1,
                     sigma_max,
+                    bounds_voxels: true,
                 };
                 self.t = t1;
                 inner.dda.advance(a);
@@ -266,6 +268,7 @@ impl Iterator for DdaWalk<'_> {
                         t0: self.t,
                         t1: exit,
                         sigma_max: block.floor,
+                        bounds_voxels: true,
                     };
                     self.t = exit;
                     return Some(segment);
@@ -384,7 +387,8 @@ mod tests {
             vec![MajorantSegment {
                 t0: 0.0,
                 t1: 28.0,
-                sigma_max: 3.5
+                sigma_max: 3.5,
+                bounds_voxels: true,
             }]
         );
     }
