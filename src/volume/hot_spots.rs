@@ -183,13 +183,7 @@ impl HotSpots {
             };
             t1 <= t0 || (in_cell && apart)
         };
-        // Every piece bounds voxels: beside the hot box the rest is the max of the other voxels.
-        let piece = |t0: f32, t1: f32, sigma_max: f32| MajorantSegment {
-            t0,
-            t1,
-            sigma_max,
-            bounds_voxels: seg.bounds_voxels,
-        };
+        let piece = |t0: f32, t1: f32, sigma_max: f32| MajorantSegment { t0, t1, sigma_max };
         let (before, after) = (beside(seg.t0, ta), beside(tb, seg.t1));
         if !before && !after {
             return None;

@@ -93,7 +93,6 @@ impl Iterator for FlatWalk<'_> {
             t0: self.t,
             t1,
             sigma_max: self.cells[cell_offset(dda.cell, self.dims)],
-            bounds_voxels: true,
         };
         self.t = t1;
         dda.advance(a);
@@ -236,7 +235,6 @@ impl Iterator for DdaWalk<'_> {
                     t0: self.t,
                     t1,
                     sigma_max,
-                    bounds_voxels: true,
                 };
                 self.t = t1;
                 inner.dda.advance(a);
@@ -268,7 +266,6 @@ impl Iterator for DdaWalk<'_> {
                         t0: self.t,
                         t1: exit,
                         sigma_max: block.floor,
-                        bounds_voxels: true,
                     };
                     self.t = exit;
                     return Some(segment);
@@ -387,8 +384,7 @@ mod tests {
             vec![MajorantSegment {
                 t0: 0.0,
                 t1: 28.0,
-                sigma_max: 3.5,
-                bounds_voxels: true,
+                sigma_max: 3.5
             }]
         );
     }

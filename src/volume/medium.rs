@@ -3,10 +3,10 @@
 //! of its own (`albedo`), the phase function constant over the medium; it may emit (`emission`:
 //! σa·Le from a grid of its own).
 
-use glam::{IVec3, Vec3};
+use glam::Vec3;
 
 use crate::volume::albedo::Albedo;
-use crate::volume::brickmap::{floor_ivec3, BrickMap};
+use crate::volume::brickmap::BrickMap;
 use crate::volume::emission::Emission;
 use crate::volume::majorant::{Majorant, MajorantGrid};
 use crate::volume::transform::IndexTransform;
@@ -81,33 +81,6 @@ impl Medium {
             }
     }
 
-    /// An unbiased estimate of σt(p) from one voxel (stochastic trilinear filtering). Along each
-    /// axis the upper voxel is read with probability f, its trilinear weight, so the cell's voxel
-    /// k is read with probability w_k(p) and E[σ̂] = Σ_k w_k·σ_k = σt(p). Trackers use σt only
-    /// linearly (an acceptance probability σt/σ̄, a ratio factor 1 − σt/σ̄), so an estimate with
-    /// randomness of its own keeps their expectation; a read may reach any of the eight voxels,
-    /// so σ̄ must bound the voxels, not only the interpolated field.
-    ///
-    /// `bits` are 64 uniform random bits: three 21-bit uniforms u in [0, 1). u < f is never true
-    /// at f = 0, so a point on a cell face never reads beyond it.
-    #[inline(always)]
-    pub fn sigma_t_one_voxel(&self, p: Vec3, bits: u64) -> f32 {
-        match self.filter {
-            Filter::Nearest => self.sigma_t(p),
-            Filter::Trilinear => {
-                let v0 = floor_ivec3(p);
-                let f = p - v0.as_vec3();
-                let u = |shift: u32| ((bits >> shift) & 0x1f_ffff) as f32 * (1.0 / 2_097_152.0);
-                let upper = IVec3::new(
-                    (u(0) < f.x) as i32,
-                    (u(21) < f.y) as i32,
-                    (u(42) < f.z) as i32,
-                );
-                self.density_scale * self.grid.voxel(v0 + upper)
-            }
-        }
-    }
-
     /// The world ray `o + t·ω` (unit ω) in index space.
     #[inline]
     pub fn to_index_ray(&self, o: Vec3, w: Vec3) -> IndexRay {
@@ -144,63 +117,5 @@ impl Medium {
     /// Bytes held by the medium's data structures.
     pub fn memory_bytes(&self) -> usize {
         self.grid.memory_bytes() + self.majorant.memory_bytes()
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-    use crate::volume::brickmap::corner;
-    use crate::volume::transform::IndexTransform;
-    use glam::DVec3;
-    use rand::{Rng, RngCore, SeedableRng};
-
-    /// A one-voxel read picks each voxel of the cell with its trilinear weight: over 20 random
-    /// points (some on cell faces, where the upper voxels' weight is 0 and they must never be
-    /// read, one straddling bricks), each voxel's frequency in 40,000 reads is within 5 standard
-    /// errors of its weight. Reading the nearest voxel, or the lower corner, fails at once.
-    #[test]
-    fn a_one_voxel_read_picks_each_voxel_with_its_trilinear_weight() {
-        // Every voxel holds its own id, so a read says which voxel it was.
-        let id = |v: IVec3| (v.x * 256 + v.y * 16 + v.z) as f32;
-        let medium = Medium::new(
-            BrickMap::block(16, id),
-            IndexTransform::uniform(1.0, DVec3::ZERO),
-            1.0,
-            Filter::Trilinear,
-            Majorant::grid(4),
-        );
-        let mut rng = rand::rngs::SmallRng::seed_from_u64(11);
-        let n = 40_000;
-        for k in 0..20 {
-            let mut p = Vec3::new(rng.gen(), rng.gen(), rng.gen()) * 13.0 + 1.0;
-            match k {
-                0 => p = Vec3::new(7.3, 7.6, 7.05), // straddles the bricks of 8³
-                1 => p.y = p.y.floor(),             // on a face
-                2 => p = p.floor(),                 // on a voxel centre
-                _ => {}
-            }
-            let v0 = floor_ivec3(p);
-            let f = p - v0.as_vec3();
-            let mut counts = [0u32; 8];
-            for _ in 0..n {
-                let read = medium.sigma_t_one_voxel(p, rng.next_u64());
-                let c = (0..8)
-                    .find(|&c| id(v0 + corner(c)) == read)
-                    .unwrap_or_else(|| panic!("{p}: read {read} is not a voxel of the cell"));
-                counts[c] += 1;
-            }
-            for (c, &count) in counts.iter().enumerate() {
-                let w: f32 = (0..3)
-                    .map(|a| if corner(c)[a] == 1 { f[a] } else { 1.0 - f[a] })
-                    .product();
-                let (w, freq) = (w as f64, count as f64 / n as f64);
-                let se = (w * (1.0 - w) / n as f64).sqrt();
-                assert!(
-                    (freq - w).abs() <= 5.0 * se + 1e-9,
-                    "{p}, corner {c}: read {freq:.4} of the time, weight {w:.4}"
-                );
-            }
-        }
     }
 }

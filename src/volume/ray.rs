@@ -51,11 +51,6 @@ pub struct MajorantSegment {
     pub t0: f32,
     pub t1: f32,
     pub sigma_max: f32,
-    /// Whether `sigma_max` bounds every voxel a trilinear lookup on the segment reads, not only
-    /// the values it interpolates: the cells' bounds do (the max over their apron of voxels), a
-    /// stretch refined to the field's exact maximum (`refine`) need not. Only where it does may a
-    /// tracker read one voxel instead of eight (`Medium::sigma_t_one_voxel`).
-    pub bounds_voxels: bool,
 }
 
 /// Majorant optical depth above which a stretch is worth refining (a walk through it takes about

@@ -79,7 +79,6 @@ impl<'a, I> Refine<'a, I> {
             t0: 0.0,
             t1: 0.0,
             sigma_max: 0.0,
-            bounds_voxels: true,
         };
         Refine {
             inner,
@@ -193,15 +192,10 @@ impl<'a, I> Refine<'a, I> {
         if !pays(near) && !pays(far) && seg.sigma_max * (seg.t1 - seg.t0) <= KEEP_SPLITTING_DEPTH {
             return None;
         }
-        // A bound below the parent's is the field's exact maximum, which a voxel can exceed.
-        let half = |t0: f32, t1: f32, bound: Option<f32>| {
-            let sigma_max = bound.map_or(seg.sigma_max, |b| b.min(seg.sigma_max));
-            MajorantSegment {
-                t0,
-                t1,
-                sigma_max,
-                bounds_voxels: seg.bounds_voxels && sigma_max == seg.sigma_max,
-            }
+        let half = |t0: f32, t1: f32, bound: Option<f32>| MajorantSegment {
+            t0,
+            t1,
+            sigma_max: bound.map_or(seg.sigma_max, |b| b.min(seg.sigma_max)),
         };
         Some([half(seg.t0, mid, near), half(mid, seg.t1, far)])
     }
@@ -257,26 +251,9 @@ mod tests {
     use glam::DVec3;
     use rand::{Rng, SeedableRng};
 
-    /// The largest σt a tracker's lookup at `p` on segment `s` can return: the field where `s`
-    /// bounds only the field; where it bounds voxels, any voxel a one-voxel read may pick (those
-    /// of the cell with a weight above 0).
-    pub(super) fn largest_read(medium: &Medium, p: Vec3, s: &MajorantSegment) -> f32 {
-        if !s.bounds_voxels || medium.filter == Filter::Nearest {
-            return medium.sigma_t(p);
-        }
-        let v0 = floor_ivec3(p);
-        let f = p - v0.as_vec3();
-        (0..8)
-            .map(crate::volume::brickmap::corner)
-            .filter(|c| (0..3).all(|a| c[a] == 0 || f[a] > 0.0))
-            .map(|c| medium.density_scale * medium.grid.voxel(v0 + c))
-            .fold(0.0, f32::max)
-    }
-
     /// Along random rays through a block with one voxel 10⁶ times its neighbours, the refined
-    /// segments tile the ray in order, bound every lookup (both filters; the voxels a one-voxel
-    /// read may pick where they say they bound voxels), and cut the majorant optical depth of
-    /// rays that pass beside the hot voxel by orders of magnitude.
+    /// segments tile the ray in order, bound every lookup (both filters), and cut the majorant
+    /// optical depth of rays that pass beside the hot voxel by orders of magnitude.
     #[test]
     fn refined_segments_are_ordered_majorants_and_much_tighter() {
         let hot = IVec3::splat(6);
@@ -297,7 +274,6 @@ mod tests {
                 Majorant::grid(4),
             );
             let (mut coarse_depth, mut refined_depth) = (0.0f64, 0.0f64);
-            let mut field_bounds = 0;
             for _ in 0..300 {
                 let o = Vec3::new(rng.gen(), rng.gen(), rng.gen()) * 11.0;
                 let d = (Vec3::new(rng.gen(), rng.gen(), rng.gen()) - 0.5).normalize();
@@ -320,10 +296,9 @@ mod tests {
                     );
                     assert!(s.t1 >= s.t0);
                     t = s.t1;
-                    field_bounds += !s.bounds_voxels as usize;
                     for k in 0..8 {
                         let u = s.t0 + (s.t1 - s.t0) * (k as f32 + 0.5) / 8.0;
-                        let sigma = largest_read(&medium, ray.at(u), s);
+                        let sigma = medium.sigma_t(ray.at(u));
                         assert!(
                             sigma <= s.sigma_max * (1.0 + 1e-5),
                             "{filter}: σt {sigma} > {s:?}"
@@ -345,10 +320,6 @@ mod tests {
             assert!(
                 refined_depth < 1e-2 * coarse_depth,
                 "{filter}: refined {refined_depth:.3e} vs coarse {coarse_depth:.3e}"
-            );
-            assert!(
-                field_bounds > 50,
-                "{filter}: {field_bounds} pieces bound the field only"
             );
         }
     }
@@ -382,7 +353,6 @@ mod tests {
             t0,
             t1,
             sigma_max: 2.0,
-            bounds_voxels: true,
         };
         let refined: Vec<_> = Refine::new(std::iter::once(whole), &medium, &ray).collect();
         // Splitting goes on while a stretch would cost more than KEEP_SPLITTING_DEPTH tentative
@@ -403,7 +373,6 @@ mod tests {
 /// modules above `hot_spots` that build the grid, the medium and the walk.
 #[cfg(test)]
 mod hot_spot_tests {
-    use super::tests::largest_read;
     use super::*;
     use crate::volume::brickmap::BrickMap;
     use crate::volume::majorant::Majorant;
@@ -419,9 +388,8 @@ mod hot_spot_tests {
     }
 
     /// Along random rays through a block with a hot voxel and a hot 2³ cluster, the pieces a hot
-    /// cell's stretch is cut into tile it in order, bound every lookup on them (every voxel a
-    /// one-voxel read may pick), and beside the hot voxels fall to the rest of the cell (both
-    /// filters).
+    /// cell's stretch is cut into tile it in order, bound every lookup on them, and beside the
+    /// hot voxels fall to the rest of the cell (both filters).
     #[test]
     fn pieces_tile_the_stretch_and_bound_every_lookup() {
         let hot = |v: IVec3| {
@@ -465,8 +433,7 @@ mod hot_spot_tests {
                         beside += (p.sigma_max < 1e-3 * seg.sigma_max) as usize;
                         for k in 0..=64 {
                             let t = p.t0 + (p.t1 - p.t0) * k as f32 / 64.0;
-                            assert!(p.bounds_voxels, "{p:?}");
-                            let sigma = largest_read(&medium, ray.at(t.min(p.t1)), &p);
+                            let sigma = medium.sigma_t(ray.at(t.min(p.t1)));
                             assert!(
                                 sigma <= p.sigma_max * (1.0 + 1e-5),
                                 "{filter}: σ {sigma} > σ̄ {} at t {t} in {p:?} of {seg:?}",

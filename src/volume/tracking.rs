@@ -5,7 +5,6 @@
 //! Neither tracker evaluates `exp`: transmittance comes out of products of `1 − σt/σ̄` ∈ [0, 1], so
 //! an optical depth far beyond 87 gives an exact 0, never a NaN.
 
-use glam::Vec3;
 use rand::Rng;
 
 use crate::volume::majorant_walk::Walk;
@@ -43,8 +42,8 @@ fn exponential(rng: &mut impl Rng) -> f32 {
 /// Walks the tentative collisions on `[t0, t1)`: a Poisson process whose rate is each majorant
 /// cell's σ̄. One Exp(1) optical-depth budget is drawn per tentative collision and spent across
 /// cells (σ̄·Δt per cell), so crossing a cell costs a multiply, not a logarithm; cells with σ̄ = 0
-/// are crossed for free. `visit(t, segment, rng)` sees every tentative collision in order, with the
-/// segment it lies on, and returns true to stop the walk there (its t is returned).
+/// are crossed for free. `visit(t, σ̄, rng)` sees every tentative collision in order and returns
+/// true to stop the walk there (its t is returned).
 #[inline(always)]
 fn walk_tentative<R: Rng>(
     medium: &Medium,
@@ -52,7 +51,7 @@ fn walk_tentative<R: Rng>(
     t0: f32,
     t1: f32,
     rng: &mut R,
-    visit: impl FnMut(f32, &MajorantSegment, &mut R) -> bool,
+    visit: impl FnMut(f32, f32, &mut R) -> bool,
 ) -> Option<f32> {
     // One dispatch per walk: each layout gets its own specialised loop. Loose cells are refined
     // along the ray (`volume::refine`) except in the global mode, the plain baseline.
@@ -72,7 +71,7 @@ fn walk_segments<R: Rng>(
     segments: impl Iterator<Item = MajorantSegment>,
     refine: Option<(&Medium, &IndexRay)>,
     rng: &mut R,
-    mut visit: impl FnMut(f32, &MajorantSegment, &mut R) -> bool,
+    mut visit: impl FnMut(f32, f32, &mut R) -> bool,
 ) -> Option<f32> {
     let mut budget = exponential(rng);
     for seg in segments {
@@ -103,7 +102,7 @@ fn cross<R: Rng>(
     seg: MajorantSegment,
     budget: &mut f32,
     rng: &mut R,
-    visit: &mut impl FnMut(f32, &MajorantSegment, &mut R) -> bool,
+    visit: &mut impl FnMut(f32, f32, &mut R) -> bool,
 ) -> Option<f32> {
     if seg.sigma_max <= 0.0 {
         return None;
@@ -120,23 +119,10 @@ fn cross<R: Rng>(
         // In absurdly dense media a step can fall below f32 resolution: moving by at least one
         // ulp keeps every walk finite.
         t = (t + reach).max(t.next_up());
-        if visit(t, &seg, rng) {
+        if visit(t, seg.sigma_max, rng) {
             return Some(t);
         }
         *budget = exponential(rng);
-    }
-}
-
-/// σt at a tentative collision, as the trackers below use it (linearly): one voxel's read where
-/// the segment's majorant bounds the voxels, the trilinear lookup where it bounds only the field.
-#[inline(always)]
-fn sigma_t_estimate(medium: &Medium, p: Vec3, seg: &MajorantSegment, rng: &mut impl Rng) -> f32 {
-    // Drawn either way, so that the random stream depends on neither the segment nor the filter.
-    let bits = rng.next_u64();
-    if seg.bounds_voxels {
-        medium.sigma_t_one_voxel(p, bits)
-    } else {
-        medium.sigma_t(p)
     }
 }
 
@@ -151,9 +137,9 @@ pub fn sample_collision(
     rng: &mut impl Rng,
     stats: &mut TrackingStats,
 ) -> Option<f32> {
-    let hit = walk_tentative(medium, ray, t0, t1, rng, |t, seg, rng| {
+    let hit = walk_tentative(medium, ray, t0, t1, rng, |t, sigma_max, rng| {
         stats.lookups += 1;
-        rng.gen::<f32>() * seg.sigma_max < sigma_t_estimate(medium, ray.at(t), seg, rng)
+        rng.gen::<f32>() * sigma_max < medium.sigma_t(ray.at(t))
     });
     stats.collisions += hit.is_some() as u64;
     hit
@@ -189,10 +175,9 @@ pub fn transmittance(
 ) -> f32 {
     stats.shadow_rays += 1;
     let mut tr = 1.0f32;
-    walk_tentative(medium, ray, t0, t1, rng, |t, seg, rng| {
+    walk_tentative(medium, ray, t0, t1, rng, |t, sigma_max, rng| {
         stats.shadow_lookups += 1;
-        let sigma = sigma_t_estimate(medium, ray.at(t), seg, rng);
-        !ratio_step(&mut tr, sigma, seg.sigma_max, rng)
+        !ratio_step(&mut tr, medium.sigma_t(ray.at(t)), sigma_max, rng)
     });
     tr
 }
@@ -223,14 +208,11 @@ pub fn sample_transmittance_distance(
             }
         }
     };
-    let stopped = walk_tentative(medium, ray, t0, t1, rng, |t, seg, rng| {
+    let stopped = walk_tentative(medium, ray, t0, t1, rng, |t, sigma_max, rng| {
         add(last, t, tr, rng.gen());
         last = t;
         stats.shadow_lookups += 1;
-        // The trilinear lookup, not one voxel: T̂ here weights DRT's gradient samples, whose
-        // variance one-voxel reads raised by 1.1–1.4× per unit time on the smoke
-        // (docs/speed.md).
-        !ratio_step(&mut tr, medium.sigma_t(ray.at(t)), seg.sigma_max, rng)
+        !ratio_step(&mut tr, medium.sigma_t(ray.at(t)), sigma_max, rng)
     });
     if stopped.is_none() {
         add(last, t1, tr, rng.gen());
