@@ -387,13 +387,10 @@ mod tests {
                 .collect()
         };
         assert_eq!(bits(&q), bits(&p));
-        let average = |p: &Parameters| -> Vec<(IVec3, Vec<u32>)> {
-            let a = &p.average;
-            a.sorted()
-                .into_iter()
-                .map(|(k, v)| (k, v.iter().map(|x| x.to_bits()).collect()))
-                .chain([(IVec3::splat(a.steps() as i32), Vec::new())])
-                .collect()
+        let average = |p: &Parameters| -> (u32, Vec<(IVec3, Vec<u32>)>) {
+            let bricks = p.average.sorted().into_iter();
+            let bits = bricks.map(|(k, v)| (k, v.iter().map(|x| x.to_bits()).collect()));
+            (p.average.steps(), bits.collect())
         };
         assert_eq!(p.average.steps(), 2);
         assert_eq!(p.average.sorted().len(), 3);
