@@ -270,7 +270,7 @@ fn an_infinite_adjoint_pixel_is_dropped_and_counted_not_spread() {
         let mut voxels: Vec<_> = run
             .gradient
             .voxels()
-            .filter(|(_, q)| q.to_bits() != 0)
+            .filter(|&(_, q)| q != 0.0)
             .map(|(v, q)| (v.to_array(), q.to_bits()))
             .collect();
         voxels.sort_unstable();
