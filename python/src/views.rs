@@ -10,9 +10,12 @@ use pyo3::exceptions::PyRuntimeWarning;
 use pyo3::prelude::*;
 use volgrad::gradient::adjoint::Estimator;
 use volgrad::gradient::grid::{GradientGrid, Quanta};
-use volgrad::gradient::passes::{gradient, gradient_grid_for, quantum_for, GradOptions, Parameter};
+use volgrad::gradient::passes::{
+    add_gradient_of, gradient_grid_for, quantum_for, GradOptions, Parameter,
+};
 use volgrad::render::camera::Camera as RustCamera;
 use volgrad::render::image::{self as image_loop, RenderOptions};
+use volgrad::render::pixel_set::PixelSet;
 use volgrad::render::scene::Scene as RustScene;
 use volgrad::volume::medium::Medium;
 
@@ -289,10 +292,11 @@ pub fn grad(
                 channel,
                 ..pass
             };
-            let run = gradient(scene, delta, &options);
-            total.add_grid(&run.gradient);
-            paths += run.stats.paths;
-            non_finite += run.stats.non_finite;
+            let every_pixel = PixelSet::All(camera.width * camera.height);
+            let (_, stats) =
+                add_gradient_of(scene, delta, &options, quantum, &every_pixel, &mut total);
+            paths += stats.paths;
+            non_finite += stats.non_finite;
         }
         planes.push(arrays::gradient_in(&total, quantum, place)?);
     }

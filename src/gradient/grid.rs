@@ -315,13 +315,6 @@ impl<T: Accumulator> GradientGrid<T> {
         true
     }
 
-    /// `self += other` (same extent) value by value: exact for quanta.
-    pub fn add_grid(&mut self, other: &GradientGrid<T>) {
-        for (origin, values) in other.blocks() {
-            self.add_block(origin, values);
-        }
-    }
-
     pub fn scale(&mut self, factor: f64) {
         let blocks = self.origins.len();
         for (c, chunk) in self.chunks.iter_mut().enumerate() {

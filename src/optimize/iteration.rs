@@ -26,7 +26,7 @@ use crate::gradient::adjoint::Estimator;
 use crate::gradient::grid::Quanta;
 use crate::gradient::objective::check_target;
 use crate::gradient::passes::{
-    gradient_grid_for, gradient_of, quantum_for, GradOptions, Measured, Parameter,
+    add_gradient_of, gradient_grid_for, quantum_for, GradOptions, Measured, Parameter,
 };
 use crate::io::images::RgbImage;
 use crate::optimize::problem::Problem;
@@ -114,7 +114,6 @@ pub fn images_gradient(
     let parameter = problem.unknown.parameter();
     let domain = (parameter != Parameter::Extinction).then_some(level_box);
     let mut pass = GradOptions {
-        quantum: Some(quantum),
         parameter,
         domain,
         ..GradOptions::new(estimator, s.spp, 0, s.max_depth)
@@ -128,13 +127,13 @@ pub fn images_gradient(
             seed: piece.seed,
             ..pass
         };
-        total.add_grid(&gradient_of(scene, delta, &options, &pixels).gradient);
+        add_gradient_of(scene, delta, &options, quantum, &pixels, &mut total);
         if let Some(alpha_delta) = alpha_delta {
             let options = GradOptions {
                 measured: Measured::Alpha,
                 ..options
             };
-            total.add_grid(&gradient_of(scene, alpha_delta, &options, &pixels).gradient);
+            add_gradient_of(scene, alpha_delta, &options, quantum, &pixels, &mut total);
         }
     }
     let (total, traffic) = sum_over_ranks(cluster, total);
