@@ -11,10 +11,14 @@ use common::*;
 use glam::{IVec3, Vec3};
 use volgrad::gradient::adjoint::{Estimator, Suffix};
 use volgrad::gradient::fd::{self, FdOptions};
-use volgrad::gradient::grid::GradientGrid;
+use volgrad::gradient::grid::{GradientGrid, Quanta};
 use volgrad::gradient::loss::Loss;
-use volgrad::gradient::passes::{derivative_image, gradient, GradOptions};
+use volgrad::gradient::passes::{
+    add_gradient_of, derivative_image, gradient, gradient_grid_for, gradient_of, quantum_for,
+    GradOptions,
+};
 use volgrad::gradient::runs::MeanAndError;
+use volgrad::render::pixel_set::PixelSet;
 use volgrad::render::scene::Scene;
 use volgrad::volume::majorant::Majorant;
 use volgrad::volume::medium::Filter;
@@ -398,4 +402,47 @@ fn adjoint_image_comes_from_a_primal_render_at_the_pass_settings() {
         .unwrap();
     assert!(err.to_string().contains("target is 2×2"), "{err}");
     assert!(adjoint_image(&scene, Loss::L1, None, &options).is_err());
+}
+
+#[test]
+fn passes_added_into_one_grid_sum_to_their_own_gradients() {
+    // An optimisation step adds its views' passes into one grid (`add_gradient_of`): voxel by
+    // voxel that must be exactly the sum of the passes' own gradients (quanta add up in any
+    // order), not the last pass's alone.
+    let scene = scene(Filter::Trilinear, true, 0.8);
+    let pixels = scene.camera.width * scene.camera.height;
+    let adjoints: Vec<Vec<Vec3>> = (0..2)
+        .map(|k| {
+            (0..pixels)
+                .map(|i| Vec3::new(1.0 + k as f32, (i % 7) as f32 * 0.1, -0.5))
+                .collect()
+        })
+        .collect();
+    let spp = 16;
+    let quantum = quantum_for(adjoints.iter().map(|a| &a[..]), spp);
+    let every_pixel = PixelSet::All(pixels);
+    let base = options(&scene, Estimator::Joint, spp, 0);
+    let mut shared = gradient_grid_for::<Quanta>(&scene, &base);
+    let mut separate = std::collections::BTreeMap::<[i32; 3], f64>::new();
+    for (k, adjoint) in adjoints.iter().enumerate() {
+        let pass = GradOptions {
+            quantum: Some(quantum),
+            seed: 5 + k as u64,
+            ..base
+        };
+        add_gradient_of(&scene, adjoint, &pass, quantum, &every_pixel, &mut shared);
+        for (v, q) in gradient_of(&scene, adjoint, &pass, &every_pixel)
+            .gradient
+            .voxels()
+        {
+            *separate.entry(v.to_array()).or_default() += q;
+        }
+    }
+    separate.retain(|_, q| *q != 0.0);
+    let shared: std::collections::BTreeMap<[i32; 3], f64> = (shared.voxels())
+        .filter(|(_, q)| *q != 0.0)
+        .map(|(v, q)| (v.to_array(), q))
+        .collect();
+    assert!(separate.len() > 20, "{} voxels", separate.len());
+    assert_eq!(shared, separate);
 }
