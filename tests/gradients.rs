@@ -14,8 +14,7 @@ use volgrad::gradient::fd::{self, FdOptions};
 use volgrad::gradient::grid::{GradientGrid, Quanta};
 use volgrad::gradient::loss::Loss;
 use volgrad::gradient::passes::{
-    add_gradient_of, derivative_image, gradient, gradient_grid_for, gradient_of, quantum_for,
-    GradOptions,
+    add_gradient_of, derivative_image, gradient, gradient_grid_for, quantum_for, GradOptions,
 };
 use volgrad::gradient::runs::MeanAndError;
 use volgrad::render::pixel_set::PixelSet;
@@ -426,15 +425,13 @@ fn passes_added_into_one_grid_sum_to_their_own_gradients() {
     let mut separate = std::collections::BTreeMap::<[i32; 3], f64>::new();
     for (k, adjoint) in adjoints.iter().enumerate() {
         let pass = GradOptions {
-            quantum: Some(quantum),
             seed: 5 + k as u64,
             ..base
         };
         add_gradient_of(&scene, adjoint, &pass, quantum, &every_pixel, &mut shared);
-        for (v, q) in gradient_of(&scene, adjoint, &pass, &every_pixel)
-            .gradient
-            .voxels()
-        {
+        let mut own = gradient_grid_for::<Quanta>(&scene, &pass);
+        add_gradient_of(&scene, adjoint, &pass, quantum, &every_pixel, &mut own);
+        for (v, q) in own.voxels() {
             *separate.entry(v.to_array()).or_default() += q;
         }
     }

@@ -274,7 +274,6 @@ pub fn grad(
     let quantum = quantum_for(deltas.iter().map(|d| &d[..]), sampling.spp);
     // `volgrad grad`'s defaults: per-path suffixes, radiance.
     let pass = GradOptions {
-        quantum: Some(quantum),
         parameter,
         domain: Some((place.origin, place.last())),
         ..GradOptions::new(estimator, sampling.spp, sampling.seed, sampling.max_depth)

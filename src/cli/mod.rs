@@ -114,7 +114,6 @@ impl AdjointArgs {
             seed: s.seed(scene),
             active_only: self.domain == Domain::Active,
             progress: !s.quiet,
-            quantum: None,
             parameter: self.parameter,
             channel: None,
             domain: None,

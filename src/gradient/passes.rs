@@ -33,9 +33,6 @@ pub struct GradOptions {
     /// Keep only the grid's active voxels (`--domain active`).
     pub active_only: bool,
     pub progress: bool,
-    /// The gradient's quantum (`GradientRun::quantum`); `None`: `quantum_for` this pass's δ.
-    /// Passes whose grids are added together as quanta share one.
-    pub quantum: Option<f64>,
     /// Which grid's values the gradient is with respect to.
     pub parameter: Parameter,
     /// One colour channel of a colour parameter (an RGB albedo grid's red, green or blue): the
@@ -89,7 +86,6 @@ impl GradOptions {
             seed,
             active_only: false,
             progress: false,
-            quantum: None,
             parameter: Parameter::Extinction,
             channel: None,
             domain: None,
@@ -457,7 +453,7 @@ pub fn gradient_of(
     options: &GradOptions,
     set: &PixelSet,
 ) -> GradientRun {
-    let quantum = (options.quantum).unwrap_or_else(|| quantum_for([adjoint], options.spp));
+    let quantum = quantum_for([adjoint], options.spp);
     let mut gradient = gradient_grid_for(scene, options);
     let (image, stats) = add_gradient_of(scene, adjoint, options, quantum, set, &mut gradient);
     GradientRun {
@@ -468,9 +464,10 @@ pub fn gradient_of(
     }
 }
 
-/// `gradient_of` in quanta of `quantum`, added into `gradient` (from `gradient_grid_for`): an
-/// optimisation step's passes, one per view, add into one grid instead of each filling one that is
-/// then merged (8 % of a step on the worked example). Returns the image and the counters.
+/// `gradient_of` in quanta of `quantum`, added into `gradient` (from `gradient_grid_for`): passes
+/// whose gradients add up (an optimisation step's views, Python's cameras) share one quantum and
+/// one grid instead of each filling one that is then merged (8 % of an optimisation step on the
+/// worked example). Returns the image and the counters.
 pub fn add_gradient_of(
     scene: &Scene,
     adjoint: &[Vec3],
