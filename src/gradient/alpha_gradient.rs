@@ -19,8 +19,9 @@ use crate::gradient::adjoint::{splat_d_sigma, GradientSink};
 use crate::render::scene::Scene;
 use crate::volume::tracking::{transmittance, TrackingStats};
 
-/// Uniform points per sample on the ray's segment (K): a splat is cheap beside the walk that
-/// estimates T̂, and one point on a long ray mostly lands in empty space.
+/// Uniform points per sample on the ray's segment (K): one point on a long ray mostly lands in
+/// empty space, but a splat is no cheaper than the walk that estimates T̂ (16 points made a step of
+/// the worked example 1.3× as long, `scenes/capture/README.md`).
 const POINTS_PER_RAY: u32 = 4;
 
 /// One sample of α along the ray `origin + t·dir` (unit `dir`), returned as a grey value, with

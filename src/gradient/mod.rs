@@ -8,6 +8,7 @@ pub mod emission_gradient;
 pub mod fd;
 pub mod gradcheck;
 pub mod grid;
+mod in_order;
 pub mod loss;
 pub mod objective;
 pub mod passes;

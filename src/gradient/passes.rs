@@ -1,8 +1,6 @@
 //! Gradient passes over the image: a loss's per-voxel gradient, d pixel / d ε for a box of voxels.
 
-use std::collections::BTreeMap;
 use std::sync::atomic::{AtomicU64, Ordering};
-use std::sync::Mutex;
 use std::time::Instant;
 
 use glam::{IVec3, Vec3};
@@ -14,6 +12,7 @@ use crate::gradient::adjoint::{
 };
 use crate::gradient::alpha_gradient::alpha_gradient_sample;
 use crate::gradient::grid::{Accumulator, GradientGrid, Quanta};
+use crate::gradient::in_order::InOrder;
 use crate::io::images::RgbImage;
 use crate::render::alpha::{alpha_sample, ALPHA_SEED_SALT};
 use crate::render::image::RenderStats;
@@ -250,13 +249,6 @@ fn unit_pixels(pixels: u64, spp: u32) -> u64 {
         .max(1)
 }
 
-/// The units finished so far and the next one `consume` is waiting for.
-struct InOrder<T, C> {
-    next: u64,
-    finished: BTreeMap<u64, T>,
-    consume: C,
-}
-
 /// Runs `per_pixel(acc, x, y, worker)` for every pixel in parallel, `spp` paths each, a unit of
 /// pixels at a time (`PATHS_PER_UNIT`), and hands each unit's accumulator to `consume` in unit
 /// order. Returns the pass's stats (paths, wall time, tracking counters, non-finite samples
@@ -265,7 +257,8 @@ struct InOrder<T, C> {
 /// Units are consumed in order whatever the thread count (a derivative image's pixels land in
 /// place either way; a gradient's quanta add up the same in any order). Units are started in
 /// order and consumed as soon as their predecessors are, so only about one accumulator per thread
-/// is alive at a time. `progress`: the progress bar's label, if one is shown.
+/// is alive at a time; one thread consumes while the others go on tracing (`InOrder`).
+/// `progress`: the progress bar's label, if one is shown.
 fn over_pixels<T: Send>(
     scene: &Scene,
     set: &PixelSet,
@@ -282,11 +275,7 @@ fn over_pixels<T: Send>(
     let units = pixels.div_ceil(unit_pixels);
     let bar = crate::io::progress::bar(progress.is_some(), pixels, progress.unwrap_or_default());
     let next_unit = AtomicU64::new(0);
-    let in_order = Mutex::new(InOrder {
-        next: 0,
-        finished: BTreeMap::new(),
-        consume,
-    });
+    let in_order = InOrder::new(consume);
     let threads = (rayon::current_num_threads() as u64).min(units);
     let workers: Vec<Worker> = (0..threads)
         .into_par_iter()
@@ -307,17 +296,12 @@ fn over_pixels<T: Send>(
                     per_pixel(&mut acc, p % w, p / w, &mut worker);
                 }
                 bar.inc(last - first);
-                let mut guard = in_order.lock().expect("no unit panicked");
-                let state = &mut *guard;
-                state.finished.insert(unit, acc);
-                while let Some(acc) = state.finished.remove(&state.next) {
-                    (state.consume)(acc);
-                    state.next += 1;
-                }
+                in_order.finish(unit, acc);
             }
             worker
         })
         .collect();
+    in_order.consume_rest();
     bar.finish_and_clear();
     let mut stats = RenderStats {
         paths: pixels * spp as u64,
