@@ -69,4 +69,20 @@ mod tests {
         }
         assert_eq!(seen, (0..1000).collect::<Vec<_>>());
     }
+
+    #[test]
+    fn a_unit_finished_while_another_thread_consumes_is_consumed_at_the_end() {
+        let mut seen = Vec::new();
+        {
+            let in_order = InOrder::new(|unit: u64| seen.push(unit));
+            in_order.finish(0, 0);
+            {
+                // Another thread holds the consumer: unit 1 must be left, not waited for.
+                let _busy = in_order.consumer.lock().unwrap();
+                in_order.finish(1, 1);
+            }
+            in_order.consume_rest();
+        }
+        assert_eq!(seen, [0, 1]);
+    }
 }
