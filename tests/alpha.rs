@@ -33,7 +33,7 @@ fn mean_alpha(scene: &Scene, spp: u32, seed: u64) -> f64 {
         progress: false,
     };
     let pixels = scene.camera.width * scene.camera.height;
-    let (image, _) = render_alpha_pixels(scene, &options, &PixelSet::All(pixels));
+    let image = render_alpha_pixels(scene, &options, &PixelSet::All(pixels)).image;
     let mean = image.mean();
     assert_eq!(mean.x, mean.z, "alpha is grey");
     mean.x as f64

@@ -24,6 +24,7 @@ use volgrad::gradient::adjoint::{AdjointOptions, Estimator, Suffix, DEFAULT_SUFF
 use volgrad::gradient::fd::{self, FdOptions};
 use volgrad::gradient::loss::Loss;
 use volgrad::gradient::passes::{GradOptions, Measured, Parameter};
+use volgrad::gradient::pixel_samples::PixelSamples;
 use volgrad::render::image::RenderStats;
 use volgrad::render::scene::Scene;
 
@@ -118,6 +119,7 @@ impl AdjointArgs {
             channel: None,
             domain: None,
             measured: Measured::Radiance,
+            samples: PixelSamples::Uniform,
         })
     }
 }

@@ -9,7 +9,7 @@ use glam::Vec3;
 use crate::cluster::Cluster;
 use crate::io::images::RgbImage;
 use crate::render::alpha::render_alpha_pixels;
-use crate::render::image::{render, render_pixels, RenderOptions, RenderStats};
+use crate::render::image::{render, render_pixels, PixelsRendered, RenderOptions, RenderStats};
 use crate::render::pixel_set::PixelSet;
 use crate::render::scene::Scene;
 
@@ -24,7 +24,8 @@ pub fn render_shared(
     }
     let pixels = scene.camera.width * scene.camera.height;
     let set = PixelSet::share(pixels, cluster.rank(), cluster.size());
-    let (mut image, mut stats) = render_pixels(scene, options, &set);
+    let rendered = render_pixels(scene, options, &set);
+    let (mut image, mut stats) = (rendered.image, rendered.stats);
     sum_image(cluster, &mut image);
     sum_stats(cluster, &mut stats);
     (image, stats)
@@ -34,7 +35,7 @@ pub fn render_shared(
 pub fn render_alpha_shared(cluster: &Cluster, scene: &Scene, options: &RenderOptions) -> RgbImage {
     let pixels = scene.camera.width * scene.camera.height;
     let set = PixelSet::share(pixels, cluster.rank(), cluster.size());
-    let mut image = render_alpha_pixels(scene, options, &set).0;
+    let mut image = render_alpha_pixels(scene, options, &set).image;
     sum_image(cluster, &mut image);
     image
 }
@@ -87,5 +88,22 @@ pub fn sum_pixels(cluster: &Cluster, image: &mut RgbImage, pixels: &[u32]) {
     cluster.sum_in_place(&mut flat);
     for (&p, v) in pixels.iter().zip(flat.chunks_exact(3)) {
         image.pixels[p as usize] = Vec3::from_slice(v);
+    }
+}
+
+/// The pixels `pixels` of a render summed over the ranks, in place: their values and their
+/// lookups per path (each non-zero on one rank, so exact as `sum_pixels`).
+pub fn sum_rendered_pixels(cluster: &Cluster, rendered: &mut PixelsRendered, pixels: &[u32]) {
+    if cluster.size() == 1 {
+        return;
+    }
+    let (image, lookups) = (&mut rendered.image.pixels, &mut rendered.lookups);
+    let mut flat: Vec<f32> = (pixels.iter())
+        .flat_map(|&p| image[p as usize].extend(lookups[p as usize]).to_array())
+        .collect();
+    cluster.sum_in_place(&mut flat);
+    for (&p, v) in pixels.iter().zip(flat.chunks_exact(4)) {
+        image[p as usize] = Vec3::from_slice(v);
+        lookups[p as usize] = v[3];
     }
 }

@@ -11,5 +11,7 @@ pub mod grid;
 mod in_order;
 pub mod loss;
 pub mod objective;
+pub mod options;
 pub mod passes;
+pub mod pixel_samples;
 pub mod runs;

@@ -7,14 +7,13 @@ use glam::{IVec3, Vec3};
 use rand::Rng;
 use rayon::prelude::*;
 
-use crate::gradient::adjoint::{
-    AdjointOptions, Estimator, GradientSink, Replay, Scratch, Suffix, DEFAULT_SUFFIX_PATHS,
-};
+use crate::gradient::adjoint::{GradientSink, Replay, Scratch};
 use crate::gradient::alpha_gradient::alpha_gradient_sample;
 use crate::gradient::grid::{Accumulator, GradientGrid, Quanta};
 use crate::gradient::in_order::InOrder;
+pub use crate::gradient::options::{GradOptions, Measured, Parameter};
 use crate::io::images::RgbImage;
-use crate::render::alpha::{alpha_sample, ALPHA_SEED_SALT};
+use crate::render::alpha::alpha_sample;
 use crate::render::image::RenderStats;
 use crate::render::interrupt;
 use crate::render::pixel_set::PixelSet;
@@ -23,75 +22,6 @@ use crate::render::scene::Scene;
 use crate::volume::albedo::{Albedo, AlbedoGrid};
 use crate::volume::brickmap::{corner, BrickMap};
 use crate::volume::tracking::TrackingStats;
-
-#[derive(Debug, Clone, Copy)]
-pub struct GradOptions {
-    pub adjoint: AdjointOptions,
-    pub spp: u32,
-    pub seed: u64,
-    /// Keep only the grid's active voxels (`--domain active`).
-    pub active_only: bool,
-    pub progress: bool,
-    /// Which grid's values the gradient is with respect to.
-    pub parameter: Parameter,
-    /// One colour channel of a colour parameter (an RGB albedo grid's red, green or blue): the
-    /// pass weights only that channel of the adjoint image, and its grid is that channel's.
-    pub channel: Option<usize>,
-    /// The voxels (inclusive index box) whose gradient is wanted, when they are not the grid's
-    /// own: an optimisation's unknown has a fixed domain, which its current bricks (none, for an
-    /// empty start) do not cover. `None`: every voxel the pass's lookups can weight.
-    pub domain: Option<(IVec3, IVec3)>,
-    /// What the adjoint image weights: the pixels' radiance, or their alpha.
-    pub measured: Measured,
-}
-
-/// The pixel values a pass differentiates.
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
-pub enum Measured {
-    /// The camera paths' radiance (the estimators' business).
-    #[default]
-    Radiance,
-    /// The camera rays' alpha, 1 − T (`render::alpha`, `alpha_gradient`): grey, its adjoint's
-    /// three channels add up.
-    Alpha,
-}
-
-/// The grid a gradient is taken with respect to.
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, clap::ValueEnum)]
-pub enum Parameter {
-    /// The density grid, through σt (the estimators' business).
-    #[default]
-    Extinction,
-    /// The emission grid's values, through Le (`emission_gradient`).
-    Emission,
-    /// The albedo grid's values (`albedo_gradient`), one colour channel per pass for an RGB grid.
-    Albedo,
-}
-
-crate::display_as_value_enum!(Parameter);
-
-impl GradOptions {
-    /// Per-path suffixes over every voxel of the domain, without a progress bar: what tests,
-    /// benchmarks and comparisons use.
-    pub fn new(estimator: Estimator, spp: u32, seed: u64, max_depth: u32) -> Self {
-        GradOptions {
-            adjoint: AdjointOptions {
-                estimator,
-                suffix: Suffix::PerPath,
-                suffix_paths: DEFAULT_SUFFIX_PATHS,
-                max_depth,
-            },
-            spp,
-            seed,
-            active_only: false,
-            progress: false,
-            parameter: Parameter::Extinction,
-            channel: None,
-            domain: None,
-            measured: Measured::Radiance,
-        }
-    }
-}
 
 /// The quantum of a gradient pass with adjoint images `deltas` at `spp`: the power of two just
 /// above the largest |δ| / spp, over 2³². A sample δ/spp · d_pixel is then at most 2³²·|d_pixel|
@@ -229,6 +159,8 @@ struct Worker {
     scratch: Scratch,
     /// Non-finite samples dropped (`RenderStats::non_finite`).
     non_finite: u64,
+    /// Paths traced.
+    paths: u64,
 }
 
 /// Paths per unit of work in a pass at most: a unit is a run of whole pixels in row-major order,
@@ -249,10 +181,10 @@ fn unit_pixels(pixels: u64, spp: u32) -> u64 {
         .max(1)
 }
 
-/// Runs `per_pixel(acc, x, y, worker)` for every pixel in parallel, `spp` paths each, a unit of
-/// pixels at a time (`PATHS_PER_UNIT`), and hands each unit's accumulator to `consume` in unit
-/// order. Returns the pass's stats (paths, wall time, tracking counters, non-finite samples
-/// dropped).
+/// Runs `per_pixel(acc, x, y, worker)` for every pixel in parallel, about `spp` paths each (the
+/// units' size; `per_pixel` traces the paths and counts them in `worker`), a unit of pixels at a
+/// time (`PATHS_PER_UNIT`), and hands each unit's accumulator to `consume` in unit order. Returns
+/// the pass's stats (paths, wall time, tracking counters, non-finite samples dropped).
 ///
 /// Units are consumed in order whatever the thread count (a derivative image's pixels land in
 /// place either way; a gradient's quanta add up the same in any order). Units are started in
@@ -304,10 +236,10 @@ fn over_pixels<T: Send>(
     in_order.consume_rest();
     bar.finish_and_clear();
     let mut stats = RenderStats {
-        paths: pixels * spp as u64,
         ..Default::default()
     };
     for worker in workers {
+        stats.paths += worker.paths;
         stats.tracking += worker.stats;
         stats.non_finite += worker.non_finite;
     }
@@ -333,14 +265,10 @@ impl GradientPass<'_> {
         sink: &mut impl GradientSink,
     ) -> Vec3 {
         let camera = &self.scene.camera;
-        let measured = self.options.measured;
-        let seed = match measured {
-            Measured::Radiance => self.options.seed,
-            Measured::Alpha => self.options.seed ^ ALPHA_SEED_SALT,
-        };
+        let seed = self.options.stream_seed();
         let mut rng = sample_rng(seed, (y * camera.width + x) as u64, sample, Pass::Adjoint);
         let dir = camera.direction(x as f32 + rng.gen::<f32>(), y as f32 + rng.gen::<f32>());
-        if measured == Measured::Alpha {
+        if self.options.measured == Measured::Alpha {
             // Alpha depends on the extinction alone: with respect to other grids its gradient is 0.
             let stats = &mut worker.stats;
             return match self.options.parameter {
@@ -468,8 +396,6 @@ pub fn add_gradient_of(
             .active_only
             .then_some(parameter_grid(scene, options.parameter, options.channel));
     let spp = options.spp;
-    // In f64: for a tiny δ, 1/quantum exceeds f32's range though δ/quantum does not.
-    let per_quantum = 1.0 / (spp as f64 * quantum);
     let channel_mask = match options.channel {
         Some(c) => Vec3::AXES[c],
         None => Vec3::ONE,
@@ -483,20 +409,25 @@ pub fn add_gradient_of(
         || (Vec::<Splat>::new(), Vec::<(u32, Vec3)>::new()),
         |(splats, pixels), x, y, worker| {
             let index = y * w + x;
+            let delta = adjoint[index as usize] * channel_mask;
+            let seed = options.stream_seed();
+            let (samples, divisor) = options.samples.draw(spp, delta, seed, index as u64);
             let mut sink = SplatSink {
                 splats,
-                weight: (adjoint[index as usize].as_dvec3() * per_quantum).as_vec3() * channel_mask,
+                // In f64: for a tiny δ, 1/quantum exceeds f32's range though δ/quantum does not.
+                weight: (delta.as_dvec3() * (1.0 / (divisor * quantum))).as_vec3(),
                 dropped: 0,
             };
             let mut sum = Vec3::ZERO;
-            for sample in 0..spp {
+            for sample in 0..samples {
                 let radiance = pass.sample(x, y, sample, worker, &mut sink);
                 if radiance.is_finite() {
                     sum += radiance;
                 }
             }
             worker.non_finite += sink.dropped;
-            pixels.push((index, sum / spp as f32));
+            worker.paths += samples as u64;
+            pixels.push((index, sum / samples.max(1) as f32));
         },
         |(splats, pixels)| {
             apply(gradient, &splats, active);
@@ -537,6 +468,7 @@ pub fn derivative_image(
                 pass.sample(x, y, sample, worker, &mut sink);
             }
             worker.non_finite += sink.dropped;
+            worker.paths += spp as u64;
             pixels.push((y * w + x, sink.sum / spp as f32));
         },
         |pixels| {

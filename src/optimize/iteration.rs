@@ -19,7 +19,7 @@ use glam::{IVec3, Vec3};
 use rand::seq::SliceRandom;
 use rand::{Rng, RngCore};
 
-use crate::cluster::images::{sum_image, sum_pixels};
+use crate::cluster::images::sum_rendered_pixels;
 use crate::cluster::sparse_sum::{sum_over_ranks, Traffic};
 use crate::cluster::Cluster;
 use crate::gradient::adjoint::Estimator;
@@ -28,10 +28,11 @@ use crate::gradient::objective::check_target;
 use crate::gradient::passes::{
     add_gradient_of, gradient_grid_for, quantum_for, GradOptions, Measured, Parameter,
 };
+use crate::gradient::pixel_samples::{path_cost, PixelSamples};
 use crate::io::images::RgbImage;
 use crate::optimize::problem::Problem;
 use crate::render::alpha::render_alpha_pixels;
-use crate::render::image::{render_pixels, RenderOptions};
+use crate::render::image::{render_pixels, PixelsRendered, RenderOptions};
 use crate::render::pixel_set::PixelSet;
 use crate::render::sampling::pixel_rng;
 use crate::render::scene::Scene;
@@ -66,10 +67,17 @@ impl Piece {
     fn pixels(&self, pixels: u32, cluster: &Cluster) -> PixelSet {
         match &self.drawn {
             None => PixelSet::share(pixels, cluster.rank(), cluster.size()),
-            Some(drawn) => {
-                let list: Vec<u32> = drawn.iter().map(|&(p, _)| p).collect();
-                PixelSet::share_of_list(&list, cluster.rank(), cluster.size())
+            Some(_) => {
+                PixelSet::share_of_list(&self.listed(pixels), cluster.rank(), cluster.size())
             }
+        }
+    }
+
+    /// Every pixel the piece traces, on all ranks together.
+    fn listed(&self, pixels: u32) -> Vec<u32> {
+        match &self.drawn {
+            None => (0..pixels).collect(),
+            Some(drawn) => drawn.iter().map(|&(p, _)| p).collect(),
         }
     }
 }
@@ -88,10 +96,10 @@ pub fn images_gradient(
 ) -> Result<ImagesGradient> {
     let s = &problem.settings;
     let pieces = batch_pieces(problem, iteration);
-    let (mut loss, mut deltas, mut lit) = (0.0, Vec::with_capacity(pieces.len()), 0);
+    let (mut loss, mut adjoints, mut lit) = (0.0, Vec::with_capacity(pieces.len()), 0);
     let mut exposure_gradients = vec![0.0; exposures.len()];
     let view_weight = 1.0 / pieces.len() as f64;
-    let mut alpha_deltas = Vec::with_capacity(pieces.len());
+    let mut alpha_adjoints = Vec::with_capacity(pieces.len());
     for piece in &pieces {
         let view = &problem.views[piece.view];
         problem.look_through(scene, &mut lit, view);
@@ -99,15 +107,17 @@ pub fn images_gradient(
         let adjoint = piece_adjoint(problem, cluster, scene, piece, view_weight, exposure)?;
         loss += adjoint.loss;
         exposure_gradients[view.capture] += adjoint.exposure_gradient;
-        deltas.push(adjoint.delta);
+        adjoints.push(adjoint);
         let alpha = alpha_adjoint(problem, cluster, scene, piece, view_weight);
-        if let Some((alpha_loss, _)) = &alpha {
-            loss += alpha_loss;
+        if let Some(alpha) = &alpha {
+            loss += alpha.loss;
         }
-        alpha_deltas.push(alpha.map(|a| a.1));
+        alpha_adjoints.push(alpha);
     }
-    let every_delta = deltas.iter().chain(alpha_deltas.iter().flatten());
-    let quantum = quantum_for(every_delta.map(|d| &d[..]), s.spp);
+    let every_adjoint = adjoints.iter().chain(alpha_adjoints.iter().flatten());
+    let quantum = quantum_for(every_adjoint.map(|a| &a.delta[..]), s.spp);
+    let colour_samples = pixel_samples(problem, &pieces, adjoints.iter().map(Some));
+    let alpha_samples = pixel_samples(problem, &pieces, alpha_adjoints.iter().map(Option::as_ref));
     // An emission unknown's gradient is wanted over its whole box: the pass would otherwise
     // cover only its current bricks (none for an empty start, which then never grows) and their
     // apron (outside the box). The density's domain is the medium's bounds already.
@@ -120,20 +130,29 @@ pub fn images_gradient(
     };
     pass.adjoint.suffix_paths = s.suffix_paths;
     let mut total = gradient_grid_for::<Quanta>(scene, &pass);
-    for ((piece, delta), alpha_delta) in pieces.iter().zip(&deltas).zip(&alpha_deltas) {
+    for ((piece, adjoint), alpha) in pieces.iter().zip(&adjoints).zip(&alpha_adjoints) {
         problem.look_through(scene, &mut lit, &problem.views[piece.view]);
         let pixels = piece.pixels(scene.camera.width * scene.camera.height, cluster);
         let options = GradOptions {
             seed: piece.seed,
+            samples: colour_samples,
             ..pass
         };
-        add_gradient_of(scene, delta, &options, quantum, &pixels, &mut total);
-        if let Some(alpha_delta) = alpha_delta {
+        add_gradient_of(
+            scene,
+            &adjoint.delta,
+            &options,
+            quantum,
+            &pixels,
+            &mut total,
+        );
+        if let Some(alpha) = alpha {
             let options = GradOptions {
                 measured: Measured::Alpha,
+                samples: alpha_samples,
                 ..options
             };
-            add_gradient_of(scene, alpha_delta, &options, quantum, &pixels, &mut total);
+            add_gradient_of(scene, &alpha.delta, &options, quantum, &pixels, &mut total);
         }
     }
     let (total, traffic) = sum_over_ranks(cluster, total);
@@ -151,11 +170,37 @@ pub fn images_gradient(
 }
 
 /// A piece's share of the batch: its loss, the adjoint image the gradient pass traces (k·δ′,
-/// zero where it draws no pixel) and its part of ∂loss/∂x (Σ δ′·I′).
+/// zero where it draws no pixel), its primal paths' lookups per path and its part of ∂loss/∂x
+/// (Σ δ′·I′).
 struct PieceAdjoint {
     loss: f64,
     delta: Vec<Vec3>,
+    lookups: Vec<f32>,
     exposure_gradient: f64,
+}
+
+/// How a batch's gradient pass spreads its paths over the pixels: in proportion to the pieces'
+/// adjoints |δ|, at the cost of `spp` uniform paths (each pixel's primal lookups telling what
+/// a path there costs), when the run asks for it; one rule for every piece, so that the pieces
+/// with the larger residuals get the more paths. Every rank has the same adjoints and lookups,
+/// hence the same rule.
+fn pixel_samples<'a>(
+    problem: &Problem,
+    pieces: &[Piece],
+    adjoints: impl Iterator<Item = Option<&'a PieceAdjoint>>,
+) -> PixelSamples {
+    if !problem.settings.samples_follow_adjoint {
+        return PixelSamples::Uniform;
+    }
+    let mut listed = Vec::new();
+    for (piece, adjoint) in pieces.iter().zip(adjoints) {
+        let Some(adjoint) = adjoint else { continue };
+        for p in piece.listed(adjoint.delta.len() as u32) {
+            let (delta, lookups) = (adjoint.delta[p as usize], adjoint.lookups[p as usize]);
+            listed.push((delta.abs().element_sum(), path_cost(lookups)));
+        }
+    }
+    PixelSamples::following_adjoint(listed, problem.settings.spp)
 }
 
 /// A piece's part of the batch from a primal render whose pixels the ranks share and sum, scaled
@@ -186,17 +231,28 @@ fn piece_adjoint(
             max_depth: s.max_depth,
             progress: false,
         };
-        let mut image = shared_render(cluster, piece, pixels, |set| {
-            render_pixels(scene, &options, set).0
+        let mut rendered = shared_render(cluster, piece, pixels, |set| {
+            render_pixels(scene, &options, set)
         });
-        image.scale(exposure);
-        image
+        rendered.image.scale(exposure);
+        rendered
     };
-    let (image, halves) = if s.fit_exposure {
+    let (image, lookups, halves) = if s.fit_exposure {
         let (a, b) = (render(0), render(1));
-        (RgbImage::average(&a, &b), Some((a, b)))
+        let lookups = a
+            .lookups
+            .iter()
+            .zip(&b.lookups)
+            .map(|(a, b)| 0.5 * (a + b))
+            .collect();
+        (
+            RgbImage::average(&a.image, &b.image),
+            lookups,
+            Some((a.image, b.image)),
+        )
     } else {
-        (render(0), None)
+        let rendered = render(0);
+        (rendered.image, rendered.lookups, None)
     };
     let adjoint_of =
         |image: &RgbImage| weighed_adjoint(problem, piece, (image, &target), view_weight, 1.0);
@@ -220,6 +276,7 @@ fn piece_adjoint(
     Ok(PieceAdjoint {
         loss,
         delta,
+        lookups,
         exposure_gradient,
     })
 }
@@ -258,35 +315,29 @@ fn weighed_adjoint(
     }
 }
 
-/// A piece's image of a `pixels`-pixel view from `render` of each rank's share of its pixels,
-/// summed over the ranks: every rank has the piece's pixels.
+/// A piece's render of a `pixels`-pixel view from `render` of each rank's share of its pixels,
+/// summed over the ranks: every rank has the piece's pixels and their lookups.
 fn shared_render(
     cluster: &Cluster,
     piece: &Piece,
     pixels: u32,
-    render: impl Fn(&PixelSet) -> RgbImage,
-) -> RgbImage {
-    let mut image = render(&piece.pixels(pixels, cluster));
-    match &piece.drawn {
-        None => sum_image(cluster, &mut image),
-        Some(drawn) => {
-            let list: Vec<u32> = drawn.iter().map(|&(p, _)| p).collect();
-            sum_pixels(cluster, &mut image, &list);
-        }
-    }
-    image
+    render: impl Fn(&PixelSet) -> PixelsRendered,
+) -> PixelsRendered {
+    let mut rendered = render(&piece.pixels(pixels, cluster));
+    sum_rendered_pixels(cluster, &mut rendered, &piece.listed(pixels));
+    rendered
 }
 
-/// A piece's alpha loss and its adjoint image, when the run fits alpha and the piece's view has
-/// an alpha target: α from its own primal render (`render::alpha`; the exposure scales colour,
-/// not coverage), weighed by `alpha_weight` beside the colour's loss.
+/// A piece's alpha loss, adjoint image and lookups, when the run fits alpha and the piece's view
+/// has an alpha target: α from its own primal render (`render::alpha`; the exposure scales
+/// colour, not coverage), weighed by `alpha_weight` beside the colour's loss.
 fn alpha_adjoint(
     problem: &Problem,
     cluster: &Cluster,
     scene: &Scene,
     piece: &Piece,
     view_weight: f64,
-) -> Option<(f64, Vec<Vec3>)> {
+) -> Option<PieceAdjoint> {
     let s = &problem.settings;
     let target = problem.views[piece.view].alpha.as_ref()?;
     if s.alpha_weight <= 0.0 {
@@ -299,17 +350,23 @@ fn alpha_adjoint(
         progress: false,
     };
     let pixels = scene.camera.width * scene.camera.height;
-    let image = shared_render(cluster, piece, pixels, |set| {
-        render_alpha_pixels(scene, &options, set).0
+    let rendered = shared_render(cluster, piece, pixels, |set| {
+        render_alpha_pixels(scene, &options, set)
     });
     let weight = f64::from(s.alpha_weight);
-    Some(weighed_adjoint(
+    let (loss, delta) = weighed_adjoint(
         problem,
         piece,
-        (&image, target),
+        (&rendered.image, target),
         view_weight,
         weight,
-    ))
+    );
+    Some(PieceAdjoint {
+        loss,
+        delta,
+        lookups: rendered.lookups,
+        exposure_gradient: 0.0,
+    })
 }
 
 /// The views of iteration `iteration` with their seeds: the view batch, or the views a pixel

@@ -55,6 +55,10 @@ pub struct OptimizerFile {
     /// gradient one.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub primal_spp: Option<u32>,
+    /// The gradient pass's paths go to each pixel in proportion to its adjoint |δ| (the
+    /// residual's weight there), as many in all as `spp` uniform paths would cost
+    /// (`gradient::pixel_samples`); false: `spp` through every pixel.
+    pub samples_follow_adjoint: bool,
     /// Suffix paths per camera path of the gradient pass (K, `grad --suffix-paths`): one makes an
     /// iteration cheaper and its gradient noisier; on the worked example two end 0.5 dB higher in
     /// the same 10 minutes.
@@ -111,6 +115,7 @@ impl Default for OptimizerFile {
             batch_pixels: None,
             spp: 8,
             primal_spp: None,
+            samples_follow_adjoint: true,
             suffix_paths: crate::gradient::adjoint::DEFAULT_SUFFIX_PATHS,
             iterations: 100,
             prior: vec![

@@ -51,6 +51,8 @@ pub struct Settings {
     pub spp: u32,
     /// Samples per pixel of the primal render that gives the adjoint image.
     pub primal_spp: u32,
+    /// The gradient pass's paths per pixel in proportion to the adjoint (`pixel_samples`).
+    pub samples_follow_adjoint: bool,
     /// Suffix paths per camera path of the gradient pass (K).
     pub suffix_paths: u32,
     pub max_depth: u32,
@@ -442,6 +444,7 @@ impl Settings {
             batch_pixels: o.batch_pixels.unwrap_or(0),
             spp: o.spp,
             primal_spp: o.primal_spp.unwrap_or(o.spp),
+            samples_follow_adjoint: o.samples_follow_adjoint,
             suffix_paths: o.suffix_paths,
             max_depth,
             priors: o.priors(units),

@@ -11,8 +11,7 @@
 use glam::Vec3;
 use rand::Rng;
 
-use crate::io::images::RgbImage;
-use crate::render::image::{render_pixels_of, RenderOptions, RenderStats};
+use crate::render::image::{render_pixels_of, PixelsRendered, RenderOptions};
 use crate::render::pixel_set::PixelSet;
 use crate::render::scene::Scene;
 use crate::volume::tracking::{transmittance, TrackingStats};
@@ -44,7 +43,7 @@ pub fn render_alpha_pixels(
     scene: &Scene,
     options: &RenderOptions,
     set: &PixelSet,
-) -> (RgbImage, RenderStats) {
+) -> PixelsRendered {
     let options = RenderOptions {
         seed: options.seed ^ ALPHA_SEED_SALT,
         ..*options

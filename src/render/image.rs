@@ -67,11 +67,20 @@ struct Tile {
     non_finite: u64,
 }
 
-/// What one chunk of a `render_pixels` set produced: (pixel index, value) pairs.
+/// What one chunk of a `render_pixels` set produced: (pixel index, value, lookups per path).
 struct Traced {
-    pixels: Vec<(u32, Vec3)>,
+    pixels: Vec<(u32, Vec3, f32)>,
     stats: TrackingStats,
     non_finite: u64,
+}
+
+/// A render of a set of pixels: their values, the density lookups their paths made (per path:
+/// what a path through the pixel costs, which decides where an optimisation's gradient paths
+/// go, `gradient::pixel_samples`) and the counters. Pixels outside the set hold 0.
+pub struct PixelsRendered {
+    pub image: RgbImage,
+    pub lookups: Vec<f32>,
+    pub stats: RenderStats,
 }
 
 /// Renders the scene's camera view. Each path has its own random stream (seed, pixel, sample), so
@@ -133,11 +142,7 @@ pub fn render(scene: &Scene, options: &RenderOptions) -> (RgbImage, RenderStats)
 
 /// `render` of the pixels of `set` only (a rank's share): the image holds those pixels, 0
 /// elsewhere, each the value `render` gives it.
-pub fn render_pixels(
-    scene: &Scene,
-    options: &RenderOptions,
-    set: &PixelSet,
-) -> (RgbImage, RenderStats) {
+pub fn render_pixels(scene: &Scene, options: &RenderOptions, set: &PixelSet) -> PixelsRendered {
     render_pixels_of(scene, options, set, radiance_path(options.max_depth))
 }
 
@@ -161,7 +166,7 @@ pub fn render_pixels_of(
     options: &RenderOptions,
     set: &PixelSet,
     path: impl PathValue,
-) -> (RgbImage, RenderStats) {
+) -> PixelsRendered {
     let start = Instant::now();
     let w = scene.camera.width;
     let chunks = set.len().div_ceil(CHUNK_PIXELS);
@@ -175,8 +180,10 @@ pub fn render_pixels_of(
                 .map(|i| {
                     let p = set.pixel(i);
                     let xy = (p % w, p / w);
+                    let before = stats.lookups + stats.shadow_lookups;
                     let c = trace_pixel(scene, options, &path, xy, &mut stats, &mut non_finite);
-                    (p, c)
+                    let lookups = stats.lookups + stats.shadow_lookups - before;
+                    (p, c, lookups as f32 / options.spp.max(1) as f32)
                 })
                 .collect();
             progress.inc(1);
@@ -189,19 +196,25 @@ pub fn render_pixels_of(
         .collect();
     progress.finish_and_clear();
     let mut image = RgbImage::new(w, scene.camera.height);
+    let mut lookups = vec![0.0; image.pixels.len()];
     let mut stats = RenderStats {
         paths: set.len() * options.spp as u64,
         ..Default::default()
     };
     for chunk in results {
-        for (p, c) in chunk.pixels {
+        for (p, c, l) in chunk.pixels {
             image.pixels[p as usize] = c;
+            lookups[p as usize] = l;
         }
         stats.tracking += chunk.stats;
         stats.non_finite += chunk.non_finite;
     }
     stats.wall = start.elapsed();
-    (image, stats)
+    PixelsRendered {
+        image,
+        lookups,
+        stats,
+    }
 }
 
 /// The mean of pixel (x, y)'s `options.spp` paths, each with its own random stream; non-finite
