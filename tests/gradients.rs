@@ -478,10 +478,10 @@ fn paths_that_follow_the_adjoint_keep_the_gradients_expectation() {
     };
     let lower_half = |g: &GradientGrid<f32>| {
         (g.voxels().filter(|(v, _)| v.z < N / 2))
-            .map(|(_, x)| x as f64)
+            .map(|(_, x)| x)
             .sum::<f64>()
     };
-    let total = |g: &GradientGrid<f32>| g.voxels().map(|(_, x)| x as f64).sum::<f64>();
+    let total = |g: &GradientGrid<f32>| g.voxels().map(|(_, x)| x).sum::<f64>();
     let run = |options: &dyn Fn(u64) -> GradOptions, repeats: u64| -> Vec<GradientGrid<f32>> {
         (0..repeats)
             .map(|r| gradient(&scene, &adjoint, &options(300 + r)).values())

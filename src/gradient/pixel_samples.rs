@@ -47,7 +47,7 @@ impl PixelSamples {
             PixelSamples::Adjoint { per_adjoint } => {
                 let expected = (per_adjoint * delta.abs().element_sum() as f64)
                     .min(MOST_PER_PIXEL * spp as f64);
-                if !(expected > 0.0) {
+                if expected <= 0.0 {
                     return (0, 1.0);
                 }
                 let u: f64 = sample_rng(seed, pixel, ROUNDING_STREAM, Pass::Adjoint).gen();
