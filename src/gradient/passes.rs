@@ -235,9 +235,7 @@ fn over_pixels<T: Send>(
         .collect();
     in_order.consume_rest();
     bar.finish_and_clear();
-    let mut stats = RenderStats {
-        ..Default::default()
-    };
+    let mut stats = RenderStats::default();
     for worker in workers {
         stats.paths += worker.paths;
         stats.tracking += worker.stats;

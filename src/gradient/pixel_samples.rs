@@ -5,13 +5,15 @@
 //! (cᵢ one path's cost). Uniform samples spend as much on a pixel whose δ is nearly 0 as on the
 //! one that decides the step. Drawn in proportion to |δᵢ| at the cost of a uniform pass
 //! (nᵢ = k|δᵢ|, k = spp Σc / Σ|δ|c), the variance is Σ|δ| · Σ|δ|c / (Σc · Σδ²) times the
-//! uniform pass's (for equal costs E[|δ|]² / E[δ²] ≤ 1): the paths go where the adjoint weighs
+//! uniform pass's (for equal costs E\[|δ|\]² / E\[δ²\] ≤ 1): the paths go where the adjoint weighs
 //! them.
 //!
 //! Unbiased for any expected count mᵢ > 0 that depends on δ alone: nᵢ is mᵢ rounded up or down
-//! at random (E[nᵢ] = mᵢ) and each path weighs δᵢ / mᵢ, so E[Σ paths] = δᵢ · E[∂Iᵢ/∂θ]. The
+//! at random (E\[nᵢ\] = mᵢ) and each path weighs δᵢ / mᵢ, so E\[Σ paths\] = δᵢ · E\[∂Iᵢ/∂θ\]. The
 //! adjoint comes from renders independent of the pass's paths, so the choice does not correlate
-//! with what the paths find.
+//! with what the paths find. A path weighs at most |δᵢ|₁/mᵢ, which is 1/k = Σ|δ|c / (spp Σc) (a
+//! mean of |δ|₁, over spp) or, capped, |δᵢ|₁ / (8 spp): either way at most max |δ|₁ / spp, three
+//! times what a uniform path may weigh, well within the quantum's headroom (`quantum_for`).
 
 use glam::Vec3;
 use rand::Rng;
@@ -39,7 +41,7 @@ pub enum PixelSamples {
 
 impl PixelSamples {
     /// Samples through a pixel whose adjoint is `delta`, each weighing δ / `divisor`: (n, divisor)
-    /// with E[n] = divisor. `seed` and `pixel` pick the rounding's random stream.
+    /// with E\[n\] = divisor. `seed` and `pixel` pick the rounding's random stream.
     #[inline]
     pub fn draw(&self, spp: u32, delta: Vec3, seed: u64, pixel: u64) -> (u32, f64) {
         match *self {
