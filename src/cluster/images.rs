@@ -82,12 +82,9 @@ pub fn sum_pixels(cluster: &Cluster, image: &mut RgbImage, pixels: &[u32]) {
     if cluster.size() == 1 {
         return;
     }
-    let mut flat: Vec<f32> = (pixels.iter())
-        .flat_map(|&p| image.pixels[p as usize].to_array())
-        .collect();
-    cluster.sum_in_place(&mut flat);
-    for (&p, v) in pixels.iter().zip(flat.chunks_exact(3)) {
-        image.pixels[p as usize] = Vec3::from_slice(v);
+    let values = pixels.iter().map(|&p| image.pixels[p as usize].to_array());
+    for (&p, v) in pixels.iter().zip(summed(cluster, values.collect())) {
+        image.pixels[p as usize] = Vec3::from_array(v);
     }
 }
 
@@ -98,12 +95,20 @@ pub fn sum_rendered_pixels(cluster: &Cluster, rendered: &mut PixelsRendered, pix
         return;
     }
     let (image, lookups) = (&mut rendered.image.pixels, &mut rendered.lookups);
-    let mut flat: Vec<f32> = (pixels.iter())
-        .flat_map(|&p| image[p as usize].extend(lookups[p as usize]).to_array())
-        .collect();
-    cluster.sum_in_place(&mut flat);
-    for (&p, v) in pixels.iter().zip(flat.chunks_exact(4)) {
-        image[p as usize] = Vec3::from_slice(v);
-        lookups[p as usize] = v[3];
+    let values = pixels
+        .iter()
+        .map(|&p| image[p as usize].extend(lookups[p as usize]).to_array());
+    for (&p, [r, g, b, l]) in pixels.iter().zip(summed(cluster, values.collect())) {
+        image[p as usize] = Vec3::new(r, g, b);
+        lookups[p as usize] = l;
     }
+}
+
+/// Each pixel's N values summed over the ranks, in one message.
+fn summed<const N: usize>(cluster: &Cluster, values: Vec<[f32; N]>) -> Vec<[f32; N]> {
+    let mut flat: Vec<f32> = values.into_iter().flatten().collect();
+    cluster.sum_in_place(&mut flat);
+    let sums = flat.chunks_exact(N);
+    sums.map(|v| v.try_into().expect("N values a pixel"))
+        .collect()
 }

@@ -377,7 +377,7 @@ pub fn gradient_of(
 /// `gradient_of` in quanta of `quantum`, added into `gradient` (from `gradient_grid_for`): passes
 /// whose gradients add up (an optimisation step's views, Python's cameras) share one quantum and
 /// one grid instead of each filling one that is then merged (8 % of an optimisation step on the
-/// worked example). Returns the image and the counters.
+/// worked example). Returns the image (a pixel that took no path reads 0) and the counters.
 pub fn add_gradient_of(
     scene: &Scene,
     adjoint: &[Vec3],

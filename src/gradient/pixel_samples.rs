@@ -47,8 +47,9 @@ impl PixelSamples {
         match *self {
             PixelSamples::Uniform => (spp, spp as f64),
             PixelSamples::Adjoint { per_adjoint } => {
-                let expected = (per_adjoint * delta.abs().element_sum() as f64)
-                    .min(MOST_PER_PIXEL * spp as f64);
+                // Below the rounding's own stream whatever the spp (and u32's range).
+                let most = (MOST_PER_PIXEL * spp as f64).min((ROUNDING_STREAM - 1) as f64);
+                let expected = (per_adjoint * delta.abs().element_sum() as f64).min(most);
                 if expected <= 0.0 {
                     return (0, 1.0);
                 }
@@ -140,6 +141,13 @@ mod tests {
     fn an_outlier_pixel_takes_at_most_eight_times_the_spp() {
         let samples = PixelSamples::Adjoint { per_adjoint: 1e9 };
         assert_eq!(samples.draw(8, Vec3::ONE, 1, 0), (64, 64.0));
+    }
+
+    #[test]
+    fn a_huge_spp_keeps_the_count_below_the_rounding_stream() {
+        let samples = PixelSamples::Adjoint { per_adjoint: 1e30 };
+        let (n, divisor) = samples.draw(u32::MAX / 2, Vec3::ONE, 1, 0);
+        assert!(n < ROUNDING_STREAM && divisor.is_finite(), "{n} {divisor}");
     }
 
     #[test]

@@ -5,7 +5,8 @@
 //! 2. each view's primal render (and its alpha render, when the run fits alpha), its pixels split
 //!    over the ranks and summed, so every rank has the same images, losses and adjoint images
 //!    δ = ∂loss/∂pixel;
-//! 3. the gradient passes (colour's, then alpha's), each rank over its share of the pixels,
+//! 3. the gradient passes (colour's, then alpha's), each rank over its share of the pixels, their
+//!    paths spread over the pixels in proportion to δ (`pixel_samples`),
 //!    accumulated as quanta of one quantum for the whole batch (`passes::quantum_for`);
 //! 4. the sum over the ranks (`cluster::sparse_sum`), exact, so that the step is the same bits at
 //!    any number of ranks and threads.
