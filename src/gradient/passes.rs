@@ -399,6 +399,7 @@ pub fn add_gradient_of(
         None => Vec3::ONE,
     };
     let pass = GradientPass { scene, options };
+    let seed = options.stream_seed();
     let stats = over_pixels(
         scene,
         set,
@@ -408,7 +409,6 @@ pub fn add_gradient_of(
         |(splats, pixels), x, y, worker| {
             let index = y * w + x;
             let delta = adjoint[index as usize] * channel_mask;
-            let seed = options.stream_seed();
             let (samples, divisor) = options.samples.draw(spp, delta, seed, index as u64);
             let mut sink = SplatSink {
                 splats,
