@@ -65,6 +65,24 @@ impl BrickGradient {
         self.bricks.get(&key).map(|b| &**b)
     }
 
+    /// The gradient at one voxel (0 where no brick holds it).
+    pub fn at(&self, voxel: IVec3) -> f64 {
+        self.get(voxel >> 3)
+            .map_or(0.0, |values| values[leaf_offset(voxel & 7)])
+    }
+
+    /// Adds `other` brick by brick.
+    pub fn add(&mut self, other: BrickGradient) {
+        for (key, values) in other.bricks {
+            match self.bricks.get_mut(&key) {
+                Some(sum) => sum.iter_mut().zip(values.iter()).for_each(|(s, v)| *s += v),
+                None => {
+                    self.bricks.insert(key, values);
+                }
+            }
+        }
+    }
+
     /// The brick keys that hold gradient.
     pub fn keys(&self) -> impl Iterator<Item = IVec3> + '_ {
         self.bricks.keys().copied()
@@ -104,5 +122,19 @@ mod tests {
         voxels.sort_by_key(|(v, _)| v.to_array());
         assert_eq!(voxels, vec![(a, 1.5), (b, 2.0)]);
         assert_eq!(g.get(a >> 3).unwrap()[leaf_offset(a & 7)], 1.5);
+    }
+
+    #[test]
+    fn gradients_add_brick_by_brick() {
+        let (a, b, c) = (
+            IVec3::new(1, 2, 3),
+            IVec3::new(6, 2, 3),
+            IVec3::new(-9, 0, 0),
+        );
+        let mut g = BrickGradient::from_voxels([(a, 1.0), (b, -2.0)]);
+        g.add(BrickGradient::from_voxels([(a, 0.25), (c, 4.0)]));
+        assert_eq!(g.brick_count(), 2);
+        assert_eq!((g.at(a), g.at(b), g.at(c)), (1.25, -2.0, 4.0));
+        assert_eq!(g.at(IVec3::new(5, 5, 5)), 0.0);
     }
 }

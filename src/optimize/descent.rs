@@ -41,7 +41,7 @@ impl Parameters {
         for prior in priors {
             let (v, gradient) = prior.evaluate(self, level_voxels);
             value += v;
-            prior_gradient.add_voxels(gradient);
+            prior_gradient.add(gradient);
         }
         self.adam_step(adam, data, &prior_gradient);
         value

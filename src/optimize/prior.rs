@@ -15,6 +15,7 @@
 use glam::IVec3;
 use rayon::prelude::*;
 
+use crate::optimize::brick_gradient::{BrickGradient, BrickValues};
 use crate::optimize::parameters::{local_of, Parameters};
 use crate::volume::brickmap::{leaf_offset, BRICK_VOXELS};
 
@@ -66,45 +67,57 @@ impl Prior {
         }
     }
 
-    /// R(θ) and ∂R/∂θ_v for every stored voxel v, with N = `level_voxels`. Each voxel's
-    /// derivative is computed from its own neighbourhood, in one expression, and the bricks are
-    /// joined in key order, so the result does not depend on the hash map's order or the thread
-    /// count.
-    pub fn evaluate(&self, p: &Parameters, level_voxels: u64) -> (f64, Vec<(IVec3, f64)>) {
+    /// R(θ) and ∂R/∂θ_v for every stored voxel v, with N = `level_voxels`, as bricks of the
+    /// unknown. A brick's share depends only on its own θ and its face neighbours', so the bricks
+    /// are evaluated in parallel and their values summed in key order: the result does not depend
+    /// on the hash map's order or the thread count.
+    pub fn evaluate(&self, p: &Parameters, level_voxels: u64) -> (f64, BrickGradient) {
         if p.brick_count() == 0 || level_voxels == 0 || self.weight == 0.0 {
-            return (0.0, Vec::new());
+            return (0.0, BrickGradient::default());
         }
         let scale = self.weight as f64 / level_voxels as f64;
-        let delta = f64::from(self.scale);
-        // In key order, so that the sum does not depend on the hash map's history.
-        let per_voxel = |psi: fn(f64, f64) -> (f64, f64)| {
-            let mut value = 0.0;
-            let mut gradient = Vec::with_capacity(p.brick_count() * BRICK_VOXELS);
-            for (key, theta, ..) in p.sorted_bricks() {
-                for (i, &t) in theta.iter().enumerate() {
-                    let (psi, derivative) = psi(f64::from(t), delta);
-                    value += psi;
-                    gradient.push(((key << 3) + local_of(i), scale * derivative));
-                }
-            }
-            (scale * value, gradient)
-        };
-        match self.kind {
-            PriorKind::L1 => return per_voxel(|theta, _| (theta, 1.0)),
-            PriorKind::Log => {
-                return per_voxel(|theta, delta| {
-                    (delta * (theta / delta).ln_1p(), delta / (delta + theta))
-                })
-            }
-            PriorKind::Tv | PriorKind::Laplacian => {}
-        }
-        let parts: Vec<(f64, Vec<(IVec3, f64)>)> = p
+        let bricks: Vec<(f64, IVec3, BrickValues)> = p
             .sorted_bricks()
             .into_par_iter()
             .map(|(key, theta, ..)| {
+                let mut gradient: BrickValues = Box::new([0.0; BRICK_VOXELS]);
+                let value = self.brick(p, key, theta, &mut gradient);
+                gradient.iter_mut().for_each(|g| *g *= scale);
+                (value, key, gradient)
+            })
+            .collect();
+        let value: f64 = bricks.iter().map(|(v, ..)| v).sum();
+        let gradient = bricks.into_iter().map(|(_, key, g)| (key, g));
+        (scale * value, BrickGradient::from_bricks(gradient))
+    }
+
+    /// One brick's share of Σ φ or Σ ψ (before the weight and 1/N), its voxels' derivatives
+    /// written into `gradient` (`leaf_offset` order, as θ).
+    fn brick(
+        &self,
+        p: &Parameters,
+        key: IVec3,
+        theta: &[f32; BRICK_VOXELS],
+        gradient: &mut [f64; BRICK_VOXELS],
+    ) -> f64 {
+        let delta = f64::from(self.scale);
+        let mut value = 0.0;
+        match self.kind {
+            PriorKind::L1 | PriorKind::Log => {
+                let log = self.kind == PriorKind::Log;
+                for (g, &t) in gradient.iter_mut().zip(theta) {
+                    let t = f64::from(t);
+                    let (psi, derivative) = if log {
+                        (delta * (t / delta).ln_1p(), delta / (delta + t))
+                    } else {
+                        (t, 1.0)
+                    };
+                    value += psi;
+                    *g = derivative;
+                }
+            }
+            PriorKind::Tv | PriorKind::Laplacian => {
                 let around = Neighbourhood::new(p, key, theta);
-                let mut value = 0.0;
-                let mut gradient = Vec::with_capacity(BRICK_VOXELS);
                 for (i, &t) in theta.iter().enumerate() {
                     let (local, t) = (local_of(i), t as f64);
                     let mut g = 0.0;
@@ -121,14 +134,11 @@ impl Prior {
                         }
                         g += self.phi_derivative(backward) - self.phi_derivative(forward);
                     }
-                    gradient.push(((key << 3) + local, scale * g));
+                    gradient[i] = g;
                 }
-                (value, gradient)
-            })
-            .collect();
-        let value: f64 = parts.iter().map(|(v, _)| v).sum();
-        let gradient = parts.into_iter().flat_map(|(_, g)| g).collect();
-        (scale * value, gradient)
+            }
+        }
+        value
     }
 }
 
@@ -196,7 +206,7 @@ mod tests {
                 IVec3::new(3, 4, 5),
                 IVec3::new(7, 2, 7),
             ] {
-                let analytic = gradient.iter().find(|(w, _)| *w == v).unwrap().1;
+                let analytic = gradient.at(v);
                 let eps = 1e-3;
                 let theta = p.get(v);
                 let at = |x: f32| {
@@ -230,16 +240,9 @@ mod tests {
             }
         }
         let (_, gradient) = prior.evaluate(&p, 512);
-        let inner = gradient
-            .iter()
-            .find(|(v, _)| *v == IVec3::new(7, 3, 3))
-            .unwrap();
-        assert_eq!(inner.1, 0.0);
+        assert!(gradient.get(IVec3::ZERO).is_some());
+        assert_eq!(gradient.at(IVec3::new(7, 3, 3)), 0.0);
         // At the block's edge the field drops to 0: the prior pulls the edge voxel down.
-        let edge = gradient
-            .iter()
-            .find(|(v, _)| *v == IVec3::new(15, 3, 3))
-            .unwrap();
-        assert!(edge.1 > 0.0);
+        assert!(gradient.at(IVec3::new(15, 3, 3)) > 0.0);
     }
 }
