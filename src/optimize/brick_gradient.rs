@@ -17,16 +17,11 @@ pub struct BrickGradient {
 
 impl BrickGradient {
     /// Voxels' gradients summed into bricks; zero and non-finite values are left out (a non-finite
-    /// sample was already counted as dropped by the pass that made it).
+    /// sample was already counted as dropped by the pass that made it). Voxels arrive brick by
+    /// brick (a gradient grid's order), so the current brick is kept aside instead of hashing every
+    /// voxel's key.
     pub fn from_voxels(voxels: impl IntoIterator<Item = (IVec3, f64)>) -> Self {
         let mut out = BrickGradient::default();
-        out.add_voxels(voxels);
-        out
-    }
-
-    /// Adds voxels' gradients. Voxels arrive brick by brick (a grid's or a prior's order), so the
-    /// current brick is kept aside instead of hashing every voxel's key.
-    pub fn add_voxels(&mut self, voxels: impl IntoIterator<Item = (IVec3, f64)>) {
         let mut current: Option<(IVec3, BrickValues)> = None;
         for (voxel, g) in voxels {
             if g == 0.0 || !g.is_finite() {
@@ -35,9 +30,9 @@ impl BrickGradient {
             let key = voxel >> 3;
             if current.as_ref().is_none_or(|(k, _)| *k != key) {
                 if let Some((k, values)) = current.take() {
-                    self.bricks.insert(k, values);
+                    out.bricks.insert(k, values);
                 }
-                let values = self.bricks.remove(&key).unwrap_or_else(zero);
+                let values = out.bricks.remove(&key).unwrap_or_else(zero);
                 current = Some((key, values));
             }
             if let Some((_, values)) = &mut current {
@@ -45,8 +40,9 @@ impl BrickGradient {
             }
         }
         if let Some((k, values)) = current {
-            self.bricks.insert(k, values);
+            out.bricks.insert(k, values);
         }
+        out
     }
 
     /// Builds from whole bricks (each key at most once).
