@@ -405,36 +405,19 @@ mod tests {
     /// Each bad value is refused with a message naming its key.
     #[test]
     fn bad_values_name_their_key() {
+        let optimizer = |line: &str| format!("{GOOD}\n[optimizer]\n{line}");
         let cases = [
             (GOOD.replace("[views.orbit]", "[x.orbit]"), "unknown field"),
-            (format!("{GOOD}\n[optimizer]\nlr = 0"), "optimizer.lr"),
-            (format!("{GOOD}\n[optimizer]\nlr = -1"), "optimizer.lr"),
-            (format!("{GOOD}\n[optimizer]\nbatch = 0"), "optimizer.batch"),
-            (
-                format!("{GOOD}\n[optimizer]\nprimal_spp = 0"),
-                "optimizer.primal_spp",
-            ),
-            (
-                format!("{GOOD}\n[optimizer]\nsuffix_paths = 0"),
-                "optimizer.suffix_paths",
-            ),
-            (
-                format!("{GOOD}\n[optimizer]\nsuffix_paths = 65"),
-                "optimizer.suffix_paths",
-            ),
-            (
-                format!("{GOOD}\n[optimizer]\nbrick_scale_lr = 0"),
-                "optimizer.brick_scale_lr",
-            ),
-            (
-                format!("{GOOD}\n[optimizer]\nloss = \"mean\""),
-                "optimizer.loss",
-            ),
-            (
-                format!("{GOOD}\n[optimizer]\nloss = \"l3\""),
-                "unknown variant",
-            ),
-            (format!("{GOOD}\n[optimizer]\nbeta2 = 1"), "optimizer.beta2"),
+            (optimizer("lr = 0"), "optimizer.lr"),
+            (optimizer("lr = -1"), "optimizer.lr"),
+            (optimizer("batch = 0"), "optimizer.batch"),
+            (optimizer("primal_spp = 0"), "optimizer.primal_spp"),
+            (optimizer("suffix_paths = 0"), "optimizer.suffix_paths"),
+            (optimizer("suffix_paths = 65"), "optimizer.suffix_paths"),
+            (optimizer("brick_scale_lr = 0"), "optimizer.brick_scale_lr"),
+            (optimizer("loss = \"mean\""), "optimizer.loss"),
+            (optimizer("loss = \"l3\""), "unknown variant"),
+            (optimizer("beta2 = 1"), "optimizer.beta2"),
             (
                 GOOD.replace("levels = [0.5]", "levels = [0.5, 0.4]"),
                 "unknown.levels",
@@ -504,32 +487,12 @@ mod tests {
             ),
             (format!("colour = 1\n{GOOD}"), "unknown field"),
             (format!("eval_every = 0\n{GOOD}"), "eval_every"),
-            (
-                format!("{GOOD}\n[optimizer]\nlevel_lr = 0"),
-                "optimizer.level_lr",
-            ),
-            (
-                format!("{GOOD}\n[optimizer]\nprior = {{ kind = \"tvv\", weight = 1 }}"),
-                "unknown variant",
-            ),
-            (
-                format!("{GOOD}\n[optimizer]\nprior = {{ kind = \"log\", weight = 1 }}"),
-                "optimizer.prior.scale",
-            ),
-            (
-                format!("{GOOD}\n[optimizer]\nprior = {{ kind = \"log\", weight = 1, scale = 0 }}"),
-                "optimizer.prior.scale",
-            ),
-            (
-                format!(
-                    "{GOOD}\n[optimizer]\nprior = [{{ kind = \"tv\", weight = 1, scale = 0.1 }}]"
-                ),
-                "optimizer.prior.scale",
-            ),
-            (
-                format!("{GOOD}\n[optimizer]\nprior = [{{ kind = \"tv\", weight = -1 }}]"),
-                "optimizer.prior.weight",
-            ),
+            (optimizer("level_lr = 0"), "optimizer.level_lr"),
+            (optimizer("prior = { kind = \"tvv\", weight = 1 }"), "unknown variant"),
+            (optimizer("prior = { kind = \"log\", weight = 1 }"), "optimizer.prior.scale"),
+            (optimizer("prior = { kind = \"log\", weight = 1, scale = 0 }"), "optimizer.prior.scale"),
+            (optimizer("prior = [{ kind = \"tv\", weight = 1, scale = 0.1 }]"), "optimizer.prior.scale"),
+            (optimizer("prior = [{ kind = \"tv\", weight = -1 }]"), "optimizer.prior.weight"),
         ];
         for (text, key) in cases {
             let err = format!("{:#}", check(&text).unwrap_err());
