@@ -109,16 +109,19 @@ fn cross<R: Rng>(
     }
     let mut t = seg.t0;
     loop {
-        let reach = *budget / seg.sigma_max;
-        // Not `t + reach >= t1`: a NaN anywhere (a ray whose origin or bounds are not finite)
-        // must end the segment, not step forever from NaN to NaN.
-        if (t + reach).partial_cmp(&seg.t1) != Some(std::cmp::Ordering::Less) {
-            *budget = (*budget - (seg.t1 - t) * seg.sigma_max).max(0.0);
+        // The budget against the optical depth left in the segment: crossing a segment waits on
+        // a multiply, and only a collision on a division. Comparisons a NaN fails (a ray whose
+        // origin or bounds are not finite) end the segment rather than step from NaN to NaN,
+        // and so does a collision that rounding would put at t1 or beyond.
+        let depth = (seg.t1 - t) * seg.sigma_max;
+        let next = (*budget < depth).then(|| t + *budget / seg.sigma_max);
+        let Some(next) = next.filter(|&next| next < seg.t1) else {
+            *budget = (*budget - depth).max(0.0);
             return None;
-        }
+        };
         // In absurdly dense media a step can fall below f32 resolution: moving by at least one
         // ulp keeps every walk finite.
-        t = (t + reach).max(t.next_up());
+        t = next.max(t.next_up());
         if visit(t, seg.sigma_max, rng) {
             return Some(t);
         }
