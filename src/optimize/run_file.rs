@@ -418,6 +418,12 @@ mod tests {
             (optimizer("loss = \"mean\""), "optimizer.loss"),
             (optimizer("loss = \"l3\""), "unknown variant"),
             (optimizer("beta2 = 1"), "optimizer.beta2"),
+            (optimizer("level_lr = 0"), "optimizer.level_lr"),
+            (optimizer("prior = { kind = \"tvv\", weight = 1 }"), "unknown variant"),
+            (optimizer("prior = { kind = \"log\", weight = 1 }"), "optimizer.prior.scale"),
+            (optimizer("prior = { kind = \"log\", weight = 1, scale = 0 }"), "optimizer.prior.scale"),
+            (optimizer("prior = [{ kind = \"tv\", weight = 1, scale = 0.1 }]"), "optimizer.prior.scale"),
+            (optimizer("prior = [{ kind = \"tv\", weight = -1 }]"), "optimizer.prior.weight"),
             (
                 GOOD.replace("levels = [0.5]", "levels = [0.5, 0.4]"),
                 "unknown.levels",
@@ -487,12 +493,6 @@ mod tests {
             ),
             (format!("colour = 1\n{GOOD}"), "unknown field"),
             (format!("eval_every = 0\n{GOOD}"), "eval_every"),
-            (optimizer("level_lr = 0"), "optimizer.level_lr"),
-            (optimizer("prior = { kind = \"tvv\", weight = 1 }"), "unknown variant"),
-            (optimizer("prior = { kind = \"log\", weight = 1 }"), "optimizer.prior.scale"),
-            (optimizer("prior = { kind = \"log\", weight = 1, scale = 0 }"), "optimizer.prior.scale"),
-            (optimizer("prior = [{ kind = \"tv\", weight = 1, scale = 0.1 }]"), "optimizer.prior.scale"),
-            (optimizer("prior = [{ kind = \"tv\", weight = -1 }]"), "optimizer.prior.weight"),
         ];
         for (text, key) in cases {
             let err = format!("{:#}", check(&text).unwrap_err());
