@@ -1,0 +1,178 @@
+//! Where a shadow ray's time goes (docs/speed.md, "Where a path's time goes"): rays toward a
+//! scene's first sun from random points inside the density, tracked by ratio tracking over the
+//! majorant cells three ways with the same seeds — as they are, with each density read's value
+//! taken from a list the first way recorded (the same control flow without reads), and with the
+//! exponential budgets from a list too (without logarithms) — and the same rays' majorant
+//! segments walked alone.
+//!
+//!     cargo run --release --example shadow_ray_cost -- scenes/cloud.toml
+//!
+//! The tracking copies `volume::tracking`'s loop (its budget compared with each segment's optical
+//! depth, its Russian roulette below 0.1) with two hooks, without the refinement of loose cells.
+
+use std::path::PathBuf;
+use std::time::Instant;
+
+use anyhow::{bail, Context, Result};
+use glam::Vec3;
+use rand::rngs::SmallRng;
+use rand::{Rng, SeedableRng};
+use volgrad::render::scene::Scene;
+use volgrad::volume::medium::Medium;
+use volgrad::volume::ray::IndexRay;
+
+const RAYS: usize = 400_000;
+const RR_BELOW: f32 = 0.1;
+
+fn exponential(rng: &mut SmallRng) -> f32 {
+    -(1.0 - rng.gen::<f32>()).ln()
+}
+
+/// Ratio tracking from the ray's origin to where it leaves the medium, reading σt through `read`
+/// and drawing each Exp(1) budget through `budget`.
+#[inline(always)]
+fn track(
+    medium: &Medium,
+    ray: &IndexRay,
+    rng: &mut SmallRng,
+    mut read: impl FnMut(Vec3) -> f32,
+    mut budget: impl FnMut(&mut SmallRng) -> f32,
+) -> f32 {
+    let Some((t0, t1)) = medium.intersect(ray) else {
+        return 1.0;
+    };
+    let mut left = budget(rng);
+    let mut tr = 1.0f32;
+    for seg in medium.majorant.walk(ray.o, ray.d, t0, t1) {
+        if seg.sigma_max <= 0.0 {
+            continue;
+        }
+        let mut t = seg.t0;
+        loop {
+            let depth = (seg.t1 - t) * seg.sigma_max;
+            let next = (left < depth).then(|| t + left / seg.sigma_max);
+            let Some(next) = next.filter(|&next| next < seg.t1) else {
+                left = (left - depth).max(0.0);
+                break;
+            };
+            t = next.max(t.next_up());
+            tr *= (1.0 - read(ray.at(t)) / seg.sigma_max).max(0.0);
+            if tr < RR_BELOW {
+                if tr <= 0.0 || rng.gen::<f32>() * RR_BELOW >= tr {
+                    return 0.0;
+                }
+                tr = RR_BELOW;
+            }
+            left = budget(rng);
+        }
+    }
+    tr
+}
+
+fn main() -> Result<()> {
+    let path: PathBuf = std::env::args()
+        .nth(1)
+        .context("usage: shadow_ray_cost SCENE.toml")?
+        .into();
+    let scene = Scene::load(&path)?;
+    let medium = &scene.medium;
+    let Some(sun) = scene.lights.directional.first() else {
+        bail!("{}: the scene has no directional light", path.display());
+    };
+    if medium.grid.max_value() <= 0.0 {
+        bail!("{}: the medium has no density", path.display());
+    }
+    let d = medium.transform.vector_to_index(sun.to_light);
+    let (lo, hi) = medium.bounds;
+    let mut rng = SmallRng::seed_from_u64(9);
+    let mut rays = Vec::with_capacity(RAYS);
+    while rays.len() < RAYS {
+        let o = lo + (hi - lo) * Vec3::new(rng.gen(), rng.gen(), rng.gen());
+        if medium.sigma_t(o) > 0.0 {
+            rays.push(IndexRay { o, d });
+        }
+    }
+    // Neighbouring rays start in the same brick and share their reads, as a path's reads do.
+    rays.sort_by_key(|r| {
+        let b = (r.o / 8.0).floor();
+        (b.x as i32, b.y as i32, b.z as i32)
+    });
+    let (mut values, mut budgets) = (Vec::new(), Vec::new());
+    for (i, ray) in rays.iter().enumerate() {
+        let mut r = SmallRng::seed_from_u64(i as u64);
+        let read = |p| {
+            let v = medium.sigma_t(p);
+            values.push(v);
+            v
+        };
+        let draw = |r: &mut SmallRng| {
+            let e = exponential(r);
+            budgets.push(e);
+            e
+        };
+        track(medium, ray, &mut r, read, draw);
+    }
+    let n = rays.len() as f64;
+    println!(
+        "{RAYS} rays: {:.2} reads and {:.2} budgets a ray",
+        values.len() as f64 / n,
+        budgets.len() as f64 / n
+    );
+    for round in 1..=3 {
+        let time = |way: u32| {
+            let start = Instant::now();
+            let (mut vi, mut bi, mut sum) = (0usize, 0usize, 0.0f64);
+            for (i, ray) in rays.iter().enumerate() {
+                let mut r = SmallRng::seed_from_u64(i as u64);
+                let listed = |_| {
+                    vi += 1;
+                    values[vi - 1]
+                };
+                sum += f64::from(match way {
+                    0 => track(medium, ray, &mut r, |p| medium.sigma_t(p), exponential),
+                    1 => track(medium, ray, &mut r, listed, exponential),
+                    _ => {
+                        let listed_budget = |r: &mut SmallRng| {
+                            let _: f32 = r.gen(); // the draw stays, its logarithm goes
+                            bi += 1;
+                            budgets[bi - 1]
+                        };
+                        track(medium, ray, &mut r, listed, listed_budget)
+                    }
+                });
+            }
+            (start.elapsed().as_secs_f64() * 1e9 / n, sum)
+        };
+        let (as_is, a) = time(0);
+        let (no_reads, b) = time(1);
+        let (no_logs, c) = time(2);
+        assert!(a == b && b == c, "the three ways must make the same walks");
+        let start = Instant::now();
+        let (mut segments, mut occupied, mut runs) = (0u64, 0u64, 0u64);
+        for ray in &rays {
+            let Some((t0, t1)) = medium.intersect(ray) else {
+                continue;
+            };
+            let mut in_empty_run = false;
+            for seg in medium.majorant.walk(ray.o, ray.d, t0, t1) {
+                let empty = seg.sigma_max <= 0.0;
+                runs += u64::from(empty && !in_empty_run);
+                in_empty_run = empty;
+                segments += 1;
+                occupied += u64::from(!empty);
+            }
+        }
+        let walk = start.elapsed().as_secs_f64() * 1e9;
+        println!(
+            "round {round}: a ray {as_is:.0} ns; reads from the list {no_reads:.0} ns; budgets too \
+             {no_logs:.0} ns; its walk alone {:.0} ns: {:.1} segments ({:.1} occupied, {:.2} empty \
+             runs) at {:.1} ns",
+            walk / n,
+            segments as f64 / n,
+            occupied as f64 / n,
+            runs as f64 / n,
+            walk / segments.max(1) as f64
+        );
+    }
+    Ok(())
+}
