@@ -86,11 +86,23 @@ fn main() -> Result<()> {
     let (lo, hi) = medium.bounds;
     let mut rng = SmallRng::seed_from_u64(9);
     let mut rays = Vec::with_capacity(RAYS);
-    while rays.len() < RAYS {
+    // Points drawn in the box until enough fall in the density: a bounded number of draws, so
+    // that a sparse grid in a wide box ends with an error rather than a wait without end.
+    for _ in 0..1000 * RAYS {
         let o = lo + (hi - lo) * Vec3::new(rng.gen(), rng.gen(), rng.gen());
         if medium.sigma_t(o) > 0.0 {
             rays.push(IndexRay { o, d });
+            if rays.len() == RAYS {
+                break;
+            }
         }
+    }
+    if rays.len() < RAYS {
+        bail!(
+            "{}: the density fills under 1/1000 of the medium's box; {} of {RAYS} origins found",
+            path.display(),
+            rays.len()
+        );
     }
     // Neighbouring rays start in the same brick and share their reads, as a path's reads do.
     rays.sort_by_key(|r| {
