@@ -14,6 +14,7 @@ use std::time::Duration;
 use pyo3::exceptions::{PyKeyboardInterrupt, PyRuntimeError, PyValueError};
 use pyo3::prelude::*;
 use volgrad::render::interrupt;
+use volgrad::render::scene_check::MAX_THREADS;
 
 use crate::errors::OrRaise;
 
@@ -30,6 +31,11 @@ pub fn run<T: Send>(
 ) -> PyResult<T> {
     let pool = match threads {
         Some(0) => return Err(PyValueError::new_err("threads must be at least 1")),
+        Some(n) if n > MAX_THREADS => {
+            return Err(PyValueError::new_err(format!(
+                "threads is at most {MAX_THREADS} (got {n})"
+            )))
+        }
         Some(n) => Some(
             rayon::ThreadPoolBuilder::new()
                 .num_threads(n)

@@ -12,6 +12,7 @@ use volgrad::gradient::gradcheck::{checks_table, gradcheck, GradcheckOptions, Z_
 use volgrad::gradient::loss::Loss;
 use volgrad::gradient::passes::Parameter;
 use volgrad::render::scene::Scene;
+use volgrad::render::scene_check;
 
 #[derive(clap::Args)]
 pub struct Args {
@@ -38,11 +39,10 @@ pub struct Args {
 pub fn run(args: &Args) -> Result<()> {
     set_threads(args.adjoint.sampling.threads)?;
     let mut scene = Scene::load(&args.scene)?;
-    if args.width == 0 {
-        bail!("--width must be at least 1");
-    }
     let c = scene.camera;
-    let height = ((args.width as u64 * c.height as u64) / c.width as u64).max(1) as u32;
+    let height = ((u64::from(args.width) * u64::from(c.height)) / u64::from(c.width)).max(1);
+    let height = u32::try_from(height).unwrap_or(u32::MAX);
+    scene_check::image_size("--width", "the height it gives", args.width, height)?;
     scene.camera = c.with_resolution(args.width, height);
     let mut grad = args.adjoint.options(&scene, args.estimator)?;
     check_parameter(&scene, grad.parameter)?;

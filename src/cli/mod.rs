@@ -27,6 +27,7 @@ use volgrad::gradient::passes::{GradOptions, Measured, Parameter};
 use volgrad::gradient::pixel_samples::PixelSamples;
 use volgrad::render::image::RenderStats;
 use volgrad::render::scene::Scene;
+use volgrad::render::scene_check;
 
 /// Which voxels are parameters.
 #[derive(Clone, Copy, PartialEq, Eq, ValueEnum)]
@@ -171,6 +172,13 @@ pub fn set_threads(threads: Option<usize>) -> Result<()> {
     if let Some(t) = threads {
         if t == 0 {
             bail!("--threads must be at least 1");
+        }
+        if t > scene_check::MAX_THREADS {
+            let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
+            bail!(
+                "--threads is at most {} (got {t}; this machine has {cores} cores)",
+                scene_check::MAX_THREADS
+            );
         }
         rayon::ThreadPoolBuilder::new()
             .num_threads(t)

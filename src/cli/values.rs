@@ -6,6 +6,10 @@ use std::time::Duration;
 use anyhow::{bail, Context, Result};
 use glam::IVec3;
 
+/// The longest duration a flag takes: further than any run, and short enough that the clock it
+/// is added to cannot overflow.
+const MAX_SECONDS: f64 = 1e9;
+
 /// "120s", "2m", "1.5h", "250ms", "90" (seconds).
 pub fn duration(text: &str) -> Result<Duration, String> {
     let t = text.trim();
@@ -25,7 +29,12 @@ pub fn duration(text: &str) -> Result<Duration, String> {
         }
     };
     match number.trim().parse::<f64>() {
-        Ok(v) if v.is_finite() && v >= 0.0 => Ok(Duration::from_secs_f64(v * factor)),
+        Ok(v) if v.is_finite() && v >= 0.0 && v * factor <= MAX_SECONDS => {
+            Ok(Duration::from_secs_f64(v * factor))
+        }
+        Ok(v) if v * factor > MAX_SECONDS => Err(format!(
+            "'{text}' is too long a duration (at most {MAX_SECONDS:e} s, about 30 years)"
+        )),
         _ => Err(format!("'{text}' is not a duration (e.g. 120s, 2m)")),
     }
 }

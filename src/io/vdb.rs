@@ -112,10 +112,16 @@ fn zero_outside(what: &str, values: &str, data: &FloatGridData) -> Result<()> {
     Ok(())
 }
 
+/// The threads the bridge copies leaves on: as many as the renderer uses (`--threads`), but no
+/// more than the machine has (TBB warns on stderr beyond them, and they would only wait).
+fn bridge_threads() -> u32 {
+    let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
+    u32::try_from(rayon::current_num_threads().min(cores)).unwrap_or(u32::MAX)
+}
+
 fn read_data(path: &Path, selector: &GridSelector, to_fog: bool) -> Result<FloatGridData> {
     let p = path_str(path)?;
-    // The bridge copies leaves on as many threads as the renderer uses (`--threads`).
-    let threads = u32::try_from(rayon::current_num_threads()).unwrap_or(u32::MAX);
+    let threads = bridge_threads();
     match selector {
         GridSelector::Name(name) => ffi::read_float_grid(p, name, -1, to_fog, threads),
         GridSelector::Index(i) => match i32::try_from(*i) {
@@ -145,7 +151,7 @@ fn read_data(path: &Path, selector: &GridSelector, to_fog: bool) -> Result<Float
 /// Reads the grid named `name` as float components: one for a float grid, three (x, y, z) for a
 /// vec3 grid, each as it is stored (any background).
 pub fn read_components(path: &Path, name: &str) -> Result<Vec<Grid>> {
-    let threads = u32::try_from(rayon::current_num_threads()).unwrap_or(u32::MAX);
+    let threads = bridge_threads();
     let data = ffi::read_grid_components(path_str(path)?, name, -1, threads)
         .map_err(|e| anyhow!("{}", e.what()))?;
     data.into_iter()

@@ -2,7 +2,7 @@
 //! the log-scales of θ that a step may fit beside the voxels. What the moments belong to (voxels,
 //! bricks, the whole grid) is `parameters`' and `descent`'s business.
 
-/// Adam's settings; θ is projected onto θ ≥ 0 after every step.
+/// Adam's settings; θ is projected onto 0 ≤ θ ≤ `theta_max` after every step.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Adam {
     pub lr: f32,
@@ -23,6 +23,8 @@ pub struct Adam {
     /// voxels than the global one's, so it is noisier, but the interior it moves has no other
     /// fast mode.
     pub brick_scale_lr: f32,
+    /// The largest value a step may leave (`SceneUnits::theta_max`).
+    pub theta_max: f32,
 }
 
 impl Default for Adam {
@@ -35,6 +37,7 @@ impl Default for Adam {
             fit_scale: false,
             fit_brick_scales: false,
             brick_scale_lr: 1.0,
+            theta_max: f32::MAX,
         }
     }
 }

@@ -8,7 +8,9 @@
 //! (u32) and each one's x and (m, v) (f32 each), the log text, then the bricks in
 //! key order (origin as 3 × i32, then θ, m, v as 512 × f32 each, the brick's log-scale (m, v) as
 //! 2 × f32 and its idle steps as u32), then the average: its steps (u32), its bricks' count (u64)
-//! and each brick in key order (origin as 3 × i32, θ̄ as 512 × f32).
+//! and each brick in key order (origin as 3 × i32, θ̄ as 512 × f32). Last, the FNV-1a checksum
+//! of every byte before it, as 16 hex digits: a value changed on disk would otherwise resume as
+//! a different run, or as a medium too dense to track.
 
 use std::io::{BufReader, Read, Write};
 use std::path::{Path, PathBuf};
@@ -17,6 +19,7 @@ use anyhow::{bail, Context, Result};
 use glam::IVec3;
 
 use crate::io::bridge::MetaEntry;
+use crate::io::fingerprint::Fingerprint;
 use crate::io::output::write_whole;
 use crate::io::vdb::{self, Grid};
 use crate::optimize::adam::ScalarMoments;
@@ -27,7 +30,7 @@ use crate::optimize::schedule::Stop;
 use crate::volume::brickmap::BRICK_VOXELS;
 use crate::volume::transform::IndexTransform;
 
-const MAGIC: &[u8] = b"volgrad optimizer state 10\n";
+const MAGIC: &[u8] = b"volgrad optimizer state 11\n";
 
 /// Where a run is, apart from θ and Adam's moments.
 #[derive(Debug, Clone, Default, PartialEq)]
@@ -87,7 +90,8 @@ pub fn write_state(
     parameters: &Parameters,
 ) -> Result<()> {
     let stop = position.stop.as_ref().map_or(String::new(), Stop::to_text);
-    write_whole(path, |w| {
+    write_whole(path, |file| {
+        let w = &mut Summed::new(file);
         w.write_all(MAGIC)?;
         write_text(w, fingerprint)?;
         write_text(w, &stop)?;
@@ -120,8 +124,44 @@ pub fn write_state(
             write_key(w, key)?;
             write_values(w, values)?;
         }
-        Ok(())
+        let sum = w.sum.hex();
+        w.inner.write_all(sum.as_bytes())
     })
+}
+
+/// A reader or writer that keeps the FNV-1a checksum of the bytes that pass through it.
+struct Summed<T> {
+    inner: T,
+    sum: Fingerprint,
+}
+
+impl<T> Summed<T> {
+    fn new(inner: T) -> Self {
+        Summed {
+            inner,
+            sum: Fingerprint::default(),
+        }
+    }
+}
+
+impl<W: Write> Write for Summed<W> {
+    fn write(&mut self, buf: &[u8]) -> std::io::Result<usize> {
+        let n = self.inner.write(buf)?;
+        self.sum.bytes(&buf[..n]);
+        Ok(n)
+    }
+
+    fn flush(&mut self) -> std::io::Result<()> {
+        self.inner.flush()
+    }
+}
+
+impl<R: Read> Read for Summed<R> {
+    fn read(&mut self, buf: &mut [u8]) -> std::io::Result<usize> {
+        let n = self.inner.read(buf)?;
+        self.sum.bytes(&buf[..n]);
+        Ok(n)
+    }
 }
 
 fn write_key(w: &mut impl Write, key: IVec3) -> std::io::Result<()> {
@@ -189,7 +229,7 @@ pub fn read_state(path: &Path, fingerprint: &str) -> Result<(Position, Parameter
     let file =
         std::fs::File::open(path).with_context(|| format!("cannot open '{}'", path.display()))?;
     let size = file.metadata().map(|m| m.len()).unwrap_or(0);
-    let mut r = BufReader::new(file);
+    let mut r = Summed::new(BufReader::new(file));
     let context = || {
         format!(
             "'{}' is not a complete volgrad optimizer state",
@@ -202,12 +242,6 @@ pub fn read_state(path: &Path, fingerprint: &str) -> Result<(Position, Parameter
         bail!("{}", context());
     }
     let stored = read_text(&mut r, size).with_context(context)?;
-    if stored != fingerprint {
-        bail!(
-            "'{}' belongs to another run: the run file, its scene or its targets changed since this checkpoint (fingerprint {stored}, now {fingerprint})",
-            path.display()
-        );
-    }
     let mut read = || -> Result<(Position, Parameters)> {
         let stop = read_text(&mut r, size)?;
         let stop = (!stop.is_empty()).then(|| Stop::parse(&stop)).transpose()?;
@@ -267,7 +301,22 @@ pub fn read_state(path: &Path, fingerprint: &str) -> Result<(Position, Parameter
         };
         Ok((position, p))
     };
-    read().with_context(context)
+    let state = read().with_context(context)?;
+    let sum = r.sum.hex();
+    let mut written = [0u8; 16];
+    if r.inner.read_exact(&mut written).is_err() || written != sum.as_bytes() {
+        bail!(
+            "'{}' is damaged: its checksum is not the one it was written with (changed on disk; resume from an earlier checkpoint)",
+            path.display()
+        );
+    }
+    if stored != fingerprint {
+        bail!(
+            "'{}' belongs to another run: the run file, its scene or its targets changed since this checkpoint (fingerprint {stored}, now {fingerprint})",
+            path.display()
+        );
+    }
+    Ok(state)
 }
 
 fn read_array<const N: usize>(r: &mut impl Read) -> Result<[u8; N]> {
@@ -400,6 +449,15 @@ mod tests {
         let err = read_state(&path, "other").err().unwrap().to_string();
         assert!(err.contains("another run"), "{err}");
         let bytes = std::fs::read(&path).unwrap();
+        // One bit changed in the middle (among the bricks' θ, m and v) or in the average's last
+        // value: each still a state in form, which only the checksum tells from the run's.
+        for (at, flip) in [(bytes.len() / 2, 0x01u8), (bytes.len() - 17, 0x01)] {
+            let mut damaged = bytes.clone();
+            damaged[at] ^= flip;
+            std::fs::write(&path, &damaged).unwrap();
+            let err = read_state(&path, "abc").err().unwrap().to_string();
+            assert!(err.contains("damaged"), "{err}");
+        }
         std::fs::write(&path, &bytes[..bytes.len() - 100]).unwrap();
         let err = read_state(&path, "abc").err().unwrap().to_string();
         assert!(err.contains("not a complete"), "{err}");

@@ -95,7 +95,7 @@ impl Parameters {
                 let (m, v, step) = at.update(brick.m[i], brick.v[i], g);
                 brick.m[i] = m;
                 brick.v[i] = v;
-                brick.theta[i] = (brick.theta[i] * scale - step).max(0.0);
+                brick.theta[i] = (brick.theta[i] * scale - step).max(0.0).min(adam.theta_max);
             }
             brick.idle = if data.get(*key).is_some() {
                 0

@@ -351,6 +351,7 @@ impl OptimizerFile {
             fit_scale: self.fit_scale,
             fit_brick_scales: self.fit_brick_scales,
             brick_scale_lr: self.brick_scale_lr,
+            theta_max: units.theta_max,
         }
     }
 

@@ -29,6 +29,7 @@ use crate::optimize::view_files::target_pixels;
 use crate::render::camera::Camera;
 use crate::render::lights::Lights;
 use crate::render::scene::{Scene, SceneNeeds};
+use crate::render::scene_check::{MAX_EXTINCTION, MAX_LIGHT};
 use crate::volume::brickmap::BrickMap;
 use crate::volume::transform::IndexTransform;
 
@@ -205,6 +206,16 @@ impl Problem {
         let start_file = file.unknown.start.clone().unwrap_or(StartFile::Constant(
             units.theta(scene_units::START_OPTICAL_DEPTH),
         ));
+        let start_max = match &start_file {
+            StartFile::Constant(c) => *c,
+            StartFile::Vdb(_) => grids.start.as_ref().map_or(0.0, |g| g.bricks.max_value()),
+        };
+        if start_max > units.theta_max {
+            bail!(
+                "unknown.start holds values up to {start_max:e}, above the largest this scene renders ({:e}: an extinction of {MAX_EXTINCTION:e} per world unit, or an emission of {MAX_LIGHT:e})",
+                units.theta_max
+            );
+        }
         let carve = *file.unknown.carve.get_or_insert(
             unknown == UnknownGrid::Density && matches!(start_file, StartFile::Constant(_)),
         );
@@ -423,9 +434,12 @@ fn final_domain(file: &RunFile, grids: &KnownGrids) -> Result<Domain> {
         levels: 0,
     };
     if domain.voxel_count() > MAX_VOXELS {
+        let count = match domain.voxel_count() {
+            u64::MAX => "more than 1.8e19".to_string(), // saturated
+            n => n.to_string(),
+        };
         bail!(
-            "unknown.bounds: the unknown has {} voxels at the final level; at most {MAX_VOXELS} (each is stored with Adam's two moments)",
-            domain.voxel_count()
+            "unknown.bounds: the unknown has {count} voxels at the final level; at most {MAX_VOXELS} (each is stored with Adam's two moments)"
         );
     }
     Ok(domain)

@@ -16,6 +16,7 @@
 //! expressed in these units, so that they carry over to scenes of other sizes, grid units and
 //! lights.
 
+use crate::render::scene_check::{MAX_EXTINCTION, MAX_LIGHT};
 use glam::Vec3;
 
 use crate::optimize::prior::{Prior, PriorKind};
@@ -62,6 +63,10 @@ pub struct SceneUnits {
     pub theta_per_optical_depth: f64,
     /// P: the training targets' mean squared pixel value.
     pub image_power: f64,
+    /// The largest θ the renderer takes: an extinction of `MAX_EXTINCTION`, or an emission of
+    /// `MAX_LIGHT`. Steps are held below it (a medium beyond it is opaque long before, and its
+    /// tracking would take hours).
+    pub theta_max: f32,
 }
 
 impl SceneUnits {
@@ -69,6 +74,8 @@ impl SceneUnits {
         SceneUnits {
             theta_per_optical_depth: 1.0 / (f64::from(density_scale) * longest_edge).max(1e-30),
             image_power,
+            theta_max: (MAX_EXTINCTION / f64::from(density_scale).max(1e-30))
+                .min(f64::from(f32::MAX)) as f32,
         }
     }
 
@@ -96,6 +103,7 @@ impl SceneUnits {
         Ok(SceneUnits {
             theta_per_optical_depth: brightness / glow / EMISSION_UNITS_PER_GLOW,
             image_power,
+            theta_max: MAX_LIGHT / radiance.max_element().max(1e-30),
         })
     }
 

@@ -102,10 +102,13 @@ impl Domain {
     }
 }
 
-/// Voxels in the inclusive box `lo..=hi` (0 for an empty box).
+/// Voxels in the inclusive box `lo..=hi` (0 for an empty box), saturating at `u64::MAX`: a box of
+/// 2²² voxels a side would wrap to 0 and pass every limit.
 fn box_voxels(lo: IVec3, hi: IVec3) -> u64 {
-    let n = (hi - lo + IVec3::ONE).as_i64vec3().max(glam::I64Vec3::ZERO);
-    (n.x * n.y * n.z) as u64
+    let n = (hi.as_i64vec3() - lo.as_i64vec3() + 1).max(glam::I64Vec3::ZERO);
+    (n.x as u64)
+        .saturating_mul(n.y as u64)
+        .saturating_mul(n.z as u64)
 }
 
 /// The optimiser's settings, resolved.

@@ -22,6 +22,8 @@ pub const MAX_LIGHT: f32 = 1e30;
 pub const MAX_EXTINCTION: f64 = 1e15;
 /// Largest image, in pixels (2^28: a 16384 × 16384 render); beyond, buffers run to gigabytes.
 pub const MAX_PIXELS: u64 = 1 << 28;
+/// The most worker threads a run starts: more than any machine's cores, and each costs its start.
+pub const MAX_THREADS: usize = 1024;
 
 impl CameraFile {
     /// Checks the camera; messages name `camera.*` keys.

@@ -1,0 +1,106 @@
+//! Every quantity a user types has a limit, checked before it is used: sizes whose product would
+//! wrap an integer, durations past any clock, thread counts past any machine, densities past what
+//! the renderer tracks. Each class gets a clean error, never a panic, an abort or a wait without
+//! end.
+
+mod common;
+mod optimize_common;
+
+use std::process::Output;
+use std::time::{Duration, Instant};
+
+use common::{assert_clean_error, ok, stderr, volgrad_in};
+use optimize_common::*;
+
+/// A value clap refuses: exit status 2 and its one `error: ` line naming `needle`.
+fn assert_flag_refused(o: &Output, needle: &str) {
+    let err = stderr(o);
+    assert_eq!(o.status.code(), Some(2), "{err}");
+    assert!(!err.contains("panicked"), "{err}");
+    assert!(err.contains(needle), "{err}");
+}
+
+#[test]
+fn flags_beyond_any_machine_are_refused() {
+    let dir = fixture(&run_file("0.1", "spp = 1\niterations = 2"));
+    let d = dir.path();
+    let render = ["render", "scene.toml", "-o", "a.exr", "--spp", "1", "-q"];
+    let threads = volgrad_in(d, &[&render[..], &["--threads", "100000"]].concat());
+    assert_clean_error(&threads, &["--threads", "at most 1024"]);
+    // A thread count above the machine's cores is taken, without a warning from the VDB reader's
+    // thread pool (TBB's) on stderr.
+    let o = ok(volgrad_in(d, &[&render[..], &["--threads", "64"]].concat()));
+    assert!(!stderr(&o).contains("TBB"), "{}", stderr(&o));
+
+    // 10²¹ seconds: `Duration` would panic on it, and an `Instant` plus a long one overflows.
+    let eon = "1000000000000000000000s";
+    let budget = volgrad_in(d, &["optimize", "run.toml", "--budget", eon, "-q"]);
+    assert_flag_refused(&budget, "too long a duration");
+    let render_budget = [
+        "compare",
+        "scene.toml",
+        "--render-budget",
+        "99999999999999999999h",
+    ];
+    assert_flag_refused(&volgrad_in(d, &render_budget), "too long a duration");
+
+    // gradcheck's image: 10¹⁰ pixels would be a 120 GB allocation (an abort), and 2³² − 1 a side
+    // overflows the pixel count's capacity (a panic).
+    for width in ["100000", "4294967295"] {
+        let check = [
+            "gradcheck",
+            "scene.toml",
+            "--width",
+            width,
+            "--spp",
+            "1",
+            "-q",
+        ];
+        assert_clean_error(&volgrad_in(d, &check), &["--width", "too large", "2^28"]);
+    }
+}
+
+/// An unknown's box of 2²² voxels a side: its voxel count, 2⁶⁶, wrapped to 0 in u64 and passed
+/// the limit (then a panic in the visual hull, or hours of resampling the truth).
+#[test]
+fn an_unknown_box_whose_voxel_count_overflows_is_refused() {
+    let run = run_file("0.1", "iterations = 1").replace(
+        "bounds = \"truth\"",
+        "bounds = { min = [-2097152, -2097152, -4194324], max = [2097152, 2097152, -20] }\nvoxel_size = 1.0",
+    );
+    let dir = fixture(&run);
+    let o = volgrad_in(dir.path(), &["optimize", "run.toml", "-q"]);
+    assert_clean_error(
+        &o,
+        &["unknown.bounds", "more than 1.8e19 voxels", "at most"],
+    );
+}
+
+/// Values beyond an extinction of 1e15 per unit (the cap every grid the renderer loads is held
+/// to): a start there is refused, and steps that would go there (a learning rate of 1e30) stop
+/// at it, so that the run ends in seconds as any other.
+#[test]
+fn the_unknown_stays_within_what_the_renderer_tracks() {
+    let dir = fixture(&run_file("1e20", "iterations = 1"));
+    let o = volgrad_in(dir.path(), &["optimize", "run.toml", "-q"]);
+    // density_scale 0.6: at most 1e15 / 0.6 ≈ 1.7e15.
+    assert_clean_error(
+        &o,
+        &[
+            "unknown.start",
+            "1e20",
+            "1.666",
+            "e15",
+            "extinction of 1e15",
+        ],
+    );
+
+    let dir = fixture(&run_file("0.1", "spp = 1\niterations = 2").replace("lr = 0.1", "lr = 1e30"));
+    let started = Instant::now();
+    ok(volgrad_in(dir.path(), &["optimize", "run.toml", "-q"]));
+    assert!(
+        started.elapsed() < Duration::from_secs(120),
+        "two steps of a 24² reconstruction took {:?}",
+        started.elapsed()
+    );
+}
