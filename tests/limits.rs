@@ -104,3 +104,114 @@ fn the_unknown_stays_within_what_the_renderer_tracks() {
         started.elapsed()
     );
 }
+
+/// Nothing beyond half floats' range is stored as half (it would come back infinite): an image
+/// with `render --half`, a grid with `make-grid --half`.
+#[test]
+fn values_beyond_half_floats_are_not_stored_as_half() {
+    let dir = fixture(&run_file("0.1", ""));
+    let d = dir.path();
+    let bright = SCENE.replace("radiance = [0.03, 0.04, 0.06]", "radiance = 1e5");
+    std::fs::write(d.join("bright.toml"), bright).unwrap();
+    let o = volgrad_in(
+        d,
+        &[
+            "render",
+            "bright.toml",
+            "-o",
+            "b.exr",
+            "--spp",
+            "1",
+            "--half",
+            "-q",
+        ],
+    );
+    assert_clean_error(&o, &["b.exr", "half floats", "65504", "float"]);
+    assert!(!d.join("b.exr").exists() && !d.join("b.png").exists());
+    let o = volgrad_in(
+        d,
+        &[
+            "make-grid",
+            "box",
+            "--value",
+            "1e6",
+            "--half",
+            "-o",
+            "h.vdb",
+        ],
+    );
+    assert_clean_error(&o, &["1e6", "half floats"]);
+    assert!(!d.join("h.vdb").exists());
+}
+
+/// A picture a loss compares with holds radiance: finite, ≥ 0 and at most 1e30 (beyond it no
+/// scene renders it, and its squared difference overflows f32: an infinite loss, an adjoint
+/// dropped as non-finite), and its alpha is in [0, 1]. For `grad --target` and for a view's image.
+#[test]
+fn target_pictures_hold_radiance() {
+    let dir = fixture(&run_file("0.1", "iterations = 1"));
+    let d = dir.path();
+    let write = |name: &str, at: usize, rgb: f32, alpha: f32| {
+        let path = d.join(name);
+        exr::prelude::write_rgba_file(&path, 24, 24, |x, y| {
+            let v = if y * 24 + x == at { rgb } else { 0.25 };
+            let a = if y * 24 + x == at { alpha } else { 1.0 };
+            (v, v, v, a)
+        })
+        .unwrap();
+    };
+    write("huge.exr", 5, 3e38, 1.0);
+    write("negative.exr", 7, -0.5, 1.0);
+    write("alpha.exr", 9, 0.25, 2.0);
+    let grad = |target: &str| {
+        let args = [
+            "grad",
+            "scene.toml",
+            "--loss",
+            "l2",
+            "--target",
+            target,
+            "--spp",
+            "1",
+        ];
+        volgrad_in(d, &[&args[..], &["-o", "g.vdb", "-q"]].concat())
+    };
+    assert_clean_error(
+        &grad("huge.exr"),
+        &["--target 'huge.exr'", "pixel 5", "1e30"],
+    );
+    assert_clean_error(&grad("negative.exr"), &["pixel 7", "≥ 0"]);
+    let run = std::fs::read_to_string(d.join("run.toml")).unwrap();
+    for (image, needles) in [
+        ("huge.exr", ["pixel 5", "1e30"]),
+        ("negative.exr", ["pixel 7", "≥ 0"]),
+        ("alpha.exr", ["pixel 9", "alpha of 2"]),
+    ] {
+        let view = "\n[[view]]\nposition = [0, 0, 12]\ntarget = [0, 0, 0]\nfov_deg = 40\nwidth = 24\nheight = 24\n";
+        std::fs::write(
+            d.join("r.toml"),
+            format!("{run}{view}image = \"{image}\"\n"),
+        )
+        .unwrap();
+        let o = volgrad_in(
+            d,
+            &["optimize", "r.toml", "--out", &format!("o-{image}"), "-q"],
+        );
+        assert_clean_error(&o, &[&["view[0].image", image][..], &needles[..]].concat());
+    }
+}
+
+/// A prior's weight is relative to the images and the box: one too large to be a weight in grid
+/// units (its penalty infinite) is refused naming it, not found at the first step.
+#[test]
+fn a_prior_weight_beyond_f32_in_grid_units_is_refused() {
+    // A 12-unit box: u = 1/(0.6 · 12), and the Laplacian's weight W·P/u² ≈ 1.4·W.
+    let prior = "[[optimizer.prior]]\nkind = \"laplacian\"\nweight = 3e38\n";
+    let run = run_file("0.1", "spp = 1\niterations = 2").replace(
+        "bounds = \"truth\"",
+        "bounds = { min = [-6, -6, -6], max = [6, 6, 6] }\nvoxel_size = 1.0",
+    );
+    let dir = fixture(&format!("{run}{prior}"));
+    let o = volgrad_in(dir.path(), &["optimize", "run.toml", "-q"]);
+    assert_clean_error(&o, &["optimizer.prior[0].weight", "3e38", "too large"]);
+}

@@ -295,6 +295,13 @@ impl Scene {
             )
         })?;
         views::warn_non_finite(py, gradient.non_finite, gradient.paths)?;
+        if let Some(v) = gradient.values.iter().find(|v| !v.is_finite()) {
+            // Every path's term is finite; their sum went beyond f32's range.
+            return Err(PyValueError::new_err(format!(
+                "the gradient overflowed float32 (a voxel's sum is {v}): scale the adjoint down (its largest magnitude is {:e})",
+                adjoint.as_array().iter().fold(0.0f32, |m, a| m.max(a.abs()))
+            )));
+        }
         Ok(gradient.values.into_pyarray(py))
     }
 

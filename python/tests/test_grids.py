@@ -75,6 +75,12 @@ def test_bad_arrays_are_refused_by_name(tmp_path, array, matrix, error, message)
     assert not (tmp_path / "x.vdb").exists()
 
 
+def test_values_beyond_half_floats_are_not_written_as_half(tmp_path):
+    with pytest.raises(ValueError, match="beyond half floats"):
+        volgrad.write_grid(tmp_path / "h.vdb", ball() * 1e6, voxel_map(), half=True)
+    assert not (tmp_path / "h.vdb").exists()
+
+
 def test_missing_files_raise_file_not_found(tmp_path):
     with pytest.raises(FileNotFoundError, match="does not exist"):
         volgrad.read_grid(tmp_path / "none.vdb")

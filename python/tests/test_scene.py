@@ -158,6 +158,9 @@ def bad_calls():
     adjoint = np.zeros((24, 24, 3), np.float32)
     yield lambda: scene.render(spp=0), ValueError, "spp must be at least 1"
     yield lambda: scene.render(threads=0), ValueError, "threads must be at least 1"
+    yield lambda: scene.render(threads=100_000), ValueError, "threads is at most 1024"
+    # Each path's term finite, their sum beyond float32.
+    yield lambda: scene.grad(np.full_like(adjoint, 3e38), estimator="drt"), ValueError, "overflowed float32"
     yield lambda: scene.render(cameras=[]), ValueError, "cameras: the list is empty"
     yield lambda: scene.render(density=density.astype(np.float64)), TypeError, "density must be a float32"
     yield lambda: scene.render(density=density[:4]), ValueError, "density has shape"

@@ -23,7 +23,7 @@ use glam::{DQuat, DVec3};
 
 use crate::capture::CapturedView;
 use crate::render::camera::Intrinsics;
-use crate::render::scene_check::calibrated_camera;
+use crate::render::scene_check::{self, calibrated_camera};
 
 /// A camera of `cameras.txt`: its size and intrinsics.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -141,10 +141,12 @@ fn sensor(line: &str) -> Result<Sensor> {
         bail!("{model} with distortion {k}: lens distortion is not modelled (volgrad's cameras are pinholes); undistort the images (`colmap image_undistorter`)");
     }
     let [fx, fy, cx, cy] = pinhole.map(|v| v as f32);
+    let intrinsics = Intrinsics { fx, fy, cx, cy };
+    scene_check::intrinsics(intrinsics, width, height)?;
     Ok(Sensor {
         width,
         height,
-        intrinsics: Intrinsics { fx, fy, cx, cy },
+        intrinsics,
     })
 }
 
@@ -152,7 +154,7 @@ fn views(text: &str, sensors: &HashMap<u32, Sensor>, images: &Path) -> Result<Ve
     // Two lines per image: the pose, then its points (possibly empty, possibly missing at the end
     // of the file).
     let lines: Vec<(usize, &str)> = data_lines(text).collect();
-    let mut views = Vec::new();
+    let (mut views, mut ids) = (Vec::new(), std::collections::HashSet::new());
     for pair in lines.chunks(2) {
         let (number, line) = pair[0];
         if line.trim().is_empty() {
@@ -162,12 +164,35 @@ fn views(text: &str, sensors: &HashMap<u32, Sensor>, images: &Path) -> Result<Ve
             bail!("line {number}: expected IMAGE_ID QW QX QY QZ TX TY TZ CAMERA_ID NAME, found an empty line");
         }
         let view = view(line, sensors, images).with_context(|| format!("line {number}"))?;
+        let id = first_number(line).with_context(|| format!("line {number}: IMAGE_ID"))?;
+        if !ids.insert(id) {
+            bail!("line {number}: image {id} is listed twice");
+        }
+        if let Some(&(number, points)) = pair.get(1) {
+            points_line(points).with_context(|| format!("line {number}: expected the POINTS2D line of image {id} (X Y POINT3D_ID triples, or empty: COLMAP writes one after each image's line)"))?;
+        }
         views.push(view);
     }
     if views.is_empty() {
         bail!("no images");
     }
     Ok(views)
+}
+
+/// A POINTS2D line: `X Y POINT3D_ID` triples (the ID −1 where a point has no 3D point), not read
+/// but checked, so that a file without these lines is not read as every other image.
+fn points_line(line: &str) -> Result<()> {
+    let words: Vec<&str> = line.split_whitespace().collect();
+    if !words.len().is_multiple_of(3) {
+        bail!("{} values, not a multiple of 3", words.len());
+    }
+    for triple in words.chunks(3) {
+        finite_numbers(&triple[..2])?;
+        triple[2]
+            .parse::<i64>()
+            .with_context(|| format!("'{}' is not a POINT3D_ID", triple[2]))?;
+    }
+    Ok(())
 }
 
 /// One pose line of `images.txt`.

@@ -127,11 +127,44 @@ fn what_is_not_a_pinhole_or_not_colmap_is_refused_naming_the_line() {
             "# only comments\n",
             "no images",
         ),
+        // Without the POINTS2D lines the second image's line would be taken for the first's
+        // points, and every other image dropped.
+        (
+            "1 PINHOLE 8 8 10 10 4 4\n",
+            "1 1 0 0 0 0 0 5 1 a.png\n2 1 0 0 0 0 0 6 1 b.png\n",
+            "POINTS2D",
+        ),
+        (
+            "1 PINHOLE 8 8 10 10 4 4\n",
+            "1 1 0 0 0 0 0 5 1 a.png\n2.5 3 x\n",
+            "POINT3D_ID",
+        ),
+        (
+            "1 PINHOLE 8 8 10 10 4 4\n",
+            "1 1 0 0 0 0 0 5 1 a.png\n\n1 1 0 0 0 0 0 6 1 b.png\n",
+            "image 1 is listed twice",
+        ),
+        ("1 PINHOLE 8 8 1e-30 10 4 4\n", pose, "180°"),
     ] {
         let err = format!("{:#}", read_model(cameras, images).err().expect(needle));
         assert!(err.contains(needle), "{needle}: {err}");
         assert!(err.contains("line") || needle.starts_with("no "), "{err}");
+        // Each error names the file it is in.
+        let file = if images == pose {
+            "cameras.txt"
+        } else {
+            "images.txt"
+        };
+        assert!(err.contains(file), "{needle}: {err}");
     }
+    // Points after each image, some of them without a 3D point (−1), are read past.
+    let points = "1 1 0 0 0 0 0 5 1 a.png\n2.5 3.5 -1 4 4 17\n2 1 0 0 0 0 0 6 1 b.png\n\n";
+    assert_eq!(
+        read_model("1 PINHOLE 8 8 10 10 4 4\n", points)
+            .unwrap()
+            .len(),
+        2
+    );
     let dir = tempfile::tempdir().unwrap();
     let err = format!("{:#}", read(dir.path(), dir.path()).err().unwrap());
     assert!(err.contains("cameras.txt"), "{err}");

@@ -28,6 +28,7 @@ use volgrad::io::{colormap, vdb};
 use volgrad::render::fingerprint;
 use volgrad::render::lights::luminance;
 use volgrad::render::scene::Scene;
+use volgrad::render::scene_check;
 use volgrad::volume::transform::IndexTransform;
 
 /// What `grad` computes: an estimator's gradient of every voxel, or finite differences along
@@ -139,9 +140,12 @@ enum TargetSource {
 /// another (a file), before any rank renders with the others.
 fn load_target(args: &Args) -> Result<TargetSource> {
     let source = match (&args.target, &args.target_scene) {
-        (Some(path), _) => TargetSource::Image(
-            images::read_rgb(path).with_context(|| format!("--target '{}'", path.display()))?,
-        ),
+        (Some(path), _) => {
+            let what = format!("--target '{}'", path.display());
+            let image = images::read_rgb(path).with_context(|| what.clone())?;
+            scene_check::radiance_pixels(&what, &image.pixels)?;
+            TargetSource::Image(image)
+        }
         (None, Some(path)) => TargetSource::Scene(Box::new(
             Scene::load(path).with_context(|| format!("--target-scene '{}'", path.display()))?,
         )),

@@ -52,14 +52,16 @@ impl Loss {
     /// One pixel's term of the loss, summed over channels, before the mean: `evaluate` is the
     /// sum of these over 3 × the pixel count.
     pub fn pixel_value(self, c: Vec3, t: Vec3) -> f64 {
+        // In f64: a difference of 1e20 squares beyond f32.
+        let (c, t) = (c.as_dvec3(), t.as_dvec3());
         let d = c - t;
         let v = match self {
             Loss::L2 => d * d,
             Loss::L1 => d.abs(),
-            Loss::RelativeL2 => d * d / (t * t + RELATIVE_EPSILON),
+            Loss::RelativeL2 => d * d / (t * t + f64::from(RELATIVE_EPSILON)),
             Loss::Mean => c,
         };
-        (v.x + v.y + v.z) as f64
+        v.x + v.y + v.z
     }
 
     /// ∂`pixel_value`/∂c.

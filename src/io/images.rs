@@ -105,8 +105,21 @@ pub fn srgb_encode(linear: f32) -> f32 {
     }
 }
 
-/// Writes a linear EXR, as half or float.
+/// The largest finite half float: larger values would be stored as infinite.
+pub const HALF_MAX: f32 = 65504.0;
+
+/// Writes a linear EXR, as half or float (refused if a value is beyond `HALF_MAX`).
 pub fn write_exr(path: &Path, image: &RgbImage, half: bool) -> Result<()> {
+    let largest = image
+        .pixels
+        .iter()
+        .fold(0.0f32, |m, p| m.max(p.abs().max_element()));
+    if half && largest > HALF_MAX {
+        bail!(
+            "'{}': the image holds values up to {largest:e}, beyond half floats' largest ({HALF_MAX}): store it as float",
+            path.display()
+        );
+    }
     ffi::write_image(
         path_str(path)?,
         &image.to_data(|v| v),
@@ -204,6 +217,10 @@ fn decoding(declared: &str, stored_type: &str, override_space: Option<ColorSpace
     }
 }
 
+/// How far beyond [0, 1] a picture's alpha may stray before it is an error, not a filter's
+/// ringing (a Mitchell or Lanczos pixel filter overshoots at the medium's edge) to clamp.
+const ALPHA_OVERSHOOT: f32 = 0.01;
+
 /// Reads a picture: colour decoded to linear (see the module's documentation) and alpha.
 pub fn read_picture(path: &Path, override_space: Option<ColorSpace>) -> Result<Picture> {
     let data = ffi::read_image(path_str(path)?).map_err(|e| anyhow!("{}", e.what()))?;
@@ -216,6 +233,16 @@ pub fn read_picture(path: &Path, override_space: Option<ColorSpace>) -> Result<P
     // The colour channels: the first three, or one grey channel (with or without alpha).
     let grey = c < 3 || alpha_at.is_some_and(|a| a < 3);
     let mut alpha = alpha_at.map(|_| Vec::with_capacity(data.pixels.len() / c));
+    if let Some(a) = alpha_at {
+        let bad = (data.pixels.chunks_exact(c).map(|p| p[a]).enumerate())
+            .find(|(_, v)| !(-ALPHA_OVERSHOOT..=1.0 + ALPHA_OVERSHOOT).contains(v));
+        if let Some((i, v)) = bad {
+            bail!(
+                "'{}': pixel {i} has an alpha of {v}; alpha is in [0, 1] (a filter's overshoot of up to {ALPHA_OVERSHOOT} is clamped)",
+                path.display()
+            );
+        }
+    }
     let pixels = data
         .pixels
         .chunks_exact(c)

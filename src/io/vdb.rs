@@ -9,6 +9,7 @@ use rayon::prelude::*;
 
 use crate::io::bridge::ffi;
 use crate::io::bridge::{FloatGridData, GridSummary, LeafData, MetaEntry};
+use crate::io::images::HALF_MAX;
 use crate::volume::brickmap::{BrickMap, Leaf, Tile};
 use crate::volume::transform::IndexTransform;
 
@@ -174,9 +175,25 @@ pub fn write_grids_with_colours(
         .map_err(|e| anyhow!("{}", e.what()))
 }
 
+/// Refuses grids stored as half floats whose values a half cannot hold (they would be read back
+/// as infinite, and refused).
+fn check_half(grids: &[&Grid], save_half: bool) -> Result<()> {
+    for g in grids.iter().filter(|_| save_half) {
+        let largest = g.bricks.max_value().max(-g.bricks.min_value());
+        if largest > HALF_MAX {
+            bail!(
+                "grid '{}' holds values up to {largest:e} in magnitude, beyond half floats' largest ({HALF_MAX}): store it as float",
+                g.name
+            );
+        }
+    }
+    Ok(())
+}
+
 /// Writes grids to `path`. Refuses to replace an existing file unless `overwrite`.
 pub fn write_grids(path: &Path, grids: &[&Grid], save_half: bool, overwrite: bool) -> Result<()> {
     crate::io::output::refuse_overwrite(path, overwrite)?;
+    check_half(grids, save_half)?;
     let data: Vec<FloatGridData> = grids.iter().map(|g| g.to_data()).collect();
     ffi::write_float_grids(path_str(path)?, &data, save_half).map_err(|e| anyhow!("{}", e.what()))
 }
@@ -191,6 +208,7 @@ pub fn write_grid_consumed(
     overwrite: bool,
 ) -> Result<()> {
     crate::io::output::refuse_overwrite(path, overwrite)?;
+    check_half(&[&grid], save_half)?;
     let data = grid.into_data();
     ffi::write_float_grids(path_str(path)?, &[data], save_half).map_err(|e| anyhow!("{}", e.what()))
 }

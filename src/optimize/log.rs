@@ -17,7 +17,8 @@ pub struct LogRow {
     pub seconds: f64,
     /// Evaluation and checkpoint seconds so far.
     pub evaluation_seconds: f64,
-    /// Training loss of this iteration (batch mean, prior included).
+    /// Training loss of this iteration (batch mean, prior included); NaN (an empty cell) for the
+    /// evaluation before the first step.
     pub loss: f64,
     pub psnr: Option<f64>,
     /// What the evaluation's own noise allows (`Evaluation::noise_psnr`).
@@ -88,7 +89,7 @@ impl LogRow {
             self.fraction.to_string(),
             format!("{}", self.seconds),
             format!("{}", self.evaluation_seconds),
-            format!("{}", self.loss),
+            optional(Some(self.loss).filter(|l| !l.is_nan())),
             optional(self.psnr),
             optional(self.relit_psnr),
             optional(self.relative_rmse),
@@ -148,7 +149,7 @@ impl LogRow {
             fraction: cells[2].parse()?,
             seconds: cells[3].parse()?,
             evaluation_seconds: cells[4].parse()?,
-            loss: cells[5].parse()?,
+            loss: opt(5)?.unwrap_or(f64::NAN),
             psnr: opt(6)?,
             relit_psnr: opt(7)?,
             relative_rmse: opt(8)?,

@@ -355,10 +355,21 @@ impl OptimizerFile {
         }
     }
 
-    /// The priors in grid units.
-    pub fn priors(&self, units: &SceneUnits) -> Vec<Prior> {
-        let prior = |p: &PriorFile| units.prior(p.kind, p.weight, p.scale);
-        self.prior.iter().map(prior).collect()
+    /// The priors in grid units; an error if a weight is too large to be one there (its penalty
+    /// would be infinite).
+    pub fn priors(&self, units: &SceneUnits) -> Result<Vec<Prior>> {
+        let prior = |(i, p): (usize, &PriorFile)| {
+            let prior = units.prior(p.kind, p.weight, p.scale);
+            if !prior.weight.is_finite() {
+                bail!(
+                    "optimizer.prior[{i}].weight {:e} is too large: relative to these images and this box it is {:e} per unit of θ, beyond f32",
+                    p.weight,
+                    f64::from(p.weight) * units.image_power / units.theta_per_optical_depth
+                );
+            }
+            Ok(prior)
+        };
+        self.prior.iter().enumerate().map(prior).collect()
     }
 }
 

@@ -232,7 +232,7 @@ impl Problem {
         });
         let start = start_parameters(&domain, &start_file, grids.start.as_ref(), hull.as_ref());
         file.unknown.start = Some(start_file);
-        let settings = Settings::of(&file, &units, scene.settings.max_depth);
+        let settings = Settings::of(&file, &units, scene.settings.max_depth)?;
         let mut notes = derivation_notes(unknown, &units, &settings, footprint);
         if let Some(hull) = &hull {
             notes += &format!(
@@ -447,9 +447,9 @@ fn final_domain(file: &RunFile, grids: &KnownGrids) -> Result<Domain> {
 
 impl Settings {
     /// From a run file whose `[optimizer]` and levels are resolved.
-    fn of(file: &RunFile, units: &SceneUnits, max_depth: u32) -> Settings {
+    fn of(file: &RunFile, units: &SceneUnits, max_depth: u32) -> Result<Settings> {
         let o = &file.optimizer;
-        Settings {
+        Ok(Settings {
             adam: o.adam(units),
             lr_decay: o.lr_decay,
             level_lr: o.level_lr,
@@ -461,7 +461,7 @@ impl Settings {
             samples_follow_adjoint: o.samples_follow_adjoint,
             suffix_paths: o.suffix_paths,
             max_depth,
-            priors: o.priors(units),
+            priors: o.priors(units)?,
             first_level_smoothing: o.smooth_gradient.then_some(o.first_level_smoothing),
             average_from: o.average_from,
             fit_exposure: o.fit_exposure,
@@ -473,7 +473,7 @@ impl Settings {
             eval_every: file.eval_every,
             checkpoint_every: file.checkpoint_every,
             seed: file.seed,
-        }
+        })
     }
 }
 

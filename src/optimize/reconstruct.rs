@@ -27,7 +27,7 @@ use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
 
-use anyhow::{Context, Result};
+use anyhow::{bail, Context, Result};
 
 use crate::cluster::sparse_sum::Traffic;
 use crate::cluster::Cluster;
@@ -460,7 +460,14 @@ fn step(
         .map_or(0, |first| first + level as u32);
     let gradient = smooth(BrickGradient::from_voxels(images.voxels), passes, lo, hi);
     let level_voxels = problem.domain.voxel_count_at(level);
-    let loss = images.loss + parameters.descend(adam, &gradient, &s.priors, level_voxels);
+    let prior_loss = parameters.descend(adam, &gradient, &s.priors, level_voxels);
+    let loss = images.loss + prior_loss;
+    if !loss.is_finite() {
+        bail!(
+            "iteration {iteration}: the training loss is {loss} (the images' {}, the priors' {prior_loss}): a prior's weight too large for the sums",
+            images.loss
+        );
+    }
     if s.fit_exposure {
         let steps = parameters.steps();
         let gradients = &images.exposure_gradients;

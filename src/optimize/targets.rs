@@ -20,6 +20,7 @@ use crate::render::image::RenderOptions;
 use crate::render::lights::{Environment, Lights};
 use crate::render::sampling::TARGET_SEED_SALT;
 use crate::render::scene::{load_lights, CameraFile, Scene};
+use crate::render::scene_check;
 use crate::render::scene_file::LightFile;
 
 /// A camera, the lights it saw the medium under and the image it should see.
@@ -458,9 +459,8 @@ fn read_target(
             camera.height
         );
     }
-    if target.pixels.iter().any(|c| !c.is_finite()) {
-        bail!("{name}.image: '{}' has non-finite pixels", path.display());
-    }
+    let what = format!("{name}.image: '{}'", path.display());
+    scene_check::radiance_pixels(&what, &target.pixels)?;
     let alpha = picture.alpha.as_ref().map(|alpha| RgbImage {
         pixels: alpha.iter().map(|&a| Vec3::splat(a)).collect(),
         ..target.clone()

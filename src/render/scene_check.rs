@@ -56,6 +56,29 @@ pub fn image_size(width_key: &str, height_key: &str, width: u32, height: u32) ->
     Ok(())
 }
 
+/// A pinhole's intrinsics and image size: a size in range, finite positive focal lengths whose
+/// field of view is under 180° (as `fov_deg`'s), a finite principal point.
+pub fn intrinsics(k: Intrinsics, width: u32, height: u32) -> Result<()> {
+    image_size("width", "height", width, height)?;
+    for (key, focal, pixels) in [("fx", k.fx, width), ("fy", k.fy, height)] {
+        if !(focal > 0.0 && focal.is_finite()) {
+            bail!("the focal length {key} must be a finite number of pixels > 0 (got {focal})");
+        }
+        let fov = 2.0 * (f64::from(pixels) / 2.0 / f64::from(focal)).atan();
+        if fov >= std::f64::consts::PI {
+            bail!("the focal length {key} = {focal} pixels gives a field of view of 180° over {pixels} pixels (a pinhole's is under 180°)");
+        }
+    }
+    if !(k.cx.is_finite() && k.cy.is_finite()) {
+        bail!(
+            "the principal point must be finite (got {}, {})",
+            k.cx,
+            k.cy
+        );
+    }
+    Ok(())
+}
+
 /// A camera given by its frame and intrinsics (a calibrated camera: `transforms.json`, COLMAP),
 /// passed through the checks a listed camera passes, in f64 before anything is rounded to f32:
 /// a finite position within `MAX_COORDINATE`, a non-zero view direction and up that are not
@@ -82,19 +105,7 @@ pub fn calibrated_camera(
     if forward.cross(up).length() < 1e-6 {
         bail!("the camera's up is parallel to its view direction");
     }
-    image_size("width", "height", width, height)?;
-    for (key, focal) in [("fx", k.fx), ("fy", k.fy)] {
-        if !(focal > 0.0 && focal.is_finite()) {
-            bail!("the focal length {key} must be a finite number of pixels > 0 (got {focal})");
-        }
-    }
-    if !(k.cx.is_finite() && k.cy.is_finite()) {
-        bail!(
-            "the principal point must be finite (got {}, {})",
-            k.cx,
-            k.cy
-        );
-    }
+    intrinsics(k, width, height)?;
     Ok(Camera::looking(
         position.as_vec3(),
         forward.as_vec3(),
@@ -280,6 +291,20 @@ pub fn light_value(key: &str, v: Vec3) -> Result<()> {
         bail!(
             "{key} is too large (largest channel {:e}; at most {MAX_LIGHT:e})",
             v.max_element()
+        );
+    }
+    Ok(())
+}
+
+/// A picture of radiance a loss compares renders with (a target): every pixel finite, ≥ 0 and at
+/// most `MAX_LIGHT` (beyond it no scene renders it, and its squared difference overflows f32);
+/// `what` names it.
+pub fn radiance_pixels(what: &str, pixels: &[Vec3]) -> Result<()> {
+    if let Some((i, p)) = (pixels.iter().enumerate())
+        .find(|(_, p)| !(p.is_finite() && p.min_element() >= 0.0 && p.max_element() <= MAX_LIGHT))
+    {
+        bail!(
+            "{what}: pixel {i} is {p}; radiance is finite, ≥ 0 and at most {MAX_LIGHT:e} in every channel"
         );
     }
     Ok(())
