@@ -215,3 +215,62 @@ fn a_prior_weight_beyond_f32_in_grid_units_is_refused() {
     let o = volgrad_in(dir.path(), &["optimize", "run.toml", "-q"]);
     assert_clean_error(&o, &["optimizer.prior[0].weight", "3e38", "too large"]);
 }
+
+/// A flag the command would ignore, or a value it would replace by another, is refused: the user
+/// asked for something the run would not do.
+#[test]
+fn flags_that_would_be_ignored_or_replaced_are_refused() {
+    let dir = fixture(&run_file("0.1", ""));
+    let d = dir.path();
+    let render = ["render", "scene.toml", "-o", "t.exr", "--spp", "1", "-q"];
+    ok(volgrad_in(d, &render));
+    let grad = |extra: &[&str]| {
+        let args = ["grad", "scene.toml", "--spp", "1", "-o", "g.vdb", "-q"];
+        volgrad_in(d, &[&args[..], extra].concat())
+    };
+    assert_clean_error(
+        &grad(&["--loss", "mean", "--target", "t.exr"]),
+        &["--loss mean", "no target"],
+    );
+    assert_clean_error(&grad(&["--fd", "ones"]), &["--fd", "--estimator fd"]);
+    let check = [
+        "gradcheck",
+        "scene.toml",
+        "--channel",
+        "1",
+        "--spp",
+        "1",
+        "-q",
+    ];
+    assert_clean_error(&volgrad_in(d, &check), &["--channel", "albedo"]);
+    let suite = ["compare", "--suite", "stability", "scene.toml"];
+    assert_clean_error(&volgrad_in(d, &suite), &["--suite stability", "scene.toml"]);
+    // Counts below what the method needs were raised to it without a word.
+    for (args, flag) in [
+        (
+            vec![
+                "grad",
+                "scene.toml",
+                "--loss",
+                "l2",
+                "--target-scene",
+                "scene.toml",
+                "--target-spp",
+                "0",
+            ],
+            "--target-spp",
+        ),
+        (vec!["compare", "scene.toml", "--repeats", "1"], "--repeats"),
+        (vec!["compare", "scene.toml", "--fd-spp", "0"], "--fd-spp"),
+        (
+            vec!["compare", "--suite", "stability", "--suite-runs", "1"],
+            "--suite-runs",
+        ),
+        (
+            vec!["compare", "--suite", "stability", "--suite-spp", "0"],
+            "--suite-spp",
+        ),
+    ] {
+        assert_flag_refused(&volgrad_in(d, &args), flag);
+    }
+}

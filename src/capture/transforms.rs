@@ -311,6 +311,11 @@ fn pose(rows: &[[f64; 4]; 4]) -> Result<(DVec3, DVec3, DVec3)> {
     if skew > 1e-3 {
         bail!("transform_matrix's axes are not orthogonal (largest |cos| between them {skew:.2e}): it must be a rotation");
     }
+    let (shortest, longest) =
+        (lengths.iter().copied()).fold((f64::MAX, 0.0f64), |(lo, hi), l| (lo.min(l), hi.max(l)));
+    if longest > shortest * (1.0 + 1e-3) {
+        bail!("transform_matrix scales its axes unequally (lengths {lengths:?}): a camera-to-world matrix is a rotation, with at most a uniform scale");
+    }
     if x.cross(y).dot(z) < 0.0 {
         bail!("transform_matrix is left-handed (its +x × +y is −z): a camera-to-world matrix is a rotation");
     }

@@ -155,6 +155,10 @@ fn what_a_pinhole_cannot_be_is_refused_naming_the_key() {
             "last row",
         ),
         (
+            matrix("[[2, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 5], [0, 0, 0, 1]]"),
+            "unequally",
+        ),
+        (
             matrix("[[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 1e30], [0, 0, 0, 1]]"),
             "within",
         ),

@@ -61,16 +61,17 @@ pub struct Args {
     #[arg(long, default_value_t = 3)]
     pub fd_voxels: usize,
     /// Samples per pixel of each finite-difference render (default: 16; 4096 for the suite).
-    #[arg(long)]
+    #[arg(long, value_parser = clap::value_parser!(u32).range(1..))]
     pub fd_spp: Option<u32>,
-    /// Finite-difference repetitions (default: 8).
-    #[arg(long)]
+    /// Finite-difference repetitions, at least 2 (default: 8).
+    #[arg(long, value_parser = clap::value_parser!(u32).range(2..))]
     pub repeats: Option<u32>,
-    /// Stability suite: independent runs per estimator and scene (for the standard error).
-    #[arg(long, default_value_t = 8)]
+    /// Stability suite: independent runs per estimator and scene (for the standard error), at
+    /// least 2.
+    #[arg(long, default_value_t = 8, value_parser = clap::value_parser!(u32).range(2..))]
     pub suite_runs: u32,
     /// Stability suite: samples per pixel of each run.
-    #[arg(long, default_value_t = 64)]
+    #[arg(long, default_value_t = 64, value_parser = clap::value_parser!(u32).range(1..))]
     pub suite_spp: u32,
     /// Random seed (default: render.seed, or 1 for the suite).
     #[arg(long)]
@@ -94,7 +95,11 @@ pub fn run(args: &Args) -> Result<()> {
     let mut estimators = args.estimators.clone();
     estimators.dedup();
     match (args.suite, &args.scene) {
-        (Suite::Stability, _) => stability(args, &estimators),
+        (Suite::Stability, Some(path)) => bail!(
+            "--suite stability runs its own scenes: leave out '{}'",
+            path.display()
+        ),
+        (Suite::Stability, None) => stability(args, &estimators),
         (Suite::EqualTime, None) => bail!("give a scene file, or --suite stability"),
         (Suite::EqualTime, Some(path)) => {
             let scene = Scene::load(path)?;
@@ -115,8 +120,8 @@ pub fn run(args: &Args) -> Result<()> {
                 force_reference: args.force_reference,
                 max_spp: args.max_spp,
                 fd_voxels: args.fd_voxels,
-                fd_spp: args.fd_spp.unwrap_or(16).max(1),
-                fd_repeats: args.repeats.unwrap_or(8).max(2),
+                fd_spp: args.fd_spp.unwrap_or(16),
+                fd_repeats: args.repeats.unwrap_or(8),
                 seed: args.seed.unwrap_or(scene.settings.seed),
                 progress: !args.quiet,
                 overwrite: args.force,
@@ -135,10 +140,10 @@ fn stability(args: &Args, estimators: &[Estimator]) -> Result<()> {
         .clone()
         .unwrap_or_else(|| PathBuf::from("compare-stability"));
     let options = StabilityOptions {
-        runs: args.suite_runs.max(2),
-        spp: args.suite_spp.max(1),
-        fd_spp: args.fd_spp.unwrap_or(4096).max(1),
-        fd_repeats: args.repeats.unwrap_or(8).max(2),
+        runs: args.suite_runs,
+        spp: args.suite_spp,
+        fd_spp: args.fd_spp.unwrap_or(4096),
+        fd_repeats: args.repeats.unwrap_or(8),
         seed: args.seed.unwrap_or(1),
         max_depth: 16,
         progress: !args.quiet,

@@ -75,7 +75,7 @@ pub struct Args {
     #[arg(long)]
     pub target_scene: Option<PathBuf>,
     /// Samples per pixel of the --target-scene render.
-    #[arg(long, default_value_t = 256)]
+    #[arg(long, default_value_t = 256, value_parser = clap::value_parser!(u32).range(1..))]
     pub target_spp: u32,
     /// Output gradient VDB (a picture of it goes beside it as .png). Default: <scene>.grad.vdb.
     #[arg(short, long)]
@@ -197,6 +197,14 @@ pub fn run(args: &Args, cluster: &Cluster) -> Result<()> {
             "--parameter {} goes with the path estimators: --estimator fd and --image-of perturb the density",
             args.adjoint.parameter
         );
+    }
+    if args.fd.is_some() && args.estimator != Method::FiniteDifferences {
+        bail!(
+            "--fd chooses the directions of --estimator fd; leave it out with the path estimators"
+        );
+    }
+    if !args.loss.needs_target() && (args.target.is_some() || args.target_scene.is_some()) {
+        bail!("--loss {} compares with no target: leave out --target and --target-scene, or choose a loss that compares (l2, l1, relative-l2)", args.loss);
     }
     if cluster.size() > 1
         && (args.estimator == Method::FiniteDifferences || args.image_of.is_some())

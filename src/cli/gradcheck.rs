@@ -46,8 +46,14 @@ pub fn run(args: &Args) -> Result<()> {
     scene.camera = c.with_resolution(args.width, height);
     let mut grad = args.adjoint.options(&scene, args.estimator)?;
     check_parameter(&scene, grad.parameter)?;
-    if let (Parameter::Albedo, Some(a)) = (grad.parameter, scene.medium.albedo.grid()) {
-        grad.channel = (a.channels.len() == 3).then_some(args.channel as usize);
+    match (grad.parameter, scene.medium.albedo.grid()) {
+        (Parameter::Albedo, Some(a)) if a.channels.len() == 3 => {
+            grad.channel = Some(args.channel as usize)
+        }
+        _ if args.channel != 0 => {
+            bail!("--channel picks a channel of an RGB albedo grid: it goes with --parameter albedo and a scene whose albedo grid has three")
+        }
+        _ => {}
     }
     let fd = args
         .fd_args

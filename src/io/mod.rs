@@ -4,6 +4,7 @@
 pub mod bridge;
 pub mod chart;
 pub mod colormap;
+pub mod exact;
 pub mod fingerprint;
 pub mod gradient_files;
 pub mod images;

@@ -162,7 +162,9 @@ pub enum BoundsFile {
 #[derive(Deserialize)]
 #[serde(deny_unknown_fields)]
 struct BoxFile {
+    #[serde(deserialize_with = "crate::io::exact::array")]
     min: [f32; 3],
+    #[serde(deserialize_with = "crate::io::exact::array")]
     max: [f32; 3],
 }
 

@@ -21,9 +21,14 @@ pub const MAX_TARGET_PIXELS: u64 = 1 << 28;
 #[derive(Debug, Clone, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct ViewFile {
+    #[serde(deserialize_with = "crate::io::exact::array")]
     pub position: [f32; 3],
+    #[serde(deserialize_with = "crate::io::exact::array")]
     pub target: [f32; 3],
-    #[serde(default = "crate::render::scene::default_up")]
+    #[serde(
+        default = "crate::render::scene::default_up",
+        deserialize_with = "crate::io::exact::array"
+    )]
     pub up: [f32; 3],
     pub fov_deg: f32,
     pub width: u32,
@@ -92,6 +97,7 @@ impl ViewSetFile {
 #[serde(deny_unknown_fields)]
 pub struct OrbitFile {
     pub count: u32,
+    #[serde(deserialize_with = "crate::io::exact::array")]
     pub elevation_deg: [f32; 2],
     pub distance: f32,
     pub fov_deg: f32,
@@ -101,7 +107,10 @@ pub struct OrbitFile {
     #[serde(default)]
     pub azimuth_offset_deg: f32,
     /// The orbit's pole and the cameras' up (default +y; +z for a z-up asset).
-    #[serde(default = "crate::render::scene::default_up")]
+    #[serde(
+        default = "crate::render::scene::default_up",
+        deserialize_with = "crate::io::exact::array"
+    )]
     pub up: [f32; 3],
     /// The lights of these views, as a scene file's `[[light]]`s (default: the scene's).
     #[serde(default, skip_serializing_if = "Vec::is_empty")]

@@ -13,11 +13,33 @@ use crate::volume::majorant::{Majorant, MajorantMode};
 use crate::volume::medium::Filter;
 
 /// A grey value or an RGB triple.
-#[derive(Debug, Clone, Copy, PartialEq, Deserialize, Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
 #[serde(untagged)]
 pub enum Spectrum {
     Grey(f32),
     Rgb([f32; 3]),
+}
+
+impl<'de> Deserialize<'de> for Spectrum {
+    /// A number or exactly three, with an error that says so (serde's untagged enums name only
+    /// the enum's type, and its arrays take the first three of a longer list).
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> std::result::Result<Self, D::Error> {
+        #[derive(Deserialize)]
+        #[serde(untagged)]
+        enum Given {
+            Grey(f32),
+            List(Vec<f32>),
+        }
+        let expected = "a number, or an array of 3 numbers [r, g, b]";
+        match Given::deserialize(d)
+            .map_err(|_| serde::de::Error::custom(format!("expected {expected}")))?
+        {
+            Given::Grey(v) => Ok(Spectrum::Grey(v)),
+            Given::List(c) => (c.len() == 3)
+                .then(|| Spectrum::Rgb([c[0], c[1], c[2]]))
+                .ok_or_else(|| serde::de::Error::invalid_length(c.len(), &expected)),
+        }
+    }
 }
 
 impl Spectrum {
@@ -45,9 +67,11 @@ pub struct SceneFile {
 #[derive(Debug, Clone, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct CameraFile {
+    #[serde(deserialize_with = "crate::io::exact::array")]
     pub position: [f32; 3],
+    #[serde(deserialize_with = "crate::io::exact::array")]
     pub target: [f32; 3],
-    #[serde(default = "default_up")]
+    #[serde(default = "default_up", deserialize_with = "crate::io::exact::array")]
     pub up: [f32; 3],
     /// Horizontal field of view.
     pub fov_deg: f32,
@@ -192,6 +216,7 @@ pub enum LightFile {
     },
     Directional {
         /// The direction in which the light travels.
+        #[serde(deserialize_with = "crate::io::exact::array")]
         direction: [f32; 3],
         irradiance: Spectrum,
     },
@@ -327,6 +352,24 @@ mod tests {
         for albedo in ["0.5", "[0.1, 0.2, 0.3]", "{ grid = \"Cd\" }"] {
             let text = GOOD.replace("{ grid = \"Cd\", vdb = \"c.vdb\" }", albedo);
             parse(&text).unwrap();
+        }
+    }
+
+    /// A triple given with more or fewer values is refused naming the length, not read as its
+    /// first three (serde's arrays stop at their length) or as "no variant of enum Spectrum".
+    #[test]
+    fn triples_of_another_length_are_refused() {
+        let parse = |text: &str| SceneFile::parse(text, Path::new("s.toml"));
+        for (from, to) in [
+            ("position = [0, 0, 10]", "position = [0, 0, 10, 1]"),
+            ("target = [0, 0, 0]", "target = [0, 0]"),
+            ("fov_deg = 40", "fov_deg = 40\n        up = [0, 1, 0, 0]"),
+            ("radiance = 1", "radiance = [1, 1, 1, 1]"),
+            ("{ grid = \"Cd\", vdb = \"c.vdb\" }", "[0.5, 0.5]"),
+        ] {
+            assert!(GOOD.contains(from), "{from}");
+            let e = format!("{:#}", parse(&GOOD.replacen(from, to, 1)).unwrap_err());
+            assert!(e.contains("array of 3 numbers"), "{to}: {e}");
         }
     }
 }
