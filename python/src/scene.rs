@@ -29,9 +29,17 @@ pub struct Scene {
     /// The voxels the density array (and the albedo and emission grids' arrays) cover, in each
     /// grid's index space.
     pub boxes: Boxes,
+    /// Whether the scene has a camera of its own (a scene file's, or `from_parts`' `camera`):
+    /// without one, every render and gradient names its cameras.
+    pub has_camera: bool,
 }
 
 impl Scene {
+    /// The scene's own camera, if it has one.
+    fn own_camera(&self) -> Option<volgrad::render::camera::Camera> {
+        self.has_camera.then_some(self.scene.camera)
+    }
+
     /// The medium with `values` in place of the density, over the current box (its shape must
     /// match), or over a new box at index 0 under `index_to_world`.
     pub fn medium_with(
@@ -75,7 +83,11 @@ impl Scene {
             RustScene::load(&path)
         })?;
         let boxes = Boxes::active(&scene);
-        Ok(Scene { scene, boxes })
+        Ok(Scene {
+            scene,
+            boxes,
+            has_camera: true,
+        })
     }
 
     /// A scene from parts: `density` (nx, ny, nz) float32 with `index_to_world` (4×4, array
@@ -104,6 +116,13 @@ impl Scene {
             arrays::float32_argument::<numpy::Ix3>(density, "density", "of shape (nx, ny, nz)")?;
         // The constants go through the scene file's own reader, so that they are checked and
         // named as a scene file's keys are.
+        for (key, value) in [("density_scale", density_scale), ("phase_g", phase_g)] {
+            if !value.is_finite() {
+                return Err(PyValueError::new_err(format!(
+                    "{key} must be a finite number (got {value})"
+                )));
+            }
+        }
         let medium = PyDict::new(py);
         medium.set_item("density_scale", density_scale)?;
         medium.set_item("phase_g", phase_g)?;
@@ -136,15 +155,19 @@ impl Scene {
             }
         }
         spec.set_item("render", render)?;
-        let json: String = py
+        let kwargs = PyDict::new(py);
+        kwargs.set_item("allow_nan", false)?;
+        let json: String = (py
             .import("json")?
-            .call_method1("dumps", (spec,))?
-            .extract()?;
+            .call_method("dumps", (spec,), Some(&kwargs)))
+        .map_err(|_| PyValueError::new_err("albedo and the lights' values must be finite numbers"))?
+        .extract()?;
         let file: SceneFile = serde_json::from_str(&json)
             .map_err(|e| PyValueError::new_err(format!("scene parts: {e}")))?;
         let mut scene =
             RustScene::from_file_as(file, Path::new("<from_parts>"), SceneNeeds::Constants)
                 .or_raise()?;
+        let has_camera = camera.is_some();
         if let Some(camera) = camera {
             scene.camera = camera.camera;
         }
@@ -187,7 +210,11 @@ impl Scene {
             albedo: place,
             emission: place,
         };
-        Ok(Scene { scene, boxes })
+        Ok(Scene {
+            scene,
+            boxes,
+            has_camera,
+        })
     }
 
     /// The density as (array (nx, ny, nz) float32, 4×4 index_to_world of the array's indices).
@@ -225,12 +252,10 @@ impl Scene {
         Ok(())
     }
 
-    /// The scene file's camera (or the one `from_parts` was given).
+    /// The scene file's camera (or the one `from_parts` was given); None without one.
     #[getter]
-    fn camera(&self) -> Camera {
-        Camera {
-            camera: self.scene.camera,
-        }
+    fn camera(&self) -> Option<Camera> {
+        self.own_camera().map(|camera| Camera { camera })
     }
 
     /// Renders the scene's camera (an (H, W, 3) float32 array of linear radiance) or every camera
@@ -252,7 +277,7 @@ impl Scene {
     ) -> PyResult<Bound<'py, PyArrayDyn<f32>>> {
         let sampling = Sampling::resolve(&self.scene, spp, seed, max_depth).or_raise()?;
         let listed = cameras.is_some();
-        let cameras = views::cameras(&self.scene, cameras).or_raise()?;
+        let cameras = views::cameras(self.own_camera(), cameras).or_raise()?;
         let image = self.run_with_density(py, threads, density, |scene, _| {
             views::render_views(scene, &cameras, &sampling)
         })?;
@@ -285,7 +310,7 @@ impl Scene {
         let estimator = views::estimator(estimator).or_raise()?;
         let parameter = views::parameter(parameter).or_raise()?;
         let listed = cameras.is_some();
-        let cameras = views::cameras(&self.scene, cameras).or_raise()?;
+        let cameras = views::cameras(self.own_camera(), cameras).or_raise()?;
         let adjoint =
             arrays::float32_argument::<numpy::IxDyn>(adjoint, "adjoint", "shaped like the images")?;
         let deltas = views::adjoint_images(&adjoint, &cameras, listed).or_raise()?;

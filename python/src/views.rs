@@ -2,7 +2,7 @@
 //! another through the library's image loops and gradient passes, their gradients summed as quanta
 //! of one quantum (so the sum is the same bits at any thread count).
 
-use anyhow::{bail, Result};
+use anyhow::{bail, Context, Result};
 use glam::Vec3;
 use numpy::ndarray::{ArrayD, IxDyn};
 use numpy::{IntoPyArray, PyArrayDyn, PyReadonlyArrayDyn, PyUntypedArrayMethods};
@@ -54,9 +54,11 @@ impl Sampling {
 }
 
 /// The cameras of a call: the list given (non-empty, all of one size), or the scene's own.
-pub fn cameras(scene: &RustScene, cameras: Option<Vec<Camera>>) -> Result<Vec<RustCamera>> {
+pub fn cameras(own: Option<RustCamera>, cameras: Option<Vec<Camera>>) -> Result<Vec<RustCamera>> {
     let Some(cameras) = cameras else {
-        return Ok(vec![scene.camera]);
+        return own.map(|c| vec![c]).context(
+            "the scene has no camera of its own (Scene.from_parts without camera=): give cameras=[…]",
+        );
     };
     let Some(first) = cameras.first() else {
         bail!("cameras: the list is empty (give None for the scene's own camera)");

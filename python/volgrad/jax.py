@@ -37,6 +37,8 @@ def renderer(
     ``scene.density[0]``) in place of its own, differentiable in ``density`` with ``jax.grad``."""
     cams = list(cameras) if cameras is not None else None
     first = cams[0] if cams else scene.camera
+    if first is None:
+        raise ValueError("the scene has no camera of its own (Scene.from_parts without camera=): give cameras")
     shape = (first.height, first.width, 3) if cams is None else (len(cams), first.height, first.width, 3)
 
     def images(density, seed):

@@ -43,8 +43,9 @@ pub struct Args {
     /// Several estimators, comma-separated: the equal-time study, one run each into OUT/<name>/.
     #[arg(long, value_enum, value_delimiter = ',', num_args = 1..)]
     pub estimators: Option<Vec<Estimator>>,
-    /// Random seed (default: the run file's).
-    #[arg(long)]
+    /// Random seed (default: the run file's), 0 to 2^63 − 1 (the run file's `seed` is a TOML
+    /// integer, and the run writes the seed it used there).
+    #[arg(long, value_parser = clap::value_parser!(u64).range(..=i64::MAX as u64))]
     pub seed: Option<u64>,
     /// Worker threads (default: all cores); the result does not depend on it.
     #[arg(long)]
