@@ -243,6 +243,22 @@ fn flags_that_would_be_ignored_or_replaced_are_refused() {
         "-q",
     ];
     assert_clean_error(&volgrad_in(d, &check), &["--channel", "albedo"]);
+    // A finite-difference step below what f32 resolves beside the grid's values differences
+    // rounding: a meaningless value that passed or failed a check at random.
+    let check = [
+        "gradcheck",
+        "scene.toml",
+        "--eps",
+        "1e-40",
+        "--spp",
+        "1",
+        "-q",
+    ];
+    assert_clean_error(&volgrad_in(d, &check), &["--eps", "f32 resolves"]);
+    assert_clean_error(
+        &grad(&["--estimator", "fd", "--fd", "ones", "--eps", "1e-45"]),
+        &["--eps"],
+    );
     let suite = ["compare", "--suite", "stability", "scene.toml"];
     assert_clean_error(&volgrad_in(d, &suite), &["--suite stability", "scene.toml"]);
     // Counts below what the method needs were raised to it without a word.

@@ -153,6 +153,11 @@ impl FdArgs {
         if !(eps > 0.0 && eps.is_finite()) {
             bail!("--eps must be a positive number (got {eps})");
         }
+        // A step f32 barely resolves at the grid's values differences rounding, not the image.
+        let resolved = 1e-5 * scene.medium.grid.max_value().abs();
+        if eps < resolved {
+            bail!("--eps {eps:e} is below what f32 resolves beside the grid's largest value {} (at least {resolved:e})", scene.medium.grid.max_value());
+        }
         if self.fd_spp == 0 || self.repeats < 2 {
             bail!("--fd-spp must be at least 1 and --repeats at least 2");
         }

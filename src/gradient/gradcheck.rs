@@ -27,9 +27,11 @@ pub struct Check {
 impl Check {
     pub fn z(&self) -> f64 {
         let se = (self.estimate_se.powi(2) + self.fd.std_err.powi(2)).sqrt();
+        let difference = self.estimate - self.fd.value;
         if se > 0.0 {
-            (self.estimate - self.fd.value) / se
-        } else if self.estimate == self.fd.value {
+            difference / se
+        } else if difference.abs() <= 1e-12 + 1e-6 * self.fd.value.abs() {
+            // Neither side has noise (a vacuum: every path alike): equal up to rounding.
             0.0
         } else {
             f64::INFINITY
@@ -219,5 +221,25 @@ mod tests {
                 ]
             ]
         );
+    }
+
+    /// Without noise on either side (a vacuum, where every path is alike) the two agree up to
+    /// rounding or not at all: z is 0 or infinite, never a division by a zero error.
+    #[test]
+    fn noiseless_checks_compare_up_to_rounding() {
+        let noiseless = |estimate: f64, fd: f64| Check {
+            name: "vacuum".into(),
+            estimate,
+            estimate_se: 0.0,
+            fd: FdResult {
+                value: fd,
+                std_err: 0.0,
+                one_sided: false,
+            },
+        };
+        assert!(noiseless(0.0, 2.47e-16).passed());
+        assert!(noiseless(0.5, 0.5 + 1e-9).passed());
+        assert!(!noiseless(0.0, 1e-3).passed());
+        assert!(!noiseless(0.5, 0.51).passed());
     }
 }
