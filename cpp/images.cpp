@@ -52,6 +52,14 @@ ImageData read_image(rust::Str path_str) {
              std::to_string(spec.width) + "x" + std::to_string(spec.height) + "x" +
              std::to_string(spec.depth) + " with " + std::to_string(spec.nchannels) + " channels");
     }
+    // The largest image the renderer makes (scene_check::MAX_PIXELS): a header may declare
+    // far more than the file holds, and the buffer would be allocated before any pixel is read.
+    const uint64_t max_pixels = uint64_t(1) << 28;
+    if (uint64_t(spec.width) * uint64_t(spec.height) > max_pixels || spec.nchannels > 64) {
+        fail("cannot read image " + quoted(path) + ": it declares " + std::to_string(spec.width) +
+             "x" + std::to_string(spec.height) + " pixels of " + std::to_string(spec.nchannels) +
+             " channels, more than volgrad reads (2^28 pixels, 64 channels)");
+    }
     ImageData img;
     img.width = uint32_t(spec.width);
     img.height = uint32_t(spec.height);

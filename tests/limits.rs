@@ -290,3 +290,53 @@ fn flags_that_would_be_ignored_or_replaced_are_refused() {
         assert_flag_refused(&volgrad_in(d, &args), flag);
     }
 }
+
+/// A PNG's header declaring 10¹⁰ pixels (a few bytes on disk) is refused with its size named,
+/// before a buffer for them is asked for (it was `std::bad_alloc`, or an abort).
+#[test]
+fn an_image_header_declaring_too_many_pixels_is_refused() {
+    fn crc32(bytes: &[u8]) -> u32 {
+        let mut crc = !0u32;
+        for &b in bytes {
+            crc ^= u32::from(b);
+            for _ in 0..8 {
+                crc = (crc >> 1) ^ (0xEDB8_8320 & (crc & 1).wrapping_neg());
+            }
+        }
+        !crc
+    }
+    let chunk = |kind: &[u8], data: &[u8]| {
+        let body = [kind, data].concat();
+        [
+            &(data.len() as u32).to_be_bytes()[..],
+            &body,
+            &crc32(&body).to_be_bytes(),
+        ]
+        .concat()
+    };
+    let side = 100_000u32.to_be_bytes();
+    let header = [&side[..], &side, &[8, 2, 0, 0, 0]].concat(); // 8-bit RGB
+    let png = [
+        &b"\x89PNG\r\n\x1a\n"[..],
+        &chunk(b"IHDR", &header),
+        &chunk(b"IDAT", &[0x78, 0x9c, 0x03, 0x00, 0x00, 0x00, 0x00, 0x01]), // an empty zlib stream
+        &chunk(b"IEND", &[]),
+    ]
+    .concat();
+    let dir = fixture(&run_file("0.1", ""));
+    let d = dir.path();
+    std::fs::write(d.join("bomb.png"), png).unwrap();
+    let args = [
+        "grad",
+        "scene.toml",
+        "--loss",
+        "l2",
+        "--target",
+        "bomb.png",
+        "-q",
+    ];
+    assert_clean_error(
+        &volgrad_in(d, &args),
+        &["bomb.png", "100000x100000", "2^28"],
+    );
+}
