@@ -259,6 +259,19 @@ fn flags_that_would_be_ignored_or_replaced_are_refused() {
         &grad(&["--estimator", "fd", "--fd", "ones", "--eps", "1e-45"]),
         &["--eps"],
     );
+    for thickness in ["0", "1000"] {
+        let slab = [
+            "make-grid",
+            "slab",
+            "--size",
+            "4",
+            "--thickness",
+            thickness,
+            "-o",
+            "s.vdb",
+        ];
+        assert_clean_error(&volgrad_in(d, &slab), &["--thickness", "1 to --size"]);
+    }
     let suite = ["compare", "--suite", "stability", "scene.toml"];
     assert_clean_error(&volgrad_in(d, &suite), &["--suite stability", "scene.toml"]);
     // Counts below what the method needs were raised to it without a word.

@@ -75,6 +75,12 @@ def test_bad_arrays_are_refused_by_name(tmp_path, array, matrix, error, message)
     assert not (tmp_path / "x.vdb").exists()
 
 
+def test_a_vdb_file_is_named_so(tmp_path):
+    with pytest.raises(ValueError, match="ends in .vdb"):
+        volgrad.write_grid(tmp_path / "x.txt", ball(), voxel_map())
+    assert not (tmp_path / "x.txt").exists()
+
+
 def test_values_beyond_half_floats_are_not_written_as_half(tmp_path):
     with pytest.raises(ValueError, match="beyond half floats"):
         volgrad.write_grid(tmp_path / "h.vdb", ball() * 1e6, voxel_map(), half=True)

@@ -64,6 +64,13 @@ pub fn run(args: &Args) -> Result<()> {
             args.output.display()
         );
     }
+    if args.kind == GridKind::Slab && !(1..=args.size).contains(&args.thickness) {
+        bail!(
+            "--thickness must be 1 to --size ({}) voxels (got {})",
+            args.size,
+            args.thickness
+        );
+    }
     let spec = GridSpec {
         kind: args.kind,
         size: args.size,

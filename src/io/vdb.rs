@@ -168,11 +168,22 @@ pub fn write_grids_with_colours(
     colours: &[[&Grid; 3]],
     overwrite: bool,
 ) -> Result<()> {
+    check_vdb_name(path)?;
     crate::io::output::refuse_overwrite(path, overwrite)?;
     let data: Vec<FloatGridData> = grids.iter().map(|g| g.to_data()).collect();
     let colours: Vec<FloatGridData> = colours.iter().flatten().map(|g| g.to_data()).collect();
     ffi::write_grids_with_colours(path_str(path)?, &data, &colours, false)
         .map_err(|e| anyhow!("{}", e.what()))
+}
+
+/// Refuses a name that does not end in `.vdb`: every reader of the file (Blender, Houdini,
+/// volgrad) goes by it.
+fn check_vdb_name(path: &Path) -> Result<()> {
+    let ext = path.extension().and_then(|e| e.to_str()).unwrap_or("");
+    if !ext.eq_ignore_ascii_case("vdb") {
+        bail!("'{}': a VDB file's name ends in .vdb", path.display());
+    }
+    Ok(())
 }
 
 /// Refuses grids stored as half floats whose values a half cannot hold (they would be read back
@@ -192,6 +203,7 @@ fn check_half(grids: &[&Grid], save_half: bool) -> Result<()> {
 
 /// Writes grids to `path`. Refuses to replace an existing file unless `overwrite`.
 pub fn write_grids(path: &Path, grids: &[&Grid], save_half: bool, overwrite: bool) -> Result<()> {
+    check_vdb_name(path)?;
     crate::io::output::refuse_overwrite(path, overwrite)?;
     check_half(grids, save_half)?;
     let data: Vec<FloatGridData> = grids.iter().map(|g| g.to_data()).collect();
@@ -207,6 +219,7 @@ pub fn write_grid_consumed(
     save_half: bool,
     overwrite: bool,
 ) -> Result<()> {
+    check_vdb_name(path)?;
     crate::io::output::refuse_overwrite(path, overwrite)?;
     check_half(&[&grid], save_half)?;
     let data = grid.into_data();
