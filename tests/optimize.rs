@@ -305,6 +305,20 @@ fn a_resumed_run_equals_the_uninterrupted_one_bit_for_bit() {
         .find(|m| m.name == "volgrad_heldout_psnr");
     let psnr: f64 = psnr.expect("a held-out PSNR").value.parse().unwrap();
     assert!(psnr > 10.0, "{psnr}");
+    // Asked for fewer iterations than it has done, it says so instead of finishing quietly.
+    let fewer = [
+        "optimize",
+        "run.toml",
+        "--resume",
+        "whole",
+        "--iterations",
+        "5",
+        "-q",
+    ];
+    assert_clean_error(
+        &volgrad_in(d, &fewer),
+        &["at iteration 12", "past --iterations 5"],
+    );
 
     // The result is an ordinary grid: a scene pointing at it renders.
     std::fs::write(

@@ -131,6 +131,16 @@ impl<'a> Run<'a> {
             .or_else(|| position.stop.clone())
             .unwrap_or(Stop::Iterations(problem.settings.iterations.into()));
         position.stop = Some(stop.clone());
+        // A budget's last step ends past it, so only a count of iterations can be passed.
+        if let (Some(state), Some(Stop::Iterations(asked))) = (&options.resume, &options.stop) {
+            if position.iteration > *asked {
+                bail!(
+                    "'{}' is at iteration {}, past --iterations {asked}: nothing to do; ask for more to go on",
+                    state.display(),
+                    position.iteration
+                );
+            }
+        }
         cluster.agree(cluster.on_root(|| {
             std::fs::create_dir_all(&options.out).with_context(|| {
                 format!(
