@@ -218,7 +218,7 @@ fn set_specs(
         let p = spec.camera.position;
         if p.cmpge(lo).all() && p.cmple(hi).all() {
             bail!(
-                "{}: the camera at {p} is inside the unknown's box {lo:?}..{hi:?} (move it out, or for an orbit raise `distance`)",
+                "{}: the camera at {p} is inside the unknown's box from {lo} to {hi} (move it out, or for an orbit raise `distance`)",
                 spec.name,
             );
         }

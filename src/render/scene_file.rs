@@ -281,8 +281,18 @@ impl Default for RenderFile {
 
 impl SceneFile {
     pub fn parse(text: &str, origin: &Path) -> Result<Self> {
-        toml::from_str(text)
-            .map_err(|e| anyhow::anyhow!("{}: {}", origin.display(), e.to_string().trim_end()))
+        toml::from_str(text).map_err(|e| {
+            // A run file names its scene; a scene file is what it names.
+            let table = toml::from_str::<toml::Table>(text).ok();
+            if table.is_some_and(|t| t.contains_key("scene") && !t.contains_key("medium")) {
+                anyhow::anyhow!(
+                    "{} is a run file (it names a `scene`), not a scene file: give it to `volgrad optimize`",
+                    origin.display()
+                )
+            } else {
+                anyhow::anyhow!("{}: {}", origin.display(), e.to_string().trim_end())
+            }
+        })
     }
 
     pub fn read(path: &Path) -> Result<Self> {
@@ -371,5 +381,19 @@ mod tests {
             let e = format!("{:#}", parse(&GOOD.replacen(from, to, 1)).unwrap_err());
             assert!(e.contains("array of 3 numbers"), "{to}: {e}");
         }
+    }
+
+    /// A run file given where a scene file goes is named for what it is.
+    #[test]
+    fn a_run_file_is_not_read_as_a_broken_scene() {
+        let run = "scene = \"cloud.toml\"\n[unknown]\nbounds = \"views\"\n";
+        let e = format!(
+            "{:#}",
+            SceneFile::parse(run, Path::new("r.toml")).unwrap_err()
+        );
+        assert!(
+            e.contains("r.toml is a run file") && e.contains("volgrad optimize"),
+            "{e}"
+        );
     }
 }
