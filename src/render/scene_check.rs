@@ -296,16 +296,15 @@ pub fn light_value(key: &str, v: Vec3) -> Result<()> {
     Ok(())
 }
 
-/// A picture of radiance a loss compares renders with (a target): every pixel finite, ≥ 0 and at
-/// most `MAX_LIGHT` (beyond it no scene renders it, and its squared difference overflows f32);
-/// `what` names it.
+/// A picture of radiance a loss compares renders with (a target): every pixel finite and at most
+/// `MAX_LIGHT` in magnitude (beyond it no scene renders it, and its squared difference overflows
+/// f32). Small negative values are kept: a Lanczos or Mitchell pixel filter rings below 0 at
+/// sharp edges. `what` names the picture.
 pub fn radiance_pixels(what: &str, pixels: &[Vec3]) -> Result<()> {
     if let Some((i, p)) = (pixels.iter().enumerate())
-        .find(|(_, p)| !(p.is_finite() && p.min_element() >= 0.0 && p.max_element() <= MAX_LIGHT))
+        .find(|(_, p)| !(p.is_finite() && p.abs().max_element() <= MAX_LIGHT))
     {
-        bail!(
-            "{what}: pixel {i} is {p}; radiance is finite, ≥ 0 and at most {MAX_LIGHT:e} in every channel"
-        );
+        bail!("{what}: pixel {i} is {p}; radiance is finite and at most {MAX_LIGHT:e} in every channel");
     }
     Ok(())
 }
