@@ -70,7 +70,10 @@ fn ranks(dir: &Path, ranks: usize, args: &[&str], limit: Duration) -> Output {
             .env("OMPI_ALLOW_RUN_AS_ROOT_CONFIRM", "1");
         c
     };
-    command.current_dir(dir).args(args).args(["--threads", "1"]);
+    command.current_dir(dir).args(args);
+    if !args.contains(&"--threads") {
+        command.args(["--threads", "1"]);
+    }
     wait(command, limit)
 }
 
@@ -313,7 +316,7 @@ fn a_file_one_rank_cannot_read_ends_every_rank_with_one_error() {
     assert!(!err.contains("panicked"), "{err}");
 }
 
-/// A run file every rank refuses: one message, every rank non-zero.
+/// A run file or a flag every rank refuses: one message, every rank non-zero.
 #[test]
 fn a_bad_run_file_is_reported_once() {
     let dir = tempfile::tempdir().unwrap();
@@ -323,16 +326,15 @@ fn a_bad_run_file_is_reported_once() {
         run_file("batch = 3\nbatch_pixels = 100"),
     )
     .unwrap();
-    let out = ranks(
-        d,
-        3,
-        &["optimize", "run.toml", "-q"],
-        Duration::from_secs(60),
-    );
-    let err = stderr(&out);
-    assert!(!out.status.success(), "{err}");
-    assert_eq!(err.matches("error: ").count(), 1, "one message: {err}");
-    assert!(err.contains("batch_pixels"), "{err}");
+    // A bad run file, and a flag every rank refuses before it reads anything.
+    for (threads, needle) in [("2", "batch_pixels"), ("100000", "--threads")] {
+        let args = ["optimize", "run.toml", "--threads", threads, "-q"];
+        let out = ranks(d, 3, &args, Duration::from_secs(60));
+        let err = stderr(&out);
+        assert!(!out.status.success(), "{err}");
+        assert_eq!(err.matches("error").count(), 1, "one message: {err}");
+        assert!(err.contains(needle), "{err}");
+    }
 }
 
 /// `grad` on three voxels 30,000 voxels apart along the diagonal: a box whose block bitmap would

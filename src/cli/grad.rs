@@ -183,7 +183,8 @@ fn target_image(
 /// Under mpirun every rank traces its share of the pixels, the gradients are summed, and rank 0
 /// writes the files; finite differences and `--image-of` run as one process only.
 pub fn run(args: &Args, cluster: &Cluster) -> Result<()> {
-    set_threads(args.adjoint.sampling.threads)?;
+    // Every rank is given the same flag: one error, printed once.
+    cluster.agree(set_threads(args.adjoint.sampling.threads))?;
     let vdb_out = args.output.clone().unwrap_or_else(|| {
         PathBuf::from(format!(
             "{}.grad.vdb",

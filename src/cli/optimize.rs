@@ -85,7 +85,8 @@ fn stop_on_sigusr1() {
 }
 
 pub fn run(args: &Args, cluster: &Cluster) -> Result<()> {
-    set_threads(args.threads)?;
+    // Every rank is given the same flag: one error, printed once.
+    cluster.agree(set_threads(args.threads))?;
     if args.budget == Some(Duration::ZERO) {
         bail!("--budget must be above 0");
     }

@@ -63,7 +63,8 @@ fn load_scene(
 /// Under mpirun every rank renders its share of the pixels; rank 0 writes the image.
 pub fn run(args: &Args, cluster: &Cluster) -> Result<()> {
     let sampling = &args.sampling;
-    set_threads(sampling.threads)?;
+    // Every rank is given the same flag: one error, printed once.
+    cluster.agree(set_threads(sampling.threads))?;
     let exr = args.output.clone().unwrap_or_else(|| {
         PathBuf::from(args.scene.file_stem().unwrap_or_default()).with_extension("exr")
     });

@@ -27,7 +27,7 @@ use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
 
-use anyhow::{bail, Context, Result};
+use anyhow::{anyhow, Context, Result};
 
 use crate::cluster::sparse_sum::Traffic;
 use crate::cluster::Cluster;
@@ -133,13 +133,14 @@ impl<'a> Run<'a> {
         position.stop = Some(stop.clone());
         // A budget's last step ends past it, so only a count of iterations can be passed.
         if let (Some(state), Some(Stop::Iterations(asked))) = (&options.resume, &options.stop) {
-            if position.iteration > *asked {
-                bail!(
+            cluster.agree(match position.iteration > *asked {
+                true => Err(anyhow!(
                     "'{}' is at iteration {}, past --iterations {asked}: nothing to do; ask for more to go on",
                     state.display(),
                     position.iteration
-                );
-            }
+                )),
+                false => Ok(()),
+            })?;
         }
         cluster.agree(cluster.on_root(|| {
             std::fs::create_dir_all(&options.out).with_context(|| {
@@ -243,6 +244,13 @@ impl<'a> Run<'a> {
             level,
             &adam,
         )?;
+        // Every rank has the same loss: one message, and no rank left in a collective.
+        cluster.agree(match loss.is_finite() {
+            true => Ok(()),
+            false => Err(anyhow!(
+                "iteration {iteration}: the training loss is {loss}: a prior's weight or a target too large for the sums"
+            )),
+        })?;
         if fraction >= s.average_from {
             self.parameters.add_to_average();
         }
@@ -470,14 +478,7 @@ fn step(
         .map_or(0, |first| first + level as u32);
     let gradient = smooth(BrickGradient::from_voxels(images.voxels), passes, lo, hi);
     let level_voxels = problem.domain.voxel_count_at(level);
-    let prior_loss = parameters.descend(adam, &gradient, &s.priors, level_voxels);
-    let loss = images.loss + prior_loss;
-    if !loss.is_finite() {
-        bail!(
-            "iteration {iteration}: the training loss is {loss} (the images' {}, the priors' {prior_loss}): a prior's weight too large for the sums",
-            images.loss
-        );
-    }
+    let loss = images.loss + parameters.descend(adam, &gradient, &s.priors, level_voxels);
     if s.fit_exposure {
         let steps = parameters.steps();
         let gradients = &images.exposure_gradients;
