@@ -326,9 +326,15 @@ fn a_bad_run_file_is_reported_once() {
         run_file("batch = 3\nbatch_pixels = 100"),
     )
     .unwrap();
-    // A bad run file, and a flag every rank refuses before it reads anything.
-    for (threads, needle) in [("2", "batch_pixels"), ("100000", "--threads")] {
-        let args = ["optimize", "run.toml", "--threads", threads, "-q"];
+    // A bad run file, and flags every rank refuses before it reads anything.
+    for (args, needle) in [
+        (vec!["optimize", "run.toml", "-q"], "batch_pixels"),
+        (
+            vec!["optimize", "run.toml", "--threads", "100000"],
+            "--threads",
+        ),
+        (vec!["grad", "unread.toml", "--fd", "ones", "-q"], "--fd"),
+    ] {
         let out = ranks(d, 3, &args, Duration::from_secs(60));
         let err = stderr(&out);
         assert!(!out.status.success(), "{err}");

@@ -180,17 +180,12 @@ fn target_image(
     }
 }
 
-/// Under mpirun every rank traces its share of the pixels, the gradients are summed, and rank 0
-/// writes the files; finite differences and `--image-of` run as one process only.
-pub fn run(args: &Args, cluster: &Cluster) -> Result<()> {
-    // Every rank is given the same flag: one error, printed once.
-    cluster.agree(set_threads(args.adjoint.sampling.threads))?;
-    let vdb_out = args.output.clone().unwrap_or_else(|| {
-        PathBuf::from(format!(
-            "{}.grad.vdb",
-            args.scene.file_stem().unwrap_or_default().to_string_lossy()
-        ))
-    });
+/// The flags that do not go together (the same on every rank).
+fn check_flags(args: &Args, ranks: usize, vdb_out: &Path) -> Result<()> {
+    let vdb = vdb_out.extension().and_then(|e| e.to_str()) == Some("vdb");
+    if args.estimator != Method::FiniteDifferences && !vdb {
+        bail!("--output must end in .vdb (got '{}')", vdb_out.display());
+    }
     if args.adjoint.parameter != Parameter::Extinction
         && (args.estimator == Method::FiniteDifferences || args.image_of.is_some())
     {
@@ -207,15 +202,25 @@ pub fn run(args: &Args, cluster: &Cluster) -> Result<()> {
     if !args.loss.needs_target() && (args.target.is_some() || args.target_scene.is_some()) {
         bail!("--loss {} compares with no target: leave out --target and --target-scene, or choose a loss that compares (l2, l1, relative-l2)", args.loss);
     }
-    if cluster.size() > 1
-        && (args.estimator == Method::FiniteDifferences || args.image_of.is_some())
-    {
+    if ranks > 1 && (args.estimator == Method::FiniteDifferences || args.image_of.is_some()) {
         bail!("grad --estimator fd and --image-of run as one process: start them without mpirun");
     }
+    Ok(())
+}
+
+/// Under mpirun every rank traces its share of the pixels, the gradients are summed, and rank 0
+/// writes the files; finite differences and `--image-of` run as one process only.
+pub fn run(args: &Args, cluster: &Cluster) -> Result<()> {
+    cluster.agree(set_threads(args.adjoint.sampling.threads))?;
+    let vdb_out = args.output.clone().unwrap_or_else(|| {
+        PathBuf::from(format!(
+            "{}.grad.vdb",
+            args.scene.file_stem().unwrap_or_default().to_string_lossy()
+        ))
+    });
+    // Every rank is given the same flags: one error, printed once.
+    cluster.agree(check_flags(args, cluster.size(), &vdb_out))?;
     if args.estimator != Method::FiniteDifferences {
-        if vdb_out.extension().and_then(|e| e.to_str()) != Some("vdb") {
-            bail!("--output must end in .vdb (got '{}')", vdb_out.display());
-        }
         let outputs = outputs(&vdb_out, args.image_of.is_some());
         cluster.agree(match cluster.is_root() {
             true => (outputs.iter()).try_for_each(|path| refuse_overwrite(path, args.force)),
