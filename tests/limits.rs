@@ -6,11 +6,21 @@
 mod common;
 mod optimize_common;
 
+use std::path::Path;
 use std::process::Output;
-use std::time::{Duration, Instant};
 
 use common::{assert_clean_error, ok, stderr, volgrad_in};
 use optimize_common::*;
+use volgrad::io::vdb::{read_grid, GridSelector};
+
+/// `grad` of the L2 loss against the picture `target`, one sample per pixel.
+fn grad_against(dir: &Path, target: &str) -> Output {
+    let args = ["grad", "scene.toml", "--loss", "l2", "--target", target];
+    volgrad_in(
+        dir,
+        &[&args[..], &["--spp", "1", "-o", "g.vdb", "-q"]].concat(),
+    )
+}
 
 /// A value clap refuses: exit status 2 and its one `error: ` line naming `needle`.
 fn assert_flag_refused(o: &Output, needle: &str) {
@@ -77,8 +87,8 @@ fn an_unknown_box_whose_voxel_count_overflows_is_refused() {
 }
 
 /// Values beyond an extinction of 1e15 per unit (the cap every grid the renderer loads is held
-/// to): a start there is refused, and steps that would go there (a learning rate of 1e30) stop
-/// at it, so that the run ends in seconds as any other.
+/// to): a start there is refused, and steps that would go there (a learning rate of 1e30, which
+/// ran for hours) stop at it.
 #[test]
 fn the_unknown_stays_within_what_the_renderer_tracks() {
     let dir = fixture(&run_file("1e20", "iterations = 1"));
@@ -96,13 +106,15 @@ fn the_unknown_stays_within_what_the_renderer_tracks() {
     );
 
     let dir = fixture(&run_file("0.1", "spp = 1\niterations = 2").replace("lr = 0.1", "lr = 1e30"));
-    let started = Instant::now();
     ok(volgrad_in(dir.path(), &["optimize", "run.toml", "-q"]));
-    assert!(
-        started.elapsed() < Duration::from_secs(120),
-        "two steps of a 24² reconstruction took {:?}",
-        started.elapsed()
-    );
+    let result = read_grid(
+        &dir.path().join("run.out/final.vdb"),
+        &GridSelector::Default,
+    )
+    .unwrap();
+    let largest = result.bricks.max_value();
+    // At the cap, 1e15 / density_scale: not 1e15 (the cap without the scene's scale).
+    assert!(largest > 1.5e15 && largest <= 1e15 / 0.6, "{largest:e}");
 }
 
 /// Nothing beyond half floats' range is stored as half (it would come back infinite): an image
@@ -164,19 +176,7 @@ fn target_pictures_hold_radiance() {
     write("huge.exr", 5, 3e38, 1.0);
     write("negative.exr", 7, -3e38, 1.0);
     write("alpha.exr", 9, 0.25, 2.0);
-    let grad = |target: &str| {
-        let args = [
-            "grad",
-            "scene.toml",
-            "--loss",
-            "l2",
-            "--target",
-            target,
-            "--spp",
-            "1",
-        ];
-        volgrad_in(d, &[&args[..], &["-o", "g.vdb", "-q"]].concat())
-    };
+    let grad = |target: &str| grad_against(d, target);
     assert_clean_error(
         &grad("huge.exr"),
         &["--target 'huge.exr'", "pixel 5", "1e30"],
@@ -340,17 +340,8 @@ fn an_image_header_declaring_too_many_pixels_is_refused() {
     let dir = fixture(&run_file("0.1", ""));
     let d = dir.path();
     std::fs::write(d.join("bomb.png"), png).unwrap();
-    let args = [
-        "grad",
-        "scene.toml",
-        "--loss",
-        "l2",
-        "--target",
-        "bomb.png",
-        "-q",
-    ];
     assert_clean_error(
-        &volgrad_in(d, &args),
+        &grad_against(d, "bomb.png"),
         &["bomb.png", "100000x100000", "2^28"],
     );
 }

@@ -11,10 +11,10 @@ use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::mpsc;
 use std::time::Duration;
 
-use pyo3::exceptions::{PyKeyboardInterrupt, PyRuntimeError, PyValueError};
+use pyo3::exceptions::{PyKeyboardInterrupt, PyRuntimeError};
 use pyo3::prelude::*;
 use volgrad::render::interrupt;
-use volgrad::render::scene_check::MAX_THREADS;
+use volgrad::render::scene_check::thread_count;
 
 use crate::errors::OrRaise;
 
@@ -29,13 +29,10 @@ pub fn run<T: Send>(
     threads: Option<usize>,
     work: impl FnOnce() -> anyhow::Result<T> + Send,
 ) -> PyResult<T> {
+    if let Some(n) = threads {
+        thread_count("threads", n).or_raise()?;
+    }
     let pool = match threads {
-        Some(0) => return Err(PyValueError::new_err("threads must be at least 1")),
-        Some(n) if n > MAX_THREADS => {
-            return Err(PyValueError::new_err(format!(
-                "threads is at most {MAX_THREADS} (got {n})"
-            )))
-        }
         Some(n) => Some(
             rayon::ThreadPoolBuilder::new()
                 .num_threads(n)

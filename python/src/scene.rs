@@ -160,7 +160,10 @@ impl Scene {
         let json: String = (py
             .import("json")?
             .call_method("dumps", (spec,), Some(&kwargs)))
-        .map_err(|_| PyValueError::new_err("albedo and the lights' values must be finite numbers"))?
+        .map_err(|e| match e.is_instance_of::<PyValueError>(py) {
+            true => PyValueError::new_err("albedo and the lights' values must be finite numbers"),
+            false => e,
+        })?
         .extract()?;
         let file: SceneFile = serde_json::from_str(&json)
             .map_err(|e| PyValueError::new_err(format!("scene parts: {e}")))?;

@@ -178,6 +178,8 @@ def bad_calls():
     yield lambda: small_scene(phase_g=float("nan")), ValueError, "phase_g must be a finite number"
     yield lambda: small_scene(density_scale=float("inf")), ValueError, "density_scale must be a finite"
     yield lambda: small_scene(albedo=float("nan")), ValueError, "albedo and the lights' values must be finite"
+    # Any other failure to pass the parts on keeps its own message.
+    yield lambda: small_scene(lights=[{"type": "constant", "radiance": np.float32(0.5)}]), TypeError, "JSON serializable"
     yield lambda: small_scene(camera=None).render(), ValueError, "no camera of its own"
     yield lambda: small_scene(albedo=np.ones((2, 2, 2), np.float32)), ValueError, "albedo has shape"
     yield lambda: volgrad.Scene.load(REPO / "none.toml"), FileNotFoundError, "does not exist"

@@ -175,16 +175,7 @@ impl FdArgs {
 /// `--threads T`: a global pool of T workers (default: all cores).
 pub fn set_threads(threads: Option<usize>) -> Result<()> {
     if let Some(t) = threads {
-        if t == 0 {
-            bail!("--threads must be at least 1");
-        }
-        if t > scene_check::MAX_THREADS {
-            let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
-            bail!(
-                "--threads is at most {} (got {t}; this machine has {cores} cores)",
-                scene_check::MAX_THREADS
-            );
-        }
+        scene_check::thread_count("--threads", t)?;
         rayon::ThreadPoolBuilder::new()
             .num_threads(t)
             .build_global()

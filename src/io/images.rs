@@ -110,15 +110,14 @@ pub const HALF_MAX: f32 = 65504.0;
 
 /// Writes a linear EXR, as half or float (refused if a value is beyond `HALF_MAX`).
 pub fn write_exr(path: &Path, image: &RgbImage, half: bool) -> Result<()> {
-    let largest = image
-        .pixels
-        .iter()
-        .fold(0.0f32, |m, p| m.max(p.abs().max_element()));
-    if half && largest > HALF_MAX {
-        bail!(
-            "'{}': the image holds values up to {largest:e}, beyond half floats' largest ({HALF_MAX}): store it as float",
-            path.display()
-        );
+    if half {
+        let largest = (image.pixels.iter()).fold(0.0f32, |m, p| m.max(p.abs().max_element()));
+        if largest > HALF_MAX {
+            bail!(
+                "'{}': the image holds values up to {largest:e}, beyond half floats' largest ({HALF_MAX}): store it as float",
+                path.display()
+            );
+        }
     }
     ffi::write_image(
         path_str(path)?,

@@ -189,7 +189,10 @@ fn check_vdb_name(path: &Path) -> Result<()> {
 /// Refuses grids stored as half floats whose values a half cannot hold (they would be read back
 /// as infinite, and refused).
 fn check_half(grids: &[&Grid], save_half: bool) -> Result<()> {
-    for g in grids.iter().filter(|_| save_half) {
+    if !save_half {
+        return Ok(());
+    }
+    for g in grids {
         let largest = g.bricks.max_value().max(-g.bricks.min_value());
         if largest > HALF_MAX {
             bail!(

@@ -242,6 +242,12 @@ pub fn read_state(path: &Path, fingerprint: &str) -> Result<(Position, Parameter
         bail!("{}", context());
     }
     let stored = read_text(&mut r, size).with_context(context)?;
+    if stored != fingerprint {
+        bail!(
+            "'{}' belongs to another run: the run file, its scene or its targets changed since this checkpoint (fingerprint {stored}, now {fingerprint})",
+            path.display()
+        );
+    }
     let mut read = || -> Result<(Position, Parameters)> {
         let stop = read_text(&mut r, size)?;
         let stop = (!stop.is_empty()).then(|| Stop::parse(&stop)).transpose()?;
@@ -307,12 +313,6 @@ pub fn read_state(path: &Path, fingerprint: &str) -> Result<(Position, Parameter
     if r.inner.read_exact(&mut written).is_err() || written != sum.as_bytes() {
         bail!(
             "'{}' is damaged: its checksum is not the one it was written with (changed on disk; resume from an earlier checkpoint)",
-            path.display()
-        );
-    }
-    if stored != fingerprint {
-        bail!(
-            "'{}' belongs to another run: the run file, its scene or its targets changed since this checkpoint (fingerprint {stored}, now {fingerprint})",
             path.display()
         );
     }

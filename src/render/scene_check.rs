@@ -25,6 +25,18 @@ pub const MAX_PIXELS: u64 = 1 << 28;
 /// The most worker threads a run starts: more than any machine's cores, and each costs its start.
 pub const MAX_THREADS: usize = 1024;
 
+/// A thread count of 1 to `MAX_THREADS`; `key` names the flag or argument.
+pub fn thread_count(key: &str, threads: usize) -> Result<()> {
+    if threads == 0 {
+        bail!("{key} must be at least 1");
+    }
+    if threads > MAX_THREADS {
+        let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
+        bail!("{key} is at most {MAX_THREADS} (got {threads}; this machine has {cores} cores)");
+    }
+    Ok(())
+}
+
 impl CameraFile {
     /// Checks the camera; messages name `camera.*` keys.
     pub fn validate(&self) -> Result<()> {
