@@ -313,16 +313,33 @@ fn merge_refuses_runs_of_different_computations() {
     assert_clean_error(&merge(&g1, &g2), &["volgrad_target_fingerprint"]);
     assert_clean_error(&merge(&a, &g1), &["volgrad_target_fingerprint"]);
 
-    // A file that claims no samples.
-    let mut empty = vdb::read_grid(&a, &GridSelector::Index(0)).unwrap();
-    for entry in &mut empty.metadata {
-        if entry.name == "volgrad_spp" {
-            entry.value = "0".into();
+    // Files whose metadata claim other counts (edited by hand): no samples, or counts whose sum
+    // is beyond the int64 the merged file would store.
+    let claiming = |spp: &str, seed: &str, name: &str| {
+        let mut grid = vdb::read_grid(&a, &GridSelector::Index(0)).unwrap();
+        for entry in &mut grid.metadata {
+            match entry.name.as_str() {
+                "volgrad_spp" => entry.value = spp.into(),
+                "volgrad_seed" => entry.value = seed.into(),
+                _ => {}
+            }
         }
-    }
-    let zero = d.join("zero.vdb");
-    vdb::write_grids(&zero, &[&empty], false, false).unwrap();
-    assert_clean_error(&merge(&zero, &a), &["volgrad_spp = 0"]);
+        let path = d.join(name);
+        vdb::write_grids(&path, &[&grid], false, false).unwrap();
+        path
+    };
+    assert_clean_error(
+        &merge(&claiming("0", "90", "zero.vdb"), &a),
+        &["volgrad_spp = 0"],
+    );
+    let huge = "5000000000000000000";
+    assert_clean_error(
+        &merge(
+            &claiming(huge, "91", "huge1.vdb"),
+            &claiming(huge, "92", "huge2.vdb"),
+        ),
+        &["huge2.vdb", "add up beyond"],
+    );
 }
 
 #[test]

@@ -87,12 +87,18 @@ fn an_unknown_box_whose_voxel_count_overflows_is_refused() {
 }
 
 /// Values beyond an extinction of 1e15 per unit (the cap every grid the renderer loads is held
-/// to): a start there is refused, and steps that would go there (a learning rate of 1e30, which
-/// ran for hours) stop at it.
+/// to): a start there is refused before any target is rendered, and steps that would go there (a
+/// learning rate of 1e30, which ran for hours) stop at it.
 #[test]
 fn the_unknown_stays_within_what_the_renderer_tracks() {
     let dir = fixture(&run_file("1e20", "iterations = 1"));
-    let o = volgrad_in(dir.path(), &["optimize", "run.toml", "-q"]);
+    let cached = ["optimize", "run.toml", "--target-cache", "cache", "-q"];
+    let o = volgrad_in(dir.path(), &cached);
+    let rendered = std::fs::read_dir(dir.path().join("cache")).map_or(0, |d| d.count());
+    assert_eq!(
+        rendered, 0,
+        "targets were rendered before the start was checked"
+    );
     // density_scale 0.6: at most 1e15 / 0.6 ≈ 1.7e15.
     assert_clean_error(
         &o,

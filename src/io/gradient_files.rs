@@ -240,7 +240,16 @@ pub fn merge(inputs: &[&Path]) -> Result<Vec<Grid>> {
                 }
             }
         }
-        total_spp += provenance.spp;
+        // The sum is written back as OpenVDB's int64: only hand-edited counts come near it.
+        total_spp = total_spp
+            .checked_add(provenance.spp)
+            .filter(|&sum| i64::try_from(sum).is_ok())
+            .with_context(|| {
+                format!(
+                    "'{}': the inputs' volgrad_spp add up beyond 2^63 - 1 (not counts a run writes)",
+                    path.display()
+                )
+            })?;
         if first.is_none() {
             first = Some((components, provenance));
         }

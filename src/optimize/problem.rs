@@ -142,6 +142,19 @@ impl Problem {
             .check_levels_reach(levels.len(), domain.transform.voxel_size().max_element())?;
         file.unknown.levels = Some(levels);
 
+        // A start the renderer cannot take is refused before any target is rendered.
+        let theta_max = SceneUnits::theta_max_of(&scene, file.unknown.grid)?;
+        let start_max = match &file.unknown.start {
+            Some(StartFile::Constant(c)) => *c,
+            Some(StartFile::Vdb(_)) => grids.start.as_ref().map_or(0.0, |g| g.bricks.max_value()),
+            None => 0.0,
+        };
+        if start_max > theta_max {
+            bail!(
+                "unknown.start holds values up to {start_max:e}, above the largest this scene renders ({theta_max:e}: an extinction of {MAX_EXTINCTION:e} per world unit, or an emission of {MAX_LIGHT:e})"
+            );
+        }
+
         let truth = grids
             .truth
             .map(|t| in_final_index_space(t, &domain))
@@ -206,16 +219,6 @@ impl Problem {
         let start_file = file.unknown.start.clone().unwrap_or(StartFile::Constant(
             units.theta(scene_units::START_OPTICAL_DEPTH),
         ));
-        let start_max = match &start_file {
-            StartFile::Constant(c) => *c,
-            StartFile::Vdb(_) => grids.start.as_ref().map_or(0.0, |g| g.bricks.max_value()),
-        };
-        if start_max > units.theta_max {
-            bail!(
-                "unknown.start holds values up to {start_max:e}, above the largest this scene renders ({:e}: an extinction of {MAX_EXTINCTION:e} per world unit, or an emission of {MAX_LIGHT:e})",
-                units.theta_max
-            );
-        }
         let carve = *file.unknown.carve.get_or_insert(
             unknown == UnknownGrid::Density && matches!(start_file, StartFile::Constant(_)),
         );

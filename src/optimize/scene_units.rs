@@ -20,6 +20,7 @@ use crate::render::scene_check::{MAX_EXTINCTION, MAX_LIGHT};
 use glam::Vec3;
 
 use crate::optimize::prior::{Prior, PriorKind};
+use crate::optimize::run_file::UnknownGrid;
 use crate::render::camera::Camera;
 use crate::render::lights::luminance;
 use crate::render::scene::Scene;
@@ -69,14 +70,40 @@ pub struct SceneUnits {
     pub theta_max: f32,
 }
 
+/// The grid value of the largest extinction the renderer takes (`MAX_EXTINCTION`).
+fn max_extinction_value(density_scale: f32) -> f32 {
+    (MAX_EXTINCTION / f64::from(density_scale).max(1e-30)).min(f64::from(f32::MAX)) as f32
+}
+
+/// The grid value of the largest emission the renderer takes (`MAX_LIGHT`).
+fn max_emission_value(radiance: Vec3) -> f32 {
+    MAX_LIGHT / radiance.max_element().max(1e-30)
+}
+
+/// The radiance an emission unknown's values multiply.
+fn emission_radiance(scene: &Scene) -> anyhow::Result<Vec3> {
+    match scene.medium.emission.as_ref().map(|e| &e.kind) {
+        Some(EmissionKind::Radiance(radiance)) => Ok(*radiance),
+        _ => anyhow::bail!("an emission unknown needs radiance × value emission (checked on load)"),
+    }
+}
+
 impl SceneUnits {
     pub fn new(density_scale: f32, longest_edge: f64, image_power: f64) -> Self {
         SceneUnits {
             theta_per_optical_depth: 1.0 / (f64::from(density_scale) * longest_edge).max(1e-30),
             image_power,
-            theta_max: (MAX_EXTINCTION / f64::from(density_scale).max(1e-30))
-                .min(f64::from(f32::MAX)) as f32,
+            theta_max: max_extinction_value(density_scale),
         }
+    }
+
+    /// `theta_max` of a scene's unknown, which needs no targets: a start beyond it is refused
+    /// before any target is rendered.
+    pub fn theta_max_of(scene: &Scene, unknown: UnknownGrid) -> anyhow::Result<f32> {
+        Ok(match unknown {
+            UnknownGrid::Density => max_extinction_value(scene.medium.density_scale),
+            UnknownGrid::Emission => max_emission_value(emission_radiance(scene)?),
+        })
     }
 
     /// The units of an emission unknown (flame tomography, `unknown.grid = "emission"` with
@@ -87,23 +114,20 @@ impl SceneUnits {
     /// with density has gradient).
     pub fn for_emission(scene: &Scene, image_power: f64) -> anyhow::Result<Self> {
         let medium = &scene.medium;
-        let Some(EmissionKind::Radiance(radiance)) = medium.emission.as_ref().map(|e| &e.kind)
-        else {
-            anyhow::bail!("an emission unknown needs radiance × value emission (checked on load)");
-        };
+        let radiance = emission_radiance(scene)?;
         // The grid's albedo varies: its absorption is taken as the middle of its range.
         let absorbed = match &medium.albedo {
             Albedo::Constant(albedo) => luminance(Vec3::ONE - *albedo),
             Albedo::Grid(_) => 0.5,
         };
-        let glow = f64::from(luminance(*radiance) * absorbed).max(1e-30);
+        let glow = f64::from(luminance(radiance) * absorbed).max(1e-30);
         // Black targets (P = 0) would make u = 0, and a prior's weight W·P/u 0/0: their emission
         // is 0 everywhere, which a tiny unit still reaches.
         let brightness = image_power.sqrt().max(1e-12);
         Ok(SceneUnits {
             theta_per_optical_depth: brightness / glow / EMISSION_UNITS_PER_GLOW,
             image_power,
-            theta_max: MAX_LIGHT / radiance.max_element().max(1e-30),
+            theta_max: max_emission_value(radiance),
         })
     }
 
