@@ -19,13 +19,16 @@
 //! Both copy `volume::tracking`'s loop (the budget against each segment's optical depth, Russian
 //! roulette below 0.1), without the refinement of loose cells.
 
+#[path = "common/sun_rays.rs"]
+mod sun_rays;
+
 use std::path::PathBuf;
 use std::time::Instant;
 
-use anyhow::{bail, Context, Result};
-use glam::Vec3;
+use anyhow::{Context, Result};
 use rand::rngs::SmallRng;
 use rand::{Rng, SeedableRng};
+use sun_rays::sun_rays;
 use volgrad::render::scene::Scene;
 use volgrad::volume::medium::Medium;
 use volgrad::volume::ray::IndexRay;
@@ -128,35 +131,7 @@ fn main() -> Result<()> {
         .into();
     let scene = Scene::load(&path)?;
     let medium = &scene.medium;
-    let Some(sun) = scene.lights.directional.first() else {
-        bail!("{}: the scene has no directional light", path.display());
-    };
-    if medium.grid.max_value() <= 0.0 {
-        bail!("{}: the medium has no density", path.display());
-    }
-    let d = medium.transform.vector_to_index(sun.to_light);
-    let (lo, hi) = medium.bounds;
-    let mut rng = SmallRng::seed_from_u64(9);
-    let mut rays = Vec::with_capacity(RAYS);
-    for _ in 0..1000 * RAYS {
-        let o = lo + (hi - lo) * Vec3::new(rng.gen(), rng.gen(), rng.gen());
-        if medium.sigma_t(o) > 0.0 {
-            rays.push(IndexRay { o, d });
-            if rays.len() == RAYS {
-                break;
-            }
-        }
-    }
-    if rays.len() < RAYS {
-        bail!(
-            "{}: the density fills under 1/1000 of the medium's box",
-            path.display()
-        );
-    }
-    rays.sort_by_key(|r| {
-        let b = (r.o / 8.0).floor();
-        (b.x as i32, b.y as i32, b.z as i32)
-    });
+    let rays = sun_rays(&scene, &path, RAYS)?;
     type Estimator = fn(&Medium, &IndexRay, &mut SmallRng) -> f32;
     let ways: [(&str, Estimator); 2] = [
         ("ratio tracking", ratio_tracking),

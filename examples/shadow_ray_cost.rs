@@ -10,13 +10,17 @@
 //! The tracking copies `volume::tracking`'s loop (its budget compared with each segment's optical
 //! depth, its Russian roulette below 0.1) with two hooks, without the refinement of loose cells.
 
+#[path = "common/sun_rays.rs"]
+mod sun_rays;
+
 use std::path::PathBuf;
 use std::time::Instant;
 
-use anyhow::{bail, Context, Result};
+use anyhow::{Context, Result};
 use glam::Vec3;
 use rand::rngs::SmallRng;
 use rand::{Rng, SeedableRng};
+use sun_rays::sun_rays;
 use volgrad::render::scene::Scene;
 use volgrad::volume::medium::Medium;
 use volgrad::volume::ray::IndexRay;
@@ -76,39 +80,7 @@ fn main() -> Result<()> {
         .into();
     let scene = Scene::load(&path)?;
     let medium = &scene.medium;
-    let Some(sun) = scene.lights.directional.first() else {
-        bail!("{}: the scene has no directional light", path.display());
-    };
-    if medium.grid.max_value() <= 0.0 {
-        bail!("{}: the medium has no density", path.display());
-    }
-    let d = medium.transform.vector_to_index(sun.to_light);
-    let (lo, hi) = medium.bounds;
-    let mut rng = SmallRng::seed_from_u64(9);
-    let mut rays = Vec::with_capacity(RAYS);
-    // Points drawn in the box until enough fall in the density: a bounded number of draws, so
-    // that a sparse grid in a wide box ends with an error rather than a wait without end.
-    for _ in 0..1000 * RAYS {
-        let o = lo + (hi - lo) * Vec3::new(rng.gen(), rng.gen(), rng.gen());
-        if medium.sigma_t(o) > 0.0 {
-            rays.push(IndexRay { o, d });
-            if rays.len() == RAYS {
-                break;
-            }
-        }
-    }
-    if rays.len() < RAYS {
-        bail!(
-            "{}: the density fills under 1/1000 of the medium's box; {} of {RAYS} origins found",
-            path.display(),
-            rays.len()
-        );
-    }
-    // Neighbouring rays start in the same brick and share their reads, as a path's reads do.
-    rays.sort_by_key(|r| {
-        let b = (r.o / 8.0).floor();
-        (b.x as i32, b.y as i32, b.z as i32)
-    });
+    let rays = sun_rays(&scene, &path, RAYS)?;
     let (mut values, mut budgets) = (Vec::new(), Vec::new());
     for (i, ray) in rays.iter().enumerate() {
         let mut r = SmallRng::seed_from_u64(i as u64);
