@@ -470,3 +470,60 @@ fn an_interrupted_run_writes_a_checkpoint() {
         .count();
     assert_eq!(states, 1, "{}", stderr(&output));
 }
+
+/// A run whose stderr is a file (a batch job's log: no progress bar is drawn there) still says
+/// what an iteration costs and what each evaluation found, as plain lines, and `-q` silences
+/// them. `--force` replaces an earlier run in its folder: none of that run's checkpoints or
+/// held-out pictures is left for `--resume` (which takes the latest it finds) to mistake for this
+/// run's, and files that are not a run's stay.
+#[test]
+fn a_run_logged_to_a_file_says_its_progress_and_force_replaces_an_earlier_run() {
+    let run = run_file("0.1", "spp = 1").replace("checkpoint_every = 50", "checkpoint_every = 2");
+    let dir = fixture(&run);
+    let d = dir.path();
+    let first = ok(volgrad_in(
+        d,
+        &["optimize", "run.toml", "--iterations", "6", "--out", "o"],
+    ));
+    let said = stderr(&first);
+    assert!(said.contains("one iteration took"), "{said}");
+    assert!(
+        said.contains("it 6 · level") && said.contains("held-out PSNR"),
+        "{said}"
+    );
+    let files = |d: &Path| {
+        let mut names: Vec<String> = std::fs::read_dir(d)
+            .unwrap()
+            .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+            .filter(|n| {
+                n.starts_with("checkpoint-") || n.starts_with("holdout-") || n == "notes.txt"
+            })
+            .collect();
+        names.sort();
+        names
+    };
+    assert_eq!(files(&d.join("o")).len(), 9, "{:?}", files(&d.join("o")));
+    std::fs::write(d.join("o/notes.txt"), "mine").unwrap();
+
+    let args = [
+        "optimize",
+        "run.toml",
+        "--iterations",
+        "2",
+        "--out",
+        "o",
+        "--force",
+        "-q",
+    ];
+    let second = ok(volgrad_in(d, &args));
+    assert_eq!(stderr(&second), "");
+    assert_eq!(
+        files(&d.join("o")),
+        [
+            "checkpoint-0002.state",
+            "checkpoint-0002.vdb",
+            "holdout-0002.png",
+            "notes.txt"
+        ]
+    );
+}

@@ -7,6 +7,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Duration;
 
 use anyhow::{bail, Context, Result};
+use clap::ValueEnum;
 
 use super::{set_threads, values};
 use volgrad::cluster::{AgreedError, Cluster};
@@ -58,7 +59,8 @@ pub struct Args {
     /// volgrad executable): runs of one run file then render their targets once.
     #[arg(long, value_name = "DIR")]
     pub target_cache: Option<PathBuf>,
-    /// Overwrite the output folder's files.
+    /// Write into an output folder that is not empty: this run's files replace an earlier run's,
+    /// whose checkpoints and held-out pictures are removed first (other files stay).
     #[arg(long)]
     pub force: bool,
     /// No progress bar.
@@ -108,11 +110,20 @@ pub fn run(args: &Args, cluster: &Cluster) -> Result<()> {
         .resume
         .as_ref()
         .is_some_and(|dir| same_folder(dir, &out));
-    if !args.force && !resuming_in_place && cluster.is_root() {
-        cluster.agree(refuse_non_empty(&out))?;
-    } else {
-        cluster.agree(Ok(()))?;
-    }
+    cluster.agree(cluster.on_root(|| {
+        match (args.force, resuming_in_place) {
+            (_, true) => Ok(()),
+            (false, false) => refuse_non_empty(&out),
+            // A study's runs write into a folder per estimator.
+            (true, false) => std::iter::once(out.clone())
+                .chain(
+                    Estimator::value_variants()
+                        .iter()
+                        .map(|e| out.join(e.to_string())),
+                )
+                .try_for_each(|dir| checkpoint::remove_earlier_run(&dir)),
+        }
+    }))?;
     let stop = match (args.iterations, args.budget, &args.schedule_from) {
         (Some(n), ..) => Some(Stop::Iterations(n)),
         (_, Some(b), _) => Some(Stop::Budget(b)),

@@ -57,6 +57,37 @@ pub fn paths(dir: &Path, iteration: u64) -> (PathBuf, PathBuf) {
     )
 }
 
+/// Removes the numbered files an earlier run left in `dir`: its checkpoints
+/// (`checkpoint-NNNN.vdb`, `.state`) and held-out pictures (`holdout-NNNN.png`). A fresh run
+/// given `--force` replaces that run, whose checkpoints `--resume` (which takes the latest it
+/// finds) would otherwise mistake for this one's. Nothing else in `dir` is touched; a missing
+/// `dir` has nothing to remove.
+pub fn remove_earlier_run(dir: &Path) -> Result<()> {
+    let Ok(entries) = std::fs::read_dir(dir) else {
+        return Ok(());
+    };
+    for entry in entries.flatten() {
+        let name = entry.file_name().to_string_lossy().into_owned();
+        let numbered = |prefix: &str, suffix: &str| {
+            name.strip_prefix(prefix)
+                .and_then(|r| r.strip_suffix(suffix))
+                .is_some_and(|n| !n.is_empty() && n.bytes().all(|b| b.is_ascii_digit()))
+        };
+        let earlier = numbered("checkpoint-", ".vdb")
+            || numbered("checkpoint-", ".state")
+            || numbered("holdout-", ".png");
+        if earlier && entry.path().is_file() {
+            std::fs::remove_file(entry.path()).with_context(|| {
+                format!(
+                    "--force: cannot remove the earlier run's '{}'",
+                    entry.path().display()
+                )
+            })?;
+        }
+    }
+    Ok(())
+}
+
 /// The state file of the latest checkpoint in `dir`.
 pub fn latest(dir: &Path) -> Result<PathBuf> {
     let entries = std::fs::read_dir(dir)

@@ -284,10 +284,14 @@ impl<'a> Run<'a> {
         }
         let evaluated = row.psnr.is_some();
         self.log.push(row);
-        self.bar.set_message(format!(
+        let message = format!(
             "it {it} · level {level} · loss {loss:.3e} · held-out PSNR {:.2} dB ({:.0} spp, noise allows {:.1})",
             self.evaluation.psnr, self.evaluation.spp, self.evaluation.noise_psnr
-        ));
+        );
+        if evaluated && self.bar.is_hidden() {
+            self.say(&message);
+        }
+        self.bar.set_message(message);
         let p = &self.position;
         self.bar
             .set_position(self.stop.bar_position(p.iteration, p.optimisation_seconds));
@@ -389,36 +393,48 @@ impl<'a> Run<'a> {
     /// what the stop rule then amounts to, on stderr: a run whose views are far larger than
     /// the defaults assume says so in its first seconds, not after its budget.
     fn say_costs(&self, seconds: f64) {
-        if !self.bar.is_hidden() {
-            // Every evaluation so far (a resumed run's too) and the spp each took: an
-            // evaluation's time is about proportional to its spp, which tells what "auto" may
-            // come to.
-            let spps: Vec<f64> = self.log.iter().filter_map(|r| r.heldout_spp).collect();
-            let evaluation_seconds = self.position.evaluation_seconds;
-            let evaluation = evaluation_seconds / spps.len().max(1) as f64;
-            let spp = match spp_range(self.problem) {
-                (first, max) if first < max => format!(
-                    "{:.0} spp; \"auto\" takes up to {max}, about {:.0} s, as the error falls",
-                    spps.last().copied().unwrap_or(0.0),
-                    evaluation_seconds * f64::from(max) / spps.iter().sum::<f64>().max(1.0)
-                ),
-                (spp, _) => format!("{spp} spp"),
-            };
-            let total = match &self.stop {
-                Stop::Budget(budget) => format!(
-                    ": about {:.0} iterations in the budget",
-                    budget.as_secs_f64() / seconds.max(1e-9)
-                ),
-                Stop::Iterations(n) => format!(
-                    ": about {:.0} s for the {n} iterations",
-                    seconds * *n as f64
-                ),
-                Stop::Replay(_) => String::new(),
-            };
-            self.bar.println(format!(
+        // Every evaluation so far (a resumed run's too) and the spp each took: an
+        // evaluation's time is about proportional to its spp, which tells what "auto" may
+        // come to.
+        let spps: Vec<f64> = self.log.iter().filter_map(|r| r.heldout_spp).collect();
+        let evaluation_seconds = self.position.evaluation_seconds;
+        let evaluation = evaluation_seconds / spps.len().max(1) as f64;
+        let spp = match spp_range(self.problem) {
+            (first, max) if first < max => format!(
+                "{:.0} spp; \"auto\" takes up to {max}, about {:.0} s, as the error falls",
+                spps.last().copied().unwrap_or(0.0),
+                evaluation_seconds * f64::from(max) / spps.iter().sum::<f64>().max(1.0)
+            ),
+            (spp, _) => format!("{spp} spp"),
+        };
+        let total = match &self.stop {
+            Stop::Budget(budget) => format!(
+                ": about {:.0} iterations in the budget",
+                budget.as_secs_f64() / seconds.max(1e-9)
+            ),
+            Stop::Iterations(n) => format!(
+                ": about {:.0} s for the {n} iterations",
+                seconds * *n as f64
+            ),
+            Stop::Replay(_) => String::new(),
+        };
+        self.say(&format!(
                 "one iteration took {seconds:.2} s and one evaluation {evaluation:.2} s ({spp}; every {} iterations){total}",
                 self.problem.settings.eval_every
             ));
+    }
+
+    /// A line for the user on stderr: above the progress bar on a terminal, and as a plain line
+    /// where stderr is a file (a batch job's log), where no bar is drawn; nothing with `-q` or
+    /// on ranks other than 0.
+    fn say(&self, line: &str) {
+        match (
+            self.options.progress && self.options.cluster.is_root(),
+            self.bar.is_hidden(),
+        ) {
+            (false, _) => {}
+            (true, false) => self.bar.println(line),
+            (true, true) => eprintln!("{line}"),
         }
     }
 
