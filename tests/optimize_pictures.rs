@@ -264,6 +264,9 @@ fn pictures_alone_need_no_grid_and_give_their_own_box() {
         assert!(max[a] > 3.0 && max[a] < 11.0, "{min:?} {max:?}");
     }
     assert!(settings["unknown"]["voxel_size"].as_float().unwrap() > 0.0);
+    // The voxel is the finest pixel's footprint: no coarser level to start from.
+    let levels = settings["unknown"]["levels"].as_array().unwrap();
+    assert!(levels.is_empty(), "{levels:?}");
     assert!(d.join("out/final.vdb").is_file());
     assert_clean_error(
         &volgrad_in(d, &["render", "constants.toml", "-o", "x.exr"]),

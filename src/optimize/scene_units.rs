@@ -158,13 +158,20 @@ pub fn footprint(cameras: &[Camera], centre: Vec3) -> f64 {
 }
 
 /// The fewest upsamplings that make the coarsest voxel at least one pixel's footprint, given in
-/// final voxels: ⌈log2(footprint)⌉, in 0..=`MAX_LEVELS`.
+/// final voxels: ⌈log2(footprint)⌉, in 0..=`MAX_LEVELS`. A footprint within 5 % above a power of
+/// two counts as it: the voxel `bounds = "views"` derives is the footprint at the box's centre
+/// before the box is rounded out to whole voxels, and the rounding moves the centre by up to half
+/// a voxel (the footprint then comes back as 1.003 voxels on 24² views).
 pub fn level_count(footprint_voxels: f64) -> usize {
-    if !(footprint_voxels.is_finite() && footprint_voxels > 1.0) {
+    let levels = (footprint_voxels / FOOTPRINT_ROUNDING).log2().ceil();
+    if !(levels.is_finite() && levels > 0.0) {
         return 0;
     }
-    (footprint_voxels.log2().ceil() as usize).min(MAX_LEVELS)
+    (levels as usize).min(MAX_LEVELS)
 }
+
+/// How far above a power of two a footprint may be and still count as it (`level_count`).
+const FOOTPRINT_ROUNDING: f64 = 1.05;
 
 /// When each of `count` levels begins, as fractions of the run: the coarsest gets the first 40 %
 /// (the views pin it down best and its steps are the cheapest), the others begin evenly up to
@@ -227,8 +234,14 @@ mod tests {
         let count =
             |cameras: &[Camera], voxel: f64| level_count(footprint(cameras, Vec3::ZERO) / voxel);
         assert_eq!(count(&[camera], 10.0 / 3.0), 2);
-        assert_eq!(count(&[camera], 11.0), 1);
+        assert_eq!(count(&[camera], 10.5), 1);
+        // 1.03 voxels a pixel: within the 5 % that counts as one.
+        assert_eq!(count(&[camera], 11.0), 0);
         assert_eq!(count(&[camera], 12.0), 0);
+        // A voxel of the footprint itself, as `bounds = "views"` derives it, after rounding.
+        assert_eq!(level_count(1.003), 0);
+        assert_eq!(level_count(2.04), 1);
+        assert_eq!(level_count(1.1), 1);
         assert_eq!(count(&[camera], 0.01), MAX_LEVELS);
         // The finest view decides: 2.84 units per pixel.
         let near = Camera::new(
