@@ -60,6 +60,11 @@ fn a_tiny_reconstruction_converges_and_naive_cannot_grow_from_empty() {
         *volume.last().unwrap() > 0.9 * volume[0],
         "naive's volume RMSE {volume:?}"
     );
+    // Haze, a ratio over the density where the truth is, means nothing while there is none:
+    // the empty start has no number (it was the ratio over a guard of 1e-30), joint's end has one.
+    assert_eq!(naive[0]["haze"], "", "{:?}", naive[0]);
+    let haze = number(joint.last().unwrap(), "haze");
+    assert!(haze.is_finite() && haze < 1.0, "{haze}");
 }
 
 /// The start's visual hull: a constant start is cleared where a training view sees only the sky.

@@ -191,6 +191,7 @@ pub fn run(args: &Args, cluster: &Cluster) -> Result<()> {
         e.relative_rmse,
         match (e.volume_rmse, e.haze) {
             (Some(rmse), Some(haze)) => format!(", volume RMSE {rmse:.4}, haze {haze:.3}"),
+            (Some(rmse), None) => format!(", volume RMSE {rmse:.4}"),
             _ => String::new(),
         }
     );

@@ -165,7 +165,7 @@ pub fn evaluate(
     if let Some(truth) = &problem.truth {
         let (rmse, haze) = volume_error(problem, truth, &scene, level);
         e.volume_rmse = Some(rmse);
-        e.haze = Some(haze);
+        e.haze = haze;
     }
     e
 }
@@ -210,19 +210,24 @@ fn wanted_half_spp(half_spp: u32, noise: f64, error: f64) -> u32 {
 }
 
 /// (RMSE, haze) of the unknown's field against the truth at the final level's voxel centres.
+/// Haze is the field's mean where the truth is empty over its mean where the truth is not; it
+/// is not defined (`None`) while the field holds next to nothing where the truth has density
+/// (under 1e-6 of the truth's mean there: a start of 0, or an estimator that cannot grow one),
+/// where the ratio would be any number at all.
 fn volume_error(
     problem: &Problem,
     truth: &crate::volume::brickmap::BrickMap,
     scene: &Scene,
     level: usize,
-) -> (f64, f64) {
+) -> (f64, Option<f64>) {
     let d = &problem.domain;
     let grid = problem.unknown.grid_in(scene);
-    // (squared error, empty voxels, density in them, occupied voxels, density in them)
+    // (squared error, empty voxels, density in them, occupied voxels, density in them, the
+    // truth's density in them)
     let sums = (d.lo.x..=d.hi.x)
         .into_par_iter()
         .map(|x| {
-            let mut s = [0.0f64; 5];
+            let mut s = [0.0f64; 6];
             for y in d.lo.y..=d.hi.y {
                 for z in d.lo.z..=d.hi.z {
                     let v = IVec3::new(x, y, z);
@@ -232,6 +237,7 @@ fn volume_error(
                     if t > 0.0 {
                         s[3] += 1.0;
                         s[4] += c;
+                        s[5] += t;
                     } else {
                         s[1] += 1.0;
                         s[2] += c;
@@ -242,13 +248,15 @@ fn volume_error(
         })
         // Collected, then summed in x order: rayon's `reduce` would add the slices in an order
         // that depends on how the work was split, and so on the number of threads.
-        .collect::<Vec<[f64; 5]>>()
+        .collect::<Vec<[f64; 6]>>()
         .into_iter()
-        .fold([0.0; 5], |a, b| std::array::from_fn(|i| a[i] + b[i]));
+        .fold([0.0; 6], |a, b| std::array::from_fn(|i| a[i] + b[i]));
     let rmse = (sums[0] / d.voxel_count().max(1) as f64).sqrt();
     let mean_empty = sums[2] / sums[1].max(1.0);
     let mean_occupied = sums[4] / sums[3].max(1.0);
-    (rmse, mean_empty / mean_occupied.max(1e-30))
+    let truth_occupied = sums[5] / sums[3].max(1.0);
+    let haze = (mean_occupied > 1e-6 * truth_occupied).then(|| mean_empty / mean_occupied);
+    (rmse, haze)
 }
 
 /// One row per held-out view: target | render | |render − target| × 4, tonemapped as the scene's
