@@ -229,6 +229,30 @@ fn error_a_file_without_grids() {
     }
 }
 
+/// A name several grids share picks none of them: `grids.vdb` holds three grids named `density`.
+/// By that name, or by default (which looks for `density`), the read is refused with their
+/// positions; by position each grid reads.
+#[test]
+fn a_name_several_grids_share_is_refused() {
+    use volgrad::io::vdb::{read_grid, GridSelector};
+    let p = assets().join("grids.vdb");
+    for selector in [GridSelector::Name("density".into()), GridSelector::Default] {
+        let Err(e) = read_grid(&p, &selector) else {
+            panic!("{selector:?} read one of three grids named density");
+        };
+        let e = e.to_string();
+        assert!(
+            e.contains("3 grids named 'density'")
+                && e.contains("[0, 1, 2]")
+                && e.contains("grid_index"),
+            "{e}"
+        );
+    }
+    for i in 0..3 {
+        assert!(read_grid(&p, &GridSelector::Index(i)).is_ok());
+    }
+}
+
 // ------------------------------------------------------------------------------------------------
 // End to end
 

@@ -8,7 +8,7 @@ use anyhow::Result;
 use super::bytes;
 use volgrad::io::vdb;
 use volgrad::render::scene::Scene;
-use volgrad::volume::brickmap::BRICK_VOXELS;
+use volgrad::volume::brickmap::{BrickMap, BRICK_VOXELS};
 use volgrad::volume::emission::EmissionKind;
 
 #[derive(clap::Args)]
@@ -96,6 +96,12 @@ pub fn run(args: &Args) -> Result<()> {
             };
             println!("  background     {}{refused}", grid.background);
             let b = &grid.bricks;
+            println!(
+                "  values         {} .. {} (mean {:.4} over the active voxels)",
+                b.min_value(),
+                b.max_value(),
+                active_mean(b)
+            );
             let leaf_bytes = b.leaves().len() * BRICK_VOXELS * 4;
             println!(
                 "  brick map      {} ({:.3} × the {} of leaf values, {} tiles kept as constants)",
@@ -113,6 +119,26 @@ pub fn run(args: &Args) -> Result<()> {
         }
     }
     Ok(())
+}
+
+/// The mean value over the active voxels, leaves' and tiles' (0 for none): with the largest, what
+/// a density scale is chosen from (σt = density_scale × value).
+fn active_mean(b: &BrickMap) -> f64 {
+    let in_leaves: f64 = b
+        .leaves()
+        .iter()
+        .flat_map(|l| {
+            let active = |o: usize| l.active[o / 64] >> (o % 64) & 1 == 1;
+            l.values.iter().enumerate().filter(move |&(o, _)| active(o))
+        })
+        .map(|(_, &v)| f64::from(v))
+        .sum();
+    let in_tiles: f64 = b
+        .tiles()
+        .iter()
+        .map(|t| f64::from(t.value) * f64::from(t.size).powi(3))
+        .sum();
+    (in_leaves + in_tiles) / b.active_voxel_count().max(1) as f64
 }
 
 /// The grids a scene would read: its density and, if it emits, its emission grid, each with its

@@ -120,11 +120,28 @@ fn bridge_threads() -> u32 {
     u32::try_from(rayon::current_num_threads().min(cores)).unwrap_or(u32::MAX)
 }
 
+/// A name that several grids of the file share picks none of them: which one was meant is the
+/// user's to say, by position (`volgrad info` numbers the grids).
+fn refuse_repeated_name(path: &Path, grids: &[String], name: &str) -> Result<()> {
+    let at: Vec<usize> = (0..grids.len()).filter(|&i| grids[i] == name).collect();
+    if at.len() > 1 {
+        bail!(
+            "'{}' holds {} grids named '{name}' (positions {at:?} in `volgrad info`): choose one by its position (a scene's medium.grid_index)",
+            path.display(),
+            at.len()
+        );
+    }
+    Ok(())
+}
+
 fn read_data(path: &Path, selector: &GridSelector, to_fog: bool) -> Result<FloatGridData> {
     let p = path_str(path)?;
     let threads = bridge_threads();
     match selector {
-        GridSelector::Name(name) => ffi::read_float_grid(p, name, -1, to_fog, threads),
+        GridSelector::Name(name) => {
+            refuse_repeated_name(path, &list_grid_names(path)?, name)?;
+            ffi::read_float_grid(p, name, -1, to_fog, threads)
+        }
         GridSelector::Index(i) => match i32::try_from(*i) {
             Ok(i) => ffi::read_float_grid(p, "", i, to_fog, threads),
             Err(_) => bail!("grid index {i} out of range for '{}'", path.display()),
@@ -132,7 +149,10 @@ fn read_data(path: &Path, selector: &GridSelector, to_fog: bool) -> Result<Float
         GridSelector::Default => {
             let grids = list_grid_names(path)?;
             match grids.iter().position(|name| name == "density") {
-                Some(i) => ffi::read_float_grid(p, "", i as i32, to_fog, threads),
+                Some(i) => {
+                    refuse_repeated_name(path, &grids, "density")?;
+                    ffi::read_float_grid(p, "", i as i32, to_fog, threads)
+                }
                 None if grids.is_empty() => bail!("'{}' holds no grids", path.display()),
                 None if grids.len() == 1 => ffi::read_float_grid(p, "", 0, to_fog, threads),
                 None => {
