@@ -60,6 +60,8 @@ fn info_lists_every_grid_with_its_facts() {
         "fog volume",
         "scale + translation",
         "brick map",
+        // OpenVDB's own `vdb_print -l`: min value 0, max value 1.
+        "values         0 .. 1 (mean 0.",
     ] {
         assert!(out.contains(fact), "info lacks {fact:?}:\n{out}");
     }
