@@ -75,8 +75,9 @@ pub struct OptimizerFile {
     pub smooth_gradient: bool,
     /// Smoothing passes at the first level (`FIRST_LEVEL_SMOOTHING` by default).
     pub first_level_smoothing: u32,
-    /// From this fraction of the run on, the result is the mean of θ over the steps since (or
-    /// since the last upsampling, if later): `average`. 1: θ as the last step left it.
+    /// From this fraction of the run on, the result is a mean of θ over the steps since (or
+    /// since the last upsampling, if later), the later steps weighing more: `average`. 1: θ as
+    /// the last step left it.
     pub average_from: f32,
     /// Fit a global log-scale of θ beside the voxels (`Adam::fit_scale`).
     pub fit_scale: bool,
