@@ -25,7 +25,9 @@ use crate::volume::sparse_index::KeyMap;
 /// η of polynomial-decay averaging. Two replays of the worked example's 10-minute schedule
 /// (`scenes/capture/plume.toml`, seeds 1 and 2), each mean kept beside the plain one over the same
 /// steps and scored at the same 1,820 spp: η = 1, 3 and 8 scored +0.06 to +0.13 dB above the
-/// plain mean on both the held-out and the relit views, η = 3 the most on average.
+/// plain mean on both the held-out and the relit views, η = 3 the most on average. Where the mean
+/// covers few steps it costs a little: −0.06 dB on the Disney cloud's 10-minute run, whose mean
+/// covers its last level's 33 steps (docs/reconstruct.md, "The average of the last steps").
 const ETA: f32 = 3.0;
 
 /// The running mean θ̄ of θ over `steps` steps, sparse by brick as θ is.
