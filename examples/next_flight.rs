@@ -16,84 +16,31 @@
 //! walk goes on without reads until its next tentative collision: S times that flight's escape
 //! (0 or 1) is unbiased for S · e^{−τ̄(t_i, t1)}.
 //!
-//! Both copy `volume::tracking`'s loop (the budget against each segment's optical depth, Russian
-//! roulette below 0.1), without the refinement of loose cells.
+//! Both walk as `volume::tracking` does (`common/tentative.rs`).
 
 #[path = "common/sun_rays.rs"]
 mod sun_rays;
+#[path = "common/tentative.rs"]
+mod tentative;
 
 use std::path::PathBuf;
 use std::time::Instant;
 
 use anyhow::{Context, Result};
 use rand::rngs::SmallRng;
-use rand::{Rng, SeedableRng};
+use rand::SeedableRng;
 use sun_rays::sun_rays;
+use tentative::{exponential, roulette, walk};
 use volgrad::render::scene::Scene;
 use volgrad::volume::medium::Medium;
 use volgrad::volume::ray::IndexRay;
 
 const RAYS: usize = 50_000;
 const RUNS: usize = 16;
-const RR_BELOW: f32 = 0.1;
-
-/// Russian roulette on a weight below `RR_BELOW`: false when it ends (the weight 0).
-#[inline(always)]
-fn roulette(w: &mut f32, rng: &mut SmallRng) -> bool {
-    if *w < RR_BELOW {
-        if *w <= 0.0 || rng.gen::<f32>() * RR_BELOW >= *w {
-            *w = 0.0;
-            return false;
-        }
-        *w = RR_BELOW;
-    }
-    true
-}
-
-/// Walks the tentative collisions of `ray` from where it enters the medium to where it leaves;
-/// `visit(t, σ̄, u, rng)` sees each, with the uniform u its budget was drawn from, and returns
-/// false to end the walk. Returns the optical depth the last budget had spent at the exit (`None`
-/// when the walk was ended).
-#[inline(always)]
-fn walk(
-    medium: &Medium,
-    ray: &IndexRay,
-    rng: &mut SmallRng,
-    mut visit: impl FnMut(f32, f32, f32, &mut SmallRng) -> bool,
-) -> Option<f32> {
-    let Some((t0, t1)) = medium.intersect(ray) else {
-        return Some(0.0);
-    };
-    let mut u: f32 = rng.gen();
-    let mut budget = -(1.0 - u).ln();
-    let mut left = budget;
-    for seg in medium.majorant.walk(ray.o, ray.d, t0, t1) {
-        if seg.sigma_max <= 0.0 {
-            continue;
-        }
-        let mut t = seg.t0;
-        loop {
-            let depth = (seg.t1 - t) * seg.sigma_max;
-            let next = (left < depth).then(|| t + left / seg.sigma_max);
-            let Some(next) = next.filter(|&next| next < seg.t1) else {
-                left = (left - depth).max(0.0);
-                break;
-            };
-            t = next.max(t.next_up());
-            if !visit(t, seg.sigma_max, u, rng) {
-                return None;
-            }
-            u = rng.gen();
-            budget = -(1.0 - u).ln();
-            left = budget;
-        }
-    }
-    Some(budget - left)
-}
 
 fn ratio_tracking(medium: &Medium, ray: &IndexRay, rng: &mut SmallRng) -> f32 {
     let mut w = 1.0f32;
-    let escaped = walk(medium, ray, rng, |t, sigma_max, _, rng| {
+    let escaped = walk(medium, ray, rng, exponential, |t, sigma_max, _, rng| {
         w *= (1.0 - medium.sigma_t(ray.at(t)) / sigma_max).max(0.0);
         roulette(&mut w, rng)
     });
@@ -106,7 +53,7 @@ fn ratio_tracking(medium: &Medium, ray: &IndexRay, rng: &mut SmallRng) -> f32 {
 
 fn next_flight(medium: &Medium, ray: &IndexRay, rng: &mut SmallRng) -> f32 {
     let (mut w, mut sum, mut weighted) = (1.0f32, 1.0f32, true);
-    let spent = walk(medium, ray, rng, |t, sigma_max, u, rng| {
+    let spent = walk(medium, ray, rng, exponential, |t, sigma_max, u, rng| {
         if !weighted {
             // The flight after the weights ended did not leave: its escape is 0.
             sum = 0.0;

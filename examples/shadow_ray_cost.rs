@@ -7,11 +7,13 @@
 //!
 //!     cargo run --release --example shadow_ray_cost -- scenes/cloud.toml
 //!
-//! The tracking copies `volume::tracking`'s loop (its budget compared with each segment's optical
-//! depth, its Russian roulette below 0.1) with two hooks, without the refinement of loose cells.
+//! The tracking walks as `volume::tracking` does (`common/tentative.rs`), with two hooks: where
+//! a read's value and a budget come from.
 
 #[path = "common/sun_rays.rs"]
 mod sun_rays;
+#[path = "common/tentative.rs"]
+mod tentative;
 
 use std::path::PathBuf;
 use std::time::Instant;
@@ -21,16 +23,12 @@ use glam::Vec3;
 use rand::rngs::SmallRng;
 use rand::{Rng, SeedableRng};
 use sun_rays::sun_rays;
+use tentative::{exponential, roulette, walk};
 use volgrad::render::scene::Scene;
 use volgrad::volume::medium::Medium;
 use volgrad::volume::ray::IndexRay;
 
 const RAYS: usize = 400_000;
-const RR_BELOW: f32 = 0.1;
-
-fn exponential(rng: &mut SmallRng) -> f32 {
-    -(1.0 - rng.gen::<f32>()).ln()
-}
 
 /// Ratio tracking from the ray's origin to where it leaves the medium, reading σt through `read`
 /// and drawing each Exp(1) budget through `budget`.
@@ -42,35 +40,22 @@ fn track(
     mut read: impl FnMut(Vec3) -> f32,
     mut budget: impl FnMut(&mut SmallRng) -> f32,
 ) -> f32 {
-    let Some((t0, t1)) = medium.intersect(ray) else {
-        return 1.0;
-    };
-    let mut left = budget(rng);
     let mut tr = 1.0f32;
-    for seg in medium.majorant.walk(ray.o, ray.d, t0, t1) {
-        if seg.sigma_max <= 0.0 {
-            continue;
-        }
-        let mut t = seg.t0;
-        loop {
-            let depth = (seg.t1 - t) * seg.sigma_max;
-            let next = (left < depth).then(|| t + left / seg.sigma_max);
-            let Some(next) = next.filter(|&next| next < seg.t1) else {
-                left = (left - depth).max(0.0);
-                break;
-            };
-            t = next.max(t.next_up());
-            tr *= (1.0 - read(ray.at(t)) / seg.sigma_max).max(0.0);
-            if tr < RR_BELOW {
-                if tr <= 0.0 || rng.gen::<f32>() * RR_BELOW >= tr {
-                    return 0.0;
-                }
-                tr = RR_BELOW;
-            }
-            left = budget(rng);
-        }
+    let escaped = walk(
+        medium,
+        ray,
+        rng,
+        |r| (budget(r), 0.0),
+        |t, sigma_max, _, rng| {
+            tr *= (1.0 - read(ray.at(t)) / sigma_max).max(0.0);
+            roulette(&mut tr, rng)
+        },
+    );
+    if escaped.is_some() {
+        tr
+    } else {
+        0.0
     }
-    tr
 }
 
 fn main() -> Result<()> {
@@ -90,7 +75,7 @@ fn main() -> Result<()> {
             v
         };
         let draw = |r: &mut SmallRng| {
-            let e = exponential(r);
+            let e = exponential(r).0;
             budgets.push(e);
             e
         };
@@ -113,8 +98,14 @@ fn main() -> Result<()> {
                     values[vi - 1]
                 };
                 sum += f64::from(match way {
-                    0 => track(medium, ray, &mut r, |p| medium.sigma_t(p), exponential),
-                    1 => track(medium, ray, &mut r, listed, exponential),
+                    0 => track(
+                        medium,
+                        ray,
+                        &mut r,
+                        |p| medium.sigma_t(p),
+                        |r| exponential(r).0,
+                    ),
+                    1 => track(medium, ray, &mut r, listed, |r| exponential(r).0),
                     _ => {
                         let listed_budget = |r: &mut SmallRng| {
                             let _: f32 = r.gen(); // the draw stays, its logarithm goes

@@ -448,7 +448,8 @@ fn finite_differences(args: &Args, scene: &Scene, target: Option<&RgbImage>) -> 
         .context("--estimator fd needs --fd (voxels:..., box:..., ones or random)")?;
     let seed = args.adjoint.sampling.seed(scene);
     let max_depth = args.adjoint.sampling.max_depth(scene);
-    let options = args.fd_args.options(scene, args.loss, seed, max_depth)?;
+    // Finite differences of the density only (`check_flags`).
+    let options = (args.fd_args).options(&scene.medium.grid, args.loss, seed, max_depth)?;
     let active_only = args.adjoint.domain == Domain::Active;
     let directions = fd_directions(spec, scene, active_only, seed, 3.0 * options.eps)?;
     println!(

@@ -10,7 +10,7 @@ use super::{set_threads, AdjointArgs, FdArgs};
 use volgrad::gradient::adjoint::Estimator;
 use volgrad::gradient::gradcheck::{checks_table, gradcheck, GradcheckOptions, Z_LIMIT};
 use volgrad::gradient::loss::Loss;
-use volgrad::gradient::passes::Parameter;
+use volgrad::gradient::passes::{parameter_grid, Parameter};
 use volgrad::render::scene::Scene;
 use volgrad::render::scene_check;
 
@@ -55,9 +55,8 @@ pub fn run(args: &Args) -> Result<()> {
         }
         _ => {}
     }
-    let fd = args
-        .fd_args
-        .options(&scene, Loss::Mean, grad.seed, grad.adjoint.max_depth)?;
+    let perturbed = parameter_grid(&scene, grad.parameter, grad.channel);
+    let fd = (args.fd_args).options(perturbed, Loss::Mean, grad.seed, grad.adjoint.max_depth)?;
     let options = GradcheckOptions {
         grad,
         repeats: args.fd_args.repeats,

@@ -28,6 +28,7 @@ use volgrad::gradient::pixel_samples::PixelSamples;
 use volgrad::render::image::RenderStats;
 use volgrad::render::scene::Scene;
 use volgrad::render::scene_check;
+use volgrad::volume::brickmap::BrickMap;
 
 /// Which voxels are parameters.
 #[derive(Clone, Copy, PartialEq, Eq, ValueEnum)]
@@ -141,22 +142,25 @@ pub struct FdArgs {
 }
 
 impl FdArgs {
+    /// The options of steps in `perturbed`, the grid whose values they change (the density, or
+    /// gradcheck's emission or albedo grid).
     pub fn options(
         &self,
-        scene: &Scene,
+        perturbed: &BrickMap,
         loss: Loss,
         seed: u64,
         max_depth: u32,
     ) -> Result<FdOptions> {
         // Without --eps, callers pick fd::auto_eps per direction; this is the cap it never exceeds.
-        let eps = self.eps.unwrap_or(fd::max_eps(&scene.medium.grid));
+        let eps = self.eps.unwrap_or(fd::max_eps(perturbed));
         if !(eps > 0.0 && eps.is_finite()) {
             bail!("--eps must be a positive number (got {eps})");
         }
         // A step f32 barely resolves at the grid's values differences rounding, not the image.
-        let resolved = 1e-5 * scene.medium.grid.max_value().abs();
+        let largest = perturbed.max_value().abs().max(perturbed.min_value().abs());
+        let resolved = 1e-5 * largest;
         if eps < resolved {
-            bail!("--eps {eps:e} is below what f32 resolves beside the grid's largest value {} (at least {resolved:e})", scene.medium.grid.max_value());
+            bail!("--eps {eps:e} is below what f32 resolves beside the grid's largest value {largest} (at least {resolved:e})");
         }
         if self.fd_spp == 0 || self.repeats < 2 {
             bail!("--fd-spp must be at least 1 and --repeats at least 2");

@@ -49,3 +49,26 @@ fn flags_parse_into_the_library_types() {
     assert!(parse("volgrad compare s.toml --budget 3 fortnights").is_err());
     assert!(parse("volgrad render s.toml --majorant sparse").is_err());
 }
+
+/// A finite-difference step is judged against the grid it changes: 1e-5 resolves beside an
+/// albedo grid's values (at most 1) but not beside a density of 50, where f32's rounding is as
+/// large as the step.
+#[test]
+fn a_step_is_judged_against_the_grid_it_changes() {
+    use glam::IVec3;
+    use volgrad::gradient::loss::Loss;
+    use volgrad::volume::brickmap::BrickMapBuilder;
+    let grid = |value: f32| {
+        let mut b = BrickMapBuilder::new();
+        b.set(IVec3::ZERO, value, true);
+        b.build()
+    };
+    let fd = super::FdArgs {
+        eps: Some(1e-5),
+        fd_spp: 1,
+        repeats: 2,
+    };
+    assert!(fd.options(&grid(1.0), Loss::Mean, 1, 4).is_ok());
+    let e = fd.options(&grid(50.0), Loss::Mean, 1, 4).unwrap_err();
+    assert!(e.to_string().contains("f32 resolves"), "{e}");
+}

@@ -126,7 +126,7 @@ fn refuse_repeated_name(path: &Path, grids: &[String], name: &str) -> Result<()>
     let at: Vec<usize> = (0..grids.len()).filter(|&i| grids[i] == name).collect();
     if at.len() > 1 {
         bail!(
-            "'{}' holds {} grids named '{name}' (positions {at:?} in `volgrad info`): choose one by its position (a scene's medium.grid_index)",
+            "'{}' holds {} grids named '{name}' (positions {at:?} in `volgrad info`): choose the density by its position (medium.grid_index), or give the grids names of their own",
             path.display(),
             at.len()
         );

@@ -30,7 +30,9 @@ use crate::optimize::schedule::Stop;
 use crate::volume::brickmap::BRICK_VOXELS;
 use crate::volume::transform::IndexTransform;
 
-const MAGIC: &[u8] = b"volgrad optimizer state 11\n";
+/// The format's version: 12 since θ̄ weighs its later steps more (`average`), so that a state
+/// whose θ̄ is a plain mean is not resumed as one of those.
+const MAGIC: &[u8] = b"volgrad optimizer state 12\n";
 
 /// Where a run is, apart from θ and Adam's moments.
 #[derive(Debug, Clone, Default, PartialEq)]
