@@ -16,8 +16,11 @@ use crate::render::scene::Scene;
 use crate::volume::tracking::TrackingStats;
 
 const TILE: u32 = 16;
-/// Pixels of a `render_pixels` set traced as one task.
+/// Pixels of a `render_pixels` set traced as one task at most, and tasks a set is cut into at
+/// least (while a task keeps a pixel): an optimisation step renders a view's share of its pixel
+/// batch (about 1,400 pixels), and a set of a few tasks leaves one thread waiting for the last.
 const CHUNK_PIXELS: u64 = 256;
+const MIN_CHUNKS: u64 = 64;
 
 #[derive(Debug, Clone, Copy)]
 pub struct RenderOptions {
@@ -169,14 +172,15 @@ pub fn render_pixels_of(
 ) -> PixelsRendered {
     let start = Instant::now();
     let w = scene.camera.width;
-    let chunks = set.len().div_ceil(CHUNK_PIXELS);
+    let chunk_pixels = CHUNK_PIXELS.min(set.len().div_ceil(MIN_CHUNKS)).max(1);
+    let chunks = set.len().div_ceil(chunk_pixels);
     let progress = crate::io::progress::bar(options.progress, chunks, "rendering");
     let results: Vec<Traced> = (0..chunks)
         .into_par_iter()
         .map(|chunk| {
             let (mut stats, mut non_finite) = (TrackingStats::default(), 0);
-            let end = ((chunk + 1) * CHUNK_PIXELS).min(set.len());
-            let pixels = (chunk * CHUNK_PIXELS..end)
+            let end = ((chunk + 1) * chunk_pixels).min(set.len());
+            let pixels = (chunk * chunk_pixels..end)
                 .map(|i| {
                     let p = set.pixel(i);
                     let xy = (p % w, p / w);
