@@ -68,6 +68,7 @@ ImageData read_image(rust::Str path_str) {
     img.stored_type = std::string(spec.format.c_str());
     img.alpha_channel = spec.alpha_channel;
     img.alpha_unassociated = spec.get_int_attribute("oiio:UnassociatedAlpha") != 0;
+    for (const std::string& name : spec.channelnames) img.channel_names.push_back(rust::String(name));
     std::vector<float> data(size_t(spec.width) * size_t(spec.height) * size_t(spec.nchannels));
     if (!in->read_image(0, 0, 0, spec.nchannels, OIIO::TypeDesc::FLOAT, data.data())) {
         fail("cannot read image " + quoted(path) + ": " + oiio_error(in->geterror()));

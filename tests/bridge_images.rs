@@ -32,6 +32,7 @@ fn test_image(width: u32, height: u32, channels: u32, unit: bool) -> ImageData {
         stored_type: String::new(),
         alpha_channel: -1,
         alpha_unassociated: false,
+        channel_names: Vec::new(),
     }
 }
 

@@ -39,7 +39,7 @@ pub fn read(model: &Path, images: &Path) -> Result<Vec<CapturedView>> {
     let cameras_path = model.join("cameras.txt");
     let images_path = model.join("images.txt");
     let read = |path: &Path| {
-        std::fs::read_to_string(path).with_context(|| {
+        crate::io::input::read_text(path).with_context(|| {
             format!(
                 "cannot read '{}' (a COLMAP text model: cameras.txt and images.txt)",
                 path.display()
@@ -137,7 +137,8 @@ fn sensor(line: &str) -> Result<Sensor> {
     if params.len() != expected {
         bail!("{model} takes {expected} parameters (got {})", params.len());
     }
-    if let Some(k) = distortion.iter().find(|&&k| k != 0.0) {
+    if let Some(&k) = distortion.iter().find(|&&k| k != 0.0) {
+        let k = super::quoted_number(k);
         bail!("{model} with distortion {k}: lens distortion is not modelled (volgrad's cameras are pinholes); undistort the images (`colmap image_undistorter`)");
     }
     let [fx, fy, cx, cy] = pinhole.map(|v| v as f32);
@@ -155,6 +156,7 @@ fn views(text: &str, sensors: &HashMap<u32, Sensor>, images: &Path) -> Result<Ve
     // of the file).
     let lines: Vec<(usize, &str)> = data_lines(text).collect();
     let (mut views, mut ids) = (Vec::new(), std::collections::HashSet::new());
+    let mut names = std::collections::HashMap::new();
     for pair in lines.chunks(2) {
         let (number, line) = pair[0];
         if line.trim().is_empty() {
@@ -167,6 +169,10 @@ fn views(text: &str, sensors: &HashMap<u32, Sensor>, images: &Path) -> Result<Ve
         let id = first_number(line).with_context(|| format!("line {number}: IMAGE_ID"))?;
         if !ids.insert(id) {
             bail!("line {number}: image {id} is listed twice");
+        }
+        // One picture under two IDs would weigh twice in the fit.
+        if let Some(first) = names.insert(view.image.clone(), number) {
+            bail!("line {number}: image {id} names the picture of line {first} again");
         }
         if let Some(&(number, points)) = pair.get(1) {
             points_line(points).with_context(|| format!("line {number}: expected the POINTS2D line of image {id} (X Y POINT3D_ID triples, or empty: COLMAP writes one after each image's line)"))?;

@@ -16,3 +16,14 @@ pub struct CapturedView {
     pub camera: Camera,
     pub image: Option<PathBuf>,
 }
+
+/// A number from a camera file as a message quotes it: as written for most, in exponent form
+/// where the plain form runs long (`1e-300`, not three hundred digits).
+fn quoted_number(v: f64) -> String {
+    let plain = v.to_string();
+    if plain.len() > 16 {
+        format!("{v:e}")
+    } else {
+        plain
+    }
+}

@@ -151,7 +151,7 @@ struct Frame {
 
 /// The cameras of `path` (errors name the file and the frame).
 pub fn read(path: &Path) -> Result<Vec<CapturedView>> {
-    let text = std::fs::read_to_string(path)
+    let text = crate::io::input::read_text(path)
         .with_context(|| format!("cannot read '{}'", path.display()))?;
     let not_transforms = || format!("'{}' is not a transforms.json", path.display());
     let value: serde_json::Value = serde_json::from_str(&text).with_context(not_transforms)?;
@@ -168,14 +168,15 @@ pub fn read(path: &Path) -> Result<Vec<CapturedView>> {
     file.check()
         .with_context(|| format!("'{}'", path.display()))?;
     let dir = path.parent().unwrap_or(Path::new("."));
-    file.frames
-        .iter()
-        .enumerate()
+    let views = (file.frames.iter().enumerate())
         .map(|(i, frame)| {
             file.view(frame, dir)
                 .with_context(|| format!("'{}': frames[{i}]", path.display()))
         })
-        .collect()
+        .collect::<Result<Vec<_>>>()?;
+    refuse_repeated_images(&views, |i| format!("frames[{i}]"))
+        .with_context(|| format!("'{}'", path.display()))?;
+    Ok(views)
 }
 
 impl TransformsFile {
@@ -251,6 +252,7 @@ fn intrinsics(lens: &Lens, width: u32, height: u32) -> Result<Intrinsics> {
         ("p2", lens.p2),
     ] {
         if let Some(v) = value.filter(|&v| v != 0.0) {
+            let v = super::quoted_number(v);
             bail!("{key} = {v}: lens distortion is not modelled (volgrad's cameras are pinholes); undistort the images and give zero distortion");
         }
     }
@@ -335,6 +337,28 @@ fn image_path(dir: &Path, name: &str) -> Result<PathBuf> {
         }
     }
     bail!("file_path '{name}': no '{}.exr' or '.png'", path.display())
+}
+
+/// An error if two frames name one image: a picture listed twice would weigh twice in the fit,
+/// and is more likely a mistake in the export than a wish. `what` names a frame (by its index).
+fn refuse_repeated_images(
+    views: &[CapturedView],
+    what: impl Fn(usize) -> String,
+) -> anyhow::Result<()> {
+    let mut seen = std::collections::HashMap::new();
+    for (i, view) in views.iter().enumerate() {
+        let Some(image) = &view.image else { continue };
+        let key = image.canonicalize().unwrap_or_else(|_| image.clone());
+        if let Some(first) = seen.insert(key, i) {
+            anyhow::bail!(
+                "{} and {} name the same image '{}': list each picture once",
+                what(first),
+                what(i),
+                image.display()
+            );
+        }
+    }
+    Ok(())
 }
 
 /// The camera-to-world matrix, rows of 4, of a camera at `position` looking at `target` with `up`

@@ -112,6 +112,7 @@ fn what_a_pinhole_cannot_be_is_refused_naming_the_key() {
     };
     for (json, needle) in [
         (with(r#""k1": 0.01,"#), "k1 = 0.01"),
+        (with(r#""k1": 1e-300,"#), "k1 = 1e-300:"),
         (with(r#""p2": -0.001,"#), "p2"),
         (
             with(r#""camera_model": "OPENCV_FISHEYE","#),
@@ -171,4 +172,26 @@ fn what_a_pinhole_cannot_be_is_refused_naming_the_key() {
     let json =
         r#"{ "camera_angle_x": 0.5, "w": 8, "h": 8, "frames": [{ "transform_matrx": [] }] }"#;
     assert!(error_of(json).contains("frames[0]: unknown key \"transform_matrx\""));
+}
+
+#[test]
+fn two_frames_of_one_image_are_refused() {
+    let frame = |name: &str| {
+        format!(
+            r#"{{ "file_path": "{name}", "transform_matrix": [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 5], [0, 0, 0, 1]] }}"#
+        )
+    };
+    let json = |a: &str, b: &str| {
+        format!(
+            r#"{{ "camera_angle_x": 0.7, "w": 8, "h": 8, "frames": [{}, {}] }}"#,
+            frame(a),
+            frame(b)
+        )
+    };
+    assert!(read_json(&json("a.png", "b.png")).is_ok());
+    let error = error_of(&json("a.png", "a.png"));
+    assert!(
+        error.contains("frames[0] and frames[1] name the same image"),
+        "{error}"
+    );
 }

@@ -171,7 +171,10 @@ fn target_image(
     match source {
         TargetSource::None => None,
         TargetSource::Image(image) => Some(image),
-        TargetSource::Scene(other) => {
+        TargetSource::Scene(mut other) => {
+            // Through the scene's own camera: a target scene differs in its medium or lights,
+            // and an image from another viewpoint would be compared pixel by pixel all the same.
+            other.camera = scene.camera;
             let progress = !args.adjoint.sampling.quiet && cluster.is_root();
             let seed = scene.settings.seed;
             let options = target_options(&other, args.target_spp, seed, progress);

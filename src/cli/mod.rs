@@ -162,6 +162,12 @@ impl FdArgs {
         if eps < resolved {
             bail!("--eps {eps:e} is below what f32 resolves beside the grid's largest value {largest} (at least {resolved:e})");
         }
+        // A difference over a step far beyond the values it perturbs measures no derivative, and
+        // can push the extinction past what the renderer takes.
+        let widest = 10.0 * largest.max(1.0);
+        if eps > widest {
+            bail!("--eps {eps:e} is beyond ten times the grid's largest value {largest} (at most {widest:e}): a finite difference wants a step small beside the values it changes");
+        }
         if self.fd_spp == 0 || self.repeats < 2 {
             bail!("--fd-spp must be at least 1 and --repeats at least 2");
         }

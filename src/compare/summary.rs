@@ -145,10 +145,19 @@ fn approx(v: f64, extrapolated: bool) -> String {
 
 /// The time `contender` needs to reach `baseline`'s final error, as a fraction of the time
 /// `baseline` first reached it (both read off their measured curves: a heavy-tailed baseline may
-/// have been there before its last run), or None if either curve is missing.
+/// have been there before its last run), or None if either curve is missing. Only runs of at
+/// least `EFFICIENCY_MIN_SPP` count, as for the efficiency: a budget that buys a run of 1 spp in
+/// no measurable time would compare start-up costs.
 pub fn speedup(rows: &[Row], baseline: &str, contender: &str) -> Option<(f64, f64, f64, bool)> {
-    let b = points(&curve(rows, baseline));
-    let c = points(&curve(rows, contender));
+    let timed = |method| {
+        let runs = curve(rows, method);
+        let runs: Vec<&Row> = runs
+            .into_iter()
+            .filter(|r| r.spp >= EFFICIENCY_MIN_SPP)
+            .collect();
+        points(&runs)
+    };
+    let (b, c) = (timed(baseline), timed(contender));
     let &(_, target) = b.last()?;
     let (tb, _) = time_to_reach(&b, target)?;
     let (tc, extrapolated) = time_to_reach(&c, target)?;
@@ -275,7 +284,7 @@ pub fn summary(
         {
             let _ = writeln!(
                 s,
-                "\nNo speed-up of {contender} over {baseline}: one of them has no scored run with a non-zero error (the reference's noise may hide it: build a better reference)."
+                "\nNo speed-up of {contender} over {baseline}: one of them has no scored run of at least {EFFICIENCY_MIN_SPP} spp with a non-zero error (raise --budget; or the reference's noise hides it: build a better reference)."
             );
         }
         None => {}
@@ -319,7 +328,7 @@ mod tests {
     fn speedup_reads_the_contender_curve_at_the_baseline_final_error() {
         let row = |m: &str, t: f64, e: f64| Row {
             method: m.into(),
-            spp: 1,
+            spp: EFFICIENCY_MIN_SPP,
             seconds: t,
             rel_rmse: e,
             rel_rmse_raw: e,
@@ -353,5 +362,19 @@ mod tests {
         assert!(said.contains("No speed-up of joint over drt"), "{said}");
         let alone = summary(&rows[2..], &["joint"], "drt", "joint", "gradients");
         assert!(!alone.contains("speed-up"), "{alone}");
+        // Runs below EFFICIENCY_MIN_SPP (a budget of 0 s buys 1 spp in no measurable time)
+        // time start-up, not the estimators: no speed-up from them.
+        let short: Vec<Row> = (rows.iter())
+            .map(|r| Row {
+                spp: 1,
+                ..r.clone()
+            })
+            .collect();
+        assert!(speedup(&short, "drt", "joint").is_none());
+        let said = summary(&short, &["drt", "joint"], "drt", "joint", "gradients");
+        assert!(
+            said.contains("No speed-up") && said.contains("raise --budget"),
+            "{said}"
+        );
     }
 }

@@ -149,6 +149,13 @@ pub fn gradcheck(scene: &Scene, options: &GradcheckOptions) -> anyhow::Result<Ve
         .collect();
     reached.sort_by_key(|v| (v.x, v.y, v.z));
     let mut rng = pixel_rng(options.grad.seed, u64::MAX - 1, 3);
+    if reached.len() < options.voxels {
+        eprintln!(
+            "note: {} voxels asked for, but the estimator reached {}: checking each of those",
+            options.voxels,
+            reached.len()
+        );
+    }
     for &v in reached.choose_multiple(&mut rng, options.voxels) {
         check(format!("voxel {v}"), vec![(v, 1.0)])?;
     }

@@ -95,6 +95,8 @@ pub mod ffi {
         /// Reading only: whether colour is stored unassociated with alpha ("straight", as PNG
         /// stores it) rather than premultiplied (as EXR does).
         pub alpha_unassociated: bool,
+        /// Reading only: the channels' names ("R", "G", "B", "A", "Y", "Z", "diffuse.R", …).
+        pub channel_names: Vec<String>,
     }
 
     extern "Rust" {

@@ -14,7 +14,7 @@
 
 use std::path::Path;
 
-use anyhow::{anyhow, bail, Result};
+use anyhow::{anyhow, bail, Context, Result};
 use glam::Vec3;
 use serde::{Deserialize, Serialize};
 
@@ -85,6 +85,7 @@ impl RgbImage {
             color_space: String::new(),
             stored_type: String::new(),
             alpha_channel: -1,
+            channel_names: Vec::new(),
             alpha_unassociated: false,
         }
     }
@@ -229,8 +230,8 @@ pub fn read_picture(path: &Path, override_space: Option<ColorSpace>) -> Result<P
     }
     let decoded = decoding(&data.color_space, &data.stored_type, override_space);
     let alpha_at = usize::try_from(data.alpha_channel).ok().filter(|&a| a < c);
-    // The colour channels: the first three, or one grey channel (with or without alpha).
-    let grey = c < 3 || alpha_at.is_some_and(|a| a < 3);
+    let colour = colour_channels(&data.channel_names, c, alpha_at)
+        .with_context(|| format!("'{}'", path.display()))?;
     let mut alpha = alpha_at.map(|_| Vec::with_capacity(data.pixels.len() / c));
     if let Some(a) = alpha_at {
         let bad = (data.pixels.chunks_exact(c).map(|p| p[a]).enumerate())
@@ -246,10 +247,9 @@ pub fn read_picture(path: &Path, override_space: Option<ColorSpace>) -> Result<P
         .pixels
         .chunks_exact(c)
         .map(|p| {
-            let stored = if grey {
-                Vec3::splat(p[0])
-            } else {
-                Vec3::new(p[0], p[1], p[2])
+            let stored = match colour {
+                Colour::Grey(y) => Vec3::splat(p[y]),
+                Colour::Rgb([r, g, b]) => Vec3::new(p[r], p[g], p[b]),
             };
             let mut linear = Vec3::from_array(stored.to_array().map(|v| decoded.linear(v)));
             if let (Some(a), Some(alpha)) = (alpha_at, alpha.as_mut()) {
@@ -273,9 +273,84 @@ pub fn read_picture(path: &Path, override_space: Option<ColorSpace>) -> Result<P
     })
 }
 
+/// Where a picture's colour is: three channels, or one grey channel.
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum Colour {
+    Rgb([usize; 3]),
+    Grey(usize),
+}
+
+/// The colour channels of an image with channels named `names` (none: an image volgrad made),
+/// `c` of them, alpha at `alpha`: R, G and B by name (or one layer's `x.R`, `x.G`, `x.B`), else a
+/// grey Y (with alpha or alone). An image whose channels are none of these (depth alone, X Y Z, R and G) holds no
+/// radiance to compare with and is refused, rather than its first channels read as colour.
+fn colour_channels(names: &[String], c: usize, alpha: Option<usize>) -> Result<Colour> {
+    if names.is_empty() {
+        let grey = c < 3 || alpha.is_some_and(|a| a < 3);
+        return Ok(if grey {
+            Colour::Grey(0)
+        } else {
+            Colour::Rgb([0, 1, 2])
+        });
+    }
+    let find = |name: &str| names.iter().position(|n| n == name);
+    if let (Some(r), Some(g), Some(b)) = (find("R"), find("G"), find("B")) {
+        return Ok(Colour::Rgb([r, g, b]));
+    }
+    // Y with nothing but alpha beside it (X Y Z is a colour space of its own, not grey).
+    if let Some(y) = find("Y").filter(|_| names.iter().all(|n| n == "Y" || n == "A")) {
+        return Ok(Colour::Grey(y));
+    }
+    let layers: Vec<&str> = (names.iter())
+        .filter_map(|n| n.strip_suffix(".R"))
+        .filter(|layer| {
+            [".G", ".B"]
+                .iter()
+                .all(|s| find(&format!("{layer}{s}")).is_some())
+        })
+        .collect();
+    if let [layer] = layers[..] {
+        let at = |s: &str| find(&format!("{layer}{s}")).unwrap_or_default();
+        return Ok(Colour::Rgb([at(".R"), at(".G"), at(".B")]));
+    }
+    bail!(
+        "no colour channels: its channels are {} (volgrad reads R, G and B, or a grey Y)",
+        names.join(", ")
+    )
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn colour_is_found_by_the_channels_names() {
+        let names = |list: &[&str]| list.iter().map(|s| s.to_string()).collect::<Vec<_>>();
+        let rgb = |list: &[&str]| colour_channels(&names(list), list.len(), None);
+        assert_eq!(rgb(&["R", "G", "B", "A"]).unwrap(), Colour::Rgb([0, 1, 2]));
+        assert_eq!(rgb(&["B", "G", "R"]).unwrap(), Colour::Rgb([2, 1, 0]));
+        assert_eq!(rgb(&["Y", "A"]).unwrap(), Colour::Grey(0));
+        assert_eq!(
+            rgb(&["A", "beauty.B", "beauty.G", "beauty.R"]).unwrap(),
+            Colour::Rgb([3, 2, 1])
+        );
+        for refused in [
+            &["Z"][..],
+            &["X", "Y", "Z"],
+            &["R", "G"],
+            &["A"],
+            &["a.R", "a.G", "a.B", "b.R", "b.G", "b.B"],
+        ] {
+            let error = rgb(refused).unwrap_err().to_string();
+            assert!(error.contains("no colour channels"), "{refused:?}: {error}");
+        }
+        // An image volgrad made itself names no channels: the first three, or grey.
+        assert_eq!(
+            colour_channels(&[], 4, Some(3)).unwrap(),
+            Colour::Rgb([0, 1, 2])
+        );
+        assert_eq!(colour_channels(&[], 2, Some(1)).unwrap(), Colour::Grey(0));
+    }
 
     #[test]
     fn srgb_decoding_inverts_the_encoding() {

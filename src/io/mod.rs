@@ -8,6 +8,7 @@ pub mod exact;
 pub mod fingerprint;
 pub mod gradient_files;
 pub mod images;
+pub mod input;
 pub mod make_grid;
 pub mod output;
 pub mod progress;

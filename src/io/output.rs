@@ -5,8 +5,13 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context, Result};
 
-/// An error if `path` exists and `overwrite` (--force) was not given.
+/// An error if `path` exists and `overwrite` (--force) was not given, or is a folder (which
+/// --force does not replace). Checked for every output before the first is written, so that a
+/// command that fails on one leaves none.
 pub fn refuse_overwrite(path: &Path, overwrite: bool) -> Result<()> {
+    if path.is_dir() {
+        bail!("cannot write '{}': it is a folder", path.display());
+    }
     if path.exists() && !overwrite {
         bail!(
             "'{}' already exists: pass --force to overwrite it",

@@ -259,8 +259,8 @@ fn write_text(w: &mut impl Write, text: &str) -> std::io::Result<()> {
 /// Reads a state file; an error if it is not one, is cut short, or belongs to another run (its
 /// fingerprint differs from `fingerprint`).
 pub fn read_state(path: &Path, fingerprint: &str) -> Result<(Position, Parameters)> {
-    let file =
-        std::fs::File::open(path).with_context(|| format!("cannot open '{}'", path.display()))?;
+    let file = crate::io::input::open_regular(path)
+        .with_context(|| format!("cannot open '{}'", path.display()))?;
     let size = file.metadata().map(|m| m.len()).unwrap_or(0);
     let mut r = Summed::new(BufReader::new(file));
     let context = || {

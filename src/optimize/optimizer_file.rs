@@ -285,9 +285,11 @@ impl OptimizerFile {
                 );
             }
             match (p.kind, p.scale) {
-                (PriorKind::Log, Some(d)) if d > 0.0 && d.is_finite() => {}
+                // The prior's pull at θ = 0 is weight/δ: a δ near f32's smallest numbers makes it
+                // overflow in the optimiser's squared gradients, a NaN loss steps later.
+                (PriorKind::Log, Some(d)) if (1e-12..=f32::MAX).contains(&d) => {}
                 (PriorKind::Log, d) => bail!(
-                    "optimizer.prior.scale must be a number > 0 for kind \"log\" (got {})",
+                    "optimizer.prior.scale must be a number from 1e-12 up for kind \"log\" (got {})",
                     d.map_or("nothing".into(), |d| d.to_string())
                 ),
                 (_, Some(_)) => bail!("optimizer.prior.scale is only for kind \"log\""),

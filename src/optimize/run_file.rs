@@ -186,7 +186,7 @@ pub enum StartFile {
 
 impl RunFile {
     pub fn read(path: &Path) -> Result<RunFile> {
-        let text = std::fs::read_to_string(path)
+        let text = crate::io::input::read_text(path)
             .with_context(|| format!("cannot read run file '{}'", path.display()))?;
         let file: RunFile = toml::from_str(&text)
             .map_err(|e| anyhow::anyhow!("{}: {}", path.display(), e.to_string().trim_end()))?;
@@ -424,6 +424,7 @@ mod tests {
             (optimizer("prior = { kind = \"tvv\", weight = 1 }"), "unknown variant"),
             (optimizer("prior = { kind = \"log\", weight = 1 }"), "optimizer.prior.scale"),
             (optimizer("prior = { kind = \"log\", weight = 1, scale = 0 }"), "optimizer.prior.scale"),
+            (optimizer("prior = { kind = \"log\", weight = 1, scale = 1e-45 }"), "optimizer.prior.scale"),
             (optimizer("prior = [{ kind = \"tv\", weight = 1, scale = 0.1 }]"), "optimizer.prior.scale"),
             (optimizer("prior = [{ kind = \"tv\", weight = -1 }]"), "optimizer.prior.weight"),
             (

@@ -42,7 +42,7 @@ impl Stop {
 
     /// The schedule a run's `log.csv` records: the fraction each of its iterations used.
     pub fn replay_log(path: &Path) -> Result<Stop> {
-        let text = std::fs::read_to_string(path)
+        let text = crate::io::input::read_text(path)
             .with_context(|| format!("--schedule-from: cannot read '{}'", path.display()))?;
         let rows = text
             .split_once('\n')

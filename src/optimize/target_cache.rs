@@ -72,7 +72,7 @@ impl TargetCache {
     /// reported and read as missing: the target is rendered again and the entry replaced.
     pub fn read(&self, key: &str, camera: &Camera) -> Option<RgbImage> {
         let path = self.path(key);
-        let bytes = std::fs::read(&path).ok()?;
+        let bytes = crate::io::input::read_bytes(&path).ok()?;
         match decode(&bytes, key, camera.width, camera.height) {
             Ok(image) => Some(image),
             Err(e) => {

@@ -155,11 +155,14 @@ impl Scene {
 
 /// The density grid `file` names in `vdb_path`: ≥ 0 everywhere, its extinction trackable.
 fn density_grid(file: &SceneFile, vdb_path: &Path) -> Result<vdb::Grid> {
-    if !vdb_path.exists() {
-        bail!(
+    match std::fs::metadata(vdb_path) {
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => bail!(
             "medium.vdb: file '{}' does not exist (paths are relative to the scene file)",
             vdb_path.display()
-        );
+        ),
+        // A link loop, a folder without permission: the system's own words.
+        Err(e) => bail!("medium.vdb: cannot read '{}': {e}", vdb_path.display()),
+        Ok(_) => {}
     }
     let selector = match (&file.medium.grid, file.medium.grid_index) {
         (Some(name), _) => GridSelector::Name(name.clone()),

@@ -296,7 +296,7 @@ impl SceneFile {
     }
 
     pub fn read(path: &Path) -> Result<Self> {
-        let text = std::fs::read_to_string(path)
+        let text = crate::io::input::read_text(path)
             .with_context(|| format!("cannot read scene file '{}'", path.display()))?;
         Self::parse(&text, path)
     }

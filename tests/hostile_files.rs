@@ -1,0 +1,176 @@
+//! Files that are not what they claim to be, end to end through the `volgrad` binary: an output
+//! path that is a folder, an input that is a FIFO, an image without colour, a finite-difference
+//! step beyond its values, a target scene seen from elsewhere. Each refused before any work, or
+//! (the last) given the meaning the manual states.
+
+use std::path::{Path, PathBuf};
+
+mod common;
+use common::*;
+
+/// A small scene around a `make-grid` sphere in `dir`, with `extra` appended (`[render]` keys).
+fn scene_in(dir: &Path, name: &str, camera_z: f32, density_scale: f32) -> PathBuf {
+    let vdb = dir.join("sphere.vdb");
+    if !vdb.exists() {
+        let args = [
+            "make-grid",
+            "sphere",
+            "--size",
+            "12",
+            "--value",
+            "1",
+            "--voxel-size",
+            "0.5",
+        ];
+        ok(volgrad(
+            &[&args[..], &["-o", vdb.to_str().unwrap()]].concat(),
+        ));
+    }
+    let scene = dir.join(name);
+    std::fs::write(
+        &scene,
+        format!(
+            "[camera]\nposition = [0, 1, {camera_z}]\ntarget = [0, 0, 0]\nfov_deg = 40\nwidth = 12\nheight = 8\n\
+             [medium]\nvdb = \"sphere.vdb\"\ndensity_scale = {density_scale}\nalbedo = 0.9\n\
+             [[light]]\ntype = \"constant\"\nradiance = 0.5\n\
+             [render]\nspp = 2\n"
+        ),
+    )
+    .unwrap();
+    scene
+}
+
+fn path(p: &Path) -> &str {
+    p.to_str().unwrap()
+}
+
+#[test]
+fn an_output_that_is_a_folder_is_refused_before_anything_is_written() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = scene_in(dir.path(), "s.toml", 12.0, 2.0);
+    let (exr, png) = (dir.path().join("q.exr"), dir.path().join("q.png"));
+    std::fs::create_dir(&png).unwrap();
+    let o = volgrad(&["render", path(&scene), "-o", path(&exr), "--force", "-q"]);
+    assert_clean_error(&o, &["q.png", "it is a folder"]);
+    assert!(
+        !exr.exists(),
+        "the EXR was written before the PNG was refused"
+    );
+    let vdb = dir.path().join("g.vdb");
+    std::fs::create_dir(dir.path().join("g.png")).unwrap();
+    let o = volgrad(&["grad", path(&scene), "-o", path(&vdb), "--spp", "1", "-q"]);
+    assert_clean_error(&o, &["g.png", "it is a folder"]);
+    assert!(!vdb.exists());
+}
+
+#[test]
+fn an_input_that_is_a_fifo_is_refused_not_read_forever() {
+    let dir = tempfile::tempdir().unwrap();
+    let fifo = dir.path().join("f.toml");
+    assert!(std::process::Command::new("mkfifo")
+        .arg(&fifo)
+        .status()
+        .unwrap()
+        .success());
+    // `timeout` ends the test's wait if the refusal regresses into a read that never returns.
+    let o = std::process::Command::new("timeout")
+        .args([
+            "60",
+            env!("CARGO_BIN_EXE_volgrad"),
+            "render",
+            path(&fifo),
+            "-q",
+        ])
+        .output()
+        .unwrap();
+    assert_clean_error(&o, &["f.toml", "not a regular file"]);
+}
+
+#[test]
+fn an_image_without_colour_channels_is_refused() {
+    use exr::prelude::*;
+    let dir = tempfile::tempdir().unwrap();
+    let scene = scene_in(dir.path(), "s.toml", 12.0, 2.0);
+    // A depth image of the scene's size: one channel named Z.
+    let depth = dir.path().join("depth.exr");
+    let channel = AnyChannel::new("Z", FlatSamples::F32(vec![3.0; 12 * 8]));
+    let image = Image::from_channels(
+        (12, 8),
+        AnyChannels::sort(SmallVec::from_vec(vec![channel])),
+    );
+    image.write().to_file(&depth).unwrap();
+    let out = dir.path().join("g.vdb");
+    let o = volgrad(&[
+        "grad",
+        path(&scene),
+        "--loss",
+        "l2",
+        "--target",
+        path(&depth),
+        "-o",
+        path(&out),
+        "-q",
+    ]);
+    assert_clean_error(&o, &["depth.exr", "no colour channels", "Z"]);
+}
+
+#[test]
+fn a_finite_difference_step_beyond_the_values_is_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = scene_in(dir.path(), "s.toml", 12.0, 2.0);
+    let o = volgrad(&[
+        "grad",
+        path(&scene),
+        "--estimator",
+        "fd",
+        "--fd",
+        "ones",
+        "--fd-spp",
+        "1",
+        "--repeats",
+        "2",
+        "--eps",
+        "1e30",
+        "-q",
+    ]);
+    assert_clean_error(&o, &["--eps", "ten times the grid's largest value"]);
+}
+
+#[test]
+fn a_target_scene_is_seen_through_the_scenes_own_camera() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = scene_in(dir.path(), "s.toml", 12.0, 2.0);
+    // Thinner, seen from the same place; and the same from elsewhere, whose camera is not used.
+    let here = scene_in(dir.path(), "here.toml", 12.0, 1.0);
+    let elsewhere = scene_in(dir.path(), "elsewhere.toml", 20.0, 1.0);
+    // What `grad` says of its gradient: the voxels it reached and ⟨g, 1⟩ to seven digits.
+    let grad_with = |target: &Path, out: &str| {
+        let out = dir.path().join(out);
+        let o = ok(volgrad(&[
+            "grad",
+            path(&scene),
+            "--loss",
+            "l2",
+            "--target-scene",
+            path(target),
+            "--target-spp",
+            "8",
+            "--spp",
+            "2",
+            "-o",
+            path(&out),
+        ]));
+        let said = stdout(&o) + &stderr(&o);
+        let at = said
+            .find("voxels with gradient")
+            .expect("grad reports its gradient");
+        said[..at + 40]
+            .rsplit('(')
+            .next()
+            .unwrap_or_default()
+            .to_string()
+    };
+    let (a, b) = (grad_with(&here, "a.vdb"), grad_with(&elsewhere, "b.vdb"));
+    assert!(a.contains("⟨g, 1⟩"), "{a}");
+    assert_eq!(a, b);
+}
