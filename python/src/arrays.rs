@@ -119,6 +119,13 @@ pub fn rows_of(map: DAffine3) -> [f64; 16] {
 /// Refuses an array of densities (or other grid values) holding NaN, infinities or, unless
 /// `signed`, negative values, naming `argument`.
 pub fn check_values(values: &ArrayView3<f32>, argument: &str, signed: bool) -> Result<()> {
+    // The dense arrays volgrad returns have the same bound: a larger one (a broadcast view of
+    // a wide box holds no memory) would take hours to scan, and its bricks' list more memory
+    // than the machine has.
+    let (nx, ny, nz) = values.dim();
+    if (nx as u128) * (ny as u128) * (nz as u128) > u128::from(MAX_DENSE_VOXELS) {
+        bail!("{argument}: an array of {nx} × {ny} × {nz} voxels is more than volgrad takes (at most 2^30 = {MAX_DENSE_VOXELS} voxels, 4 GiB of float32)");
+    }
     let (non_finite, negative) = values
         .as_slice()
         .map(|s| {

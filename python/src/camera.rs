@@ -5,6 +5,7 @@
 use std::path::PathBuf;
 
 use glam::DVec3;
+use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 use volgrad::capture::{colmap, transforms};
 use volgrad::optimize::views::Orbit;
@@ -12,10 +13,11 @@ use volgrad::render::camera::{Camera as RustCamera, Intrinsics};
 use volgrad::render::scene::CameraFile;
 use volgrad::render::scene_check::calibrated_camera;
 
-use crate::errors::OrRaise;
+use crate::errors::{check_path, OrRaise};
 
-/// A pinhole camera. `fov_deg` is the horizontal field of view; `fx`, `fy`, `cx`, `cy` (pixels,
-/// (0, 0) the top-left corner of the image) replace it when given.
+/// A pinhole camera. `fov_deg` is the horizontal field of view (40° by default); `fx`, `fy` (one
+/// alone for square pixels), `cx`, `cy` (pixels, (0, 0) the top-left corner of the image) give
+/// full intrinsics instead: a focal length in pixels and a field of view together are refused.
 #[pyclass(name = "Camera", module = "volgrad", frozen, from_py_object)]
 #[derive(Clone)]
 pub struct Camera {
@@ -25,13 +27,13 @@ pub struct Camera {
 #[pymethods]
 impl Camera {
     #[new]
-    #[pyo3(signature = (position, target, up = [0.0, 1.0, 0.0], fov_deg = 40.0, width = 64, height = 64, fx = None, fy = None, cx = None, cy = None))]
+    #[pyo3(signature = (position, target, up = [0.0, 1.0, 0.0], fov_deg = None, width = 64, height = 64, fx = None, fy = None, cx = None, cy = None))]
     #[allow(clippy::too_many_arguments)]
     fn new(
         position: [f32; 3],
         target: [f32; 3],
         up: [f32; 3],
-        fov_deg: f32,
+        fov_deg: Option<f32>,
         width: u32,
         height: u32,
         fx: Option<f32>,
@@ -39,6 +41,12 @@ impl Camera {
         cx: Option<f32>,
         cy: Option<f32>,
     ) -> PyResult<Self> {
+        if fov_deg.is_some() && (fx.is_some() || fy.is_some()) {
+            return Err(PyValueError::new_err(
+                "the focal length is either fov_deg or fx/fy (in pixels), not both",
+            ));
+        }
+        let fov_deg = fov_deg.unwrap_or(40.0);
         let file = CameraFile {
             position,
             target,
@@ -70,6 +78,7 @@ impl Camera {
     /// `scale` and `offset` applied), in frame order.
     #[staticmethod]
     fn from_transforms(path: PathBuf) -> PyResult<Vec<Camera>> {
+        check_path(&path, "path")?;
         let views = transforms::read(&path).or_raise()?;
         Ok(views
             .into_iter()
@@ -82,6 +91,10 @@ impl Camera {
     #[staticmethod]
     #[pyo3(signature = (model, images = None))]
     fn from_colmap(model: PathBuf, images: Option<PathBuf>) -> PyResult<Vec<Camera>> {
+        check_path(&model, "model")?;
+        if let Some(images) = &images {
+            check_path(images, "images")?;
+        }
         let images = images.unwrap_or_else(|| model.clone());
         let views = colmap::read(&model, &images).or_raise()?;
         Ok(views

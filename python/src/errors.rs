@@ -33,3 +33,16 @@ impl<T> OrRaise<T> for anyhow::Result<T> {
         self.map_err(to_py)
     }
 }
+
+/// A path argument the operating system can take: Python strings may hold a NUL, at which the
+/// system's calls would cut the path short (`b\0.vdb` would write `b`, past the checks made on
+/// the whole string).
+pub fn check_path(path: &std::path::Path, argument: &str) -> pyo3::PyResult<()> {
+    if path.as_os_str().as_encoded_bytes().contains(&0) {
+        return Err(PyValueError::new_err(format!(
+            "{argument}: a path cannot hold a NUL character ({})",
+            path.display()
+        )));
+    }
+    Ok(())
+}

@@ -3,11 +3,13 @@
 use std::path::PathBuf;
 
 use numpy::{IntoPyArray, PyArray2, PyArray3};
+use pyo3::exceptions::PyFileExistsError;
 use pyo3::prelude::*;
 use volgrad::io::vdb::{self, GridSelector};
 
 use crate::arrays::{self, VoxelBox};
 use crate::detached;
+use crate::errors::check_path;
 
 /// A grid for Python: its values and the 4×4 map from their indices to world.
 pub type GridArrays<'py> = (Bound<'py, PyArray3<f32>>, Bound<'py, PyArray2<f64>>);
@@ -29,6 +31,7 @@ pub fn read_grid<'py>(
     path: PathBuf,
     name: Option<String>,
 ) -> PyResult<GridArrays<'py>> {
+    check_path(&path, "path")?;
     let (values, map) = detached::run(py, None, || {
         let selector = name.map_or(GridSelector::Default, GridSelector::Name);
         if !path.exists() {
@@ -60,6 +63,14 @@ pub fn write_grid(
     overwrite: bool,
     half: bool,
 ) -> PyResult<()> {
+    check_path(&path, "path")?;
+    if path.exists() && !overwrite {
+        // The command line's message would say --force.
+        return Err(PyFileExistsError::new_err(format!(
+            "'{}' already exists: pass overwrite=True to replace it",
+            path.display()
+        )));
+    }
     let transform = arrays::matrix_argument(index_to_world, "index_to_world")?;
     let array = arrays::float32_argument::<numpy::Ix3>(array, "array", "of shape (nx, ny, nz)")?;
     let values = array.as_array();

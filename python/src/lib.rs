@@ -14,6 +14,7 @@ mod errors;
 mod grids;
 mod media;
 mod scene;
+mod stand_ins;
 mod views;
 
 use pyo3::prelude::*;

@@ -115,3 +115,40 @@ pub fn albedo_grid(
         filter,
     ))))
 }
+
+/// `values` in place of `medium`'s albedo grid, over its box `place` and under its transform;
+/// refused where the albedo is a constant, or where the grid's background (its value outside
+/// the file's voxels) is not 0, which an array over the box cannot carry.
+pub fn albedo_over(
+    medium: &Medium,
+    values: &ArrayViewD<f32>,
+    place: VoxelBox,
+) -> anyhow::Result<Albedo> {
+    let Some(grid) = medium.albedo.grid() else {
+        anyhow::bail!(
+            "albedo: the scene's albedo is a constant, not a grid (Scene.from_parts(albedo=array) makes one)"
+        );
+    };
+    if grid.background != Vec3::ZERO {
+        anyhow::bail!(
+            "albedo: the scene's albedo grid has a background of {} outside its voxels, which an array over its box cannot carry: build the scene with Scene.from_parts(albedo=array)",
+            grid.background
+        );
+    }
+    albedo_grid(values, place, grid.transform, grid.filter)
+}
+
+/// `values` in place of `medium`'s emission grid, over its box `place`, with its transform and
+/// what its values mean; refused where the medium has no emission.
+pub fn emission_over(
+    medium: &Medium,
+    values: &ArrayView3<f32>,
+    place: VoxelBox,
+) -> anyhow::Result<Emission> {
+    let Some(own) = &medium.emission else {
+        anyhow::bail!(
+            "emission: the scene's medium has no emission (Scene.from_parts(emission=array) makes one)"
+        );
+    };
+    emission_grid(values, place, own.transform, own.kind.clone(), own.filter)
+}

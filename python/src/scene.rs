@@ -5,7 +5,7 @@ use std::path::{Path, PathBuf};
 
 use glam::IVec3;
 use numpy::{IntoPyArray, PyArrayDyn};
-use pyo3::exceptions::PyValueError;
+use pyo3::exceptions::{PyRuntimeError, PyTypeError, PyValueError};
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 use volgrad::render::scene::{Scene as RustScene, SceneFile, SceneNeeds};
@@ -16,10 +16,11 @@ use volgrad::volume::transform::IndexTransform;
 use crate::arrays::{self, VoxelBox};
 use crate::camera::Camera;
 use crate::detached;
-use crate::errors::OrRaise;
+use crate::errors::{check_path, OrRaise};
 use crate::grids::{matrix, GridArrays};
 use crate::media;
-use crate::views::{self, Boxes, Sampling};
+use crate::stand_ins::{StandInViews, StandIns};
+use crate::views::{self, Boxes, CameraArg, Sampling};
 
 /// A scene ready to render and differentiate. Its density is the box of voxels `density` returns;
 /// gradients with respect to it come back in the same box.
@@ -53,7 +54,7 @@ impl Scene {
             Some(transform) => (VoxelBox::of_array([nx, ny, nz]), transform),
             None if [nx, ny, nz] == self.boxes.density.shape => (self.boxes.density, self.scene.medium.transform),
             None => anyhow::bail!(
-                "{argument} has shape {:?} but the scene's density is {:?}: give index_to_world with an array of another shape",
+                "{argument} has shape {:?} but the scene's density is {:?}: an array of another shape needs its own index_to_world (scene.set_density(array, index_to_world))",
                 [nx, ny, nz],
                 self.boxes.density.shape
             ),
@@ -76,6 +77,7 @@ impl Scene {
     /// Reads a scene file (TOML) with its grid and lights, as `volgrad render` does.
     #[staticmethod]
     fn load(py: Python<'_>, path: PathBuf) -> PyResult<Scene> {
+        check_path(&path, "path")?;
         let scene = detached::run(py, None, || {
             if !path.exists() {
                 anyhow::bail!("scene file '{}' does not exist", path.display());
@@ -155,18 +157,9 @@ impl Scene {
             }
         }
         spec.set_item("render", render)?;
-        let kwargs = PyDict::new(py);
-        kwargs.set_item("allow_nan", false)?;
-        let json: String = (py
-            .import("json")?
-            .call_method("dumps", (spec,), Some(&kwargs)))
-        .map_err(|e| match e.is_instance_of::<PyValueError>(py) {
-            true => PyValueError::new_err("albedo and the lights' values must be finite numbers"),
-            false => e,
-        })?
-        .extract()?;
+        let json = scene_json(py, spec.as_any(), "albedo and the lights")?;
         let file: SceneFile = serde_json::from_str(&json)
-            .map_err(|e| PyValueError::new_err(format!("scene parts: {e}")))?;
+            .map_err(|e| PyValueError::new_err(format!("scene parts: {}", without_position(&e))))?;
         let mut scene =
             RustScene::from_file_as(file, Path::new("<from_parts>"), SceneNeeds::Constants)
                 .or_raise()?;
@@ -186,6 +179,11 @@ impl Scene {
             scene.medium.albedo =
                 media::albedo_grid(&albedo.as_array(), place, transform, scene.medium.filter)
                     .or_raise()?;
+        }
+        if emission.is_none() && emission_kind.is_some() {
+            return Err(PyValueError::new_err(
+                "emission_kind says what an emission array's values mean: give the array as emission=",
+            ));
         }
         if let Some(values) = emission {
             let values = arrays::float32_argument::<numpy::Ix3>(
@@ -237,7 +235,7 @@ impl Scene {
     /// `index_to_world`, any shape.
     #[pyo3(signature = (density, index_to_world = None))]
     fn set_density(
-        &mut self,
+        slf: &Bound<'_, Self>,
         py: Python<'_>,
         density: &Bound<'_, PyAny>,
         index_to_world: Option<&Bound<'_, PyAny>>,
@@ -248,10 +246,12 @@ impl Scene {
         let density =
             arrays::float32_argument::<numpy::Ix3>(density, "density", "of shape (nx, ny, nz)")?;
         let values = density.as_array();
+        let mut guard = exclusive(slf)?;
+        let this = &mut *guard;
         let (medium, place) =
-            detached::run(py, None, || self.medium_with(&values, transform, "density"))?;
-        self.scene.medium = medium;
-        self.boxes.density = place;
+            detached::run(py, None, || this.medium_with(&values, transform, "density"))?;
+        this.scene.medium = medium;
+        this.boxes.density = place;
         Ok(())
     }
 
@@ -261,27 +261,32 @@ impl Scene {
         self.own_camera().map(|camera| Camera { camera })
     }
 
-    /// Renders the scene's camera (an (H, W, 3) float32 array of linear radiance) or every camera
-    /// of a list ((N, H, W, 3); all of one size; view i with seed + i). `density` renders another
-    /// density of the same shape without changing the scene. spp, seed and max_depth default to
-    /// the scene's `[render]` settings. The same bits as `volgrad render` for the same camera,
-    /// spp and seed, at any thread count.
-    #[pyo3(signature = (cameras = None, spp = None, seed = None, max_depth = None, threads = None, density = None))]
+    /// Renders the scene's camera or one camera (an (H, W, 3) float32 array of linear radiance),
+    /// or every camera of a list ((N, H, W, 3); all of one size; view i with seed +
+    /// i·0x9E3779B97F4A7C15). `density`, `albedo` and `emission` render other values of those
+    /// grids, shaped as `grad` returns them, without changing the scene. spp, seed and max_depth
+    /// default to the scene's `[render]` settings. The same bits as `volgrad render` for the same
+    /// camera, spp and seed, at any thread count.
+    #[pyo3(signature = (cameras = None, spp = None, seed = None, max_depth = None, threads = None, density = None, albedo = None, emission = None))]
     #[allow(clippy::too_many_arguments)]
     fn render<'py>(
-        &mut self,
+        slf: &Bound<'py, Self>,
         py: Python<'py>,
-        cameras: Option<Vec<Camera>>,
+        cameras: Option<CameraArg>,
         spp: Option<u32>,
         seed: Option<u64>,
         max_depth: Option<u32>,
         threads: Option<usize>,
         density: Option<&Bound<'py, PyAny>>,
+        albedo: Option<&Bound<'py, PyAny>>,
+        emission: Option<&Bound<'py, PyAny>>,
     ) -> PyResult<Bound<'py, PyArrayDyn<f32>>> {
-        let sampling = Sampling::resolve(&self.scene, spp, seed, max_depth).or_raise()?;
-        let listed = cameras.is_some();
-        let cameras = views::cameras(self.own_camera(), cameras).or_raise()?;
-        let image = self.run_with_density(py, threads, density, |scene, _| {
+        let stand_ins = StandIns::read(density, albedo, emission)?;
+        let mut guard = exclusive(slf)?;
+        let this = &mut *guard;
+        let sampling = Sampling::resolve(&this.scene, spp, seed, max_depth).or_raise()?;
+        let (cameras, listed) = views::cameras(this.own_camera(), cameras).or_raise()?;
+        let image = this.run_with(py, threads, &stand_ins, |scene, _| {
             views::render_views(scene, &cameras, &sampling)
         })?;
         views::warn_non_finite(py, image.non_finite, image.paths)?;
@@ -293,14 +298,15 @@ impl Scene {
     /// ("albedo"; (nx, ny, nz) or (nx, ny, nz, 3)) or the emission grid's ("emission").
     /// `adjoint` is (H, W, 3) for the scene's camera or (N, H, W, 3) for a list of cameras, as
     /// `render` returns. The paths use a stream of their own: with the seed of the render the
-    /// adjoint came from they are still independent of it.
-    #[pyo3(signature = (adjoint, cameras = None, estimator = "joint", parameter = "extinction", spp = None, seed = None, max_depth = None, threads = None, density = None))]
+    /// adjoint came from they are still independent of it. `density`, `albedo` and `emission`
+    /// stand in for the scene's grids as in `render`.
+    #[pyo3(signature = (adjoint, cameras = None, estimator = "joint", parameter = "extinction", spp = None, seed = None, max_depth = None, threads = None, density = None, albedo = None, emission = None))]
     #[allow(clippy::too_many_arguments)]
     fn grad<'py>(
-        &mut self,
+        slf: &Bound<'py, Self>,
         py: Python<'py>,
         adjoint: &Bound<'py, PyAny>,
-        cameras: Option<Vec<Camera>>,
+        cameras: Option<CameraArg>,
         estimator: &str,
         parameter: &str,
         spp: Option<u32>,
@@ -308,16 +314,20 @@ impl Scene {
         max_depth: Option<u32>,
         threads: Option<usize>,
         density: Option<&Bound<'py, PyAny>>,
+        albedo: Option<&Bound<'py, PyAny>>,
+        emission: Option<&Bound<'py, PyAny>>,
     ) -> PyResult<Bound<'py, PyArrayDyn<f32>>> {
-        let sampling = Sampling::resolve(&self.scene, spp, seed, max_depth).or_raise()?;
+        let stand_ins = StandIns::read(density, albedo, emission)?;
+        let mut guard = exclusive(slf)?;
+        let this = &mut *guard;
+        let sampling = Sampling::resolve(&this.scene, spp, seed, max_depth).or_raise()?;
         let estimator = views::estimator(estimator).or_raise()?;
         let parameter = views::parameter(parameter).or_raise()?;
-        let listed = cameras.is_some();
-        let cameras = views::cameras(self.own_camera(), cameras).or_raise()?;
+        let (cameras, listed) = views::cameras(this.own_camera(), cameras).or_raise()?;
         let adjoint =
             arrays::float32_argument::<numpy::IxDyn>(adjoint, "adjoint", "shaped like the images")?;
         let deltas = views::adjoint_images(&adjoint, &cameras, listed).or_raise()?;
-        let gradient = self.run_with_density(py, threads, density, |scene, boxes| {
+        let gradient = this.run_with(py, threads, &stand_ins, |scene, boxes| {
             views::grad(
                 scene, &cameras, &deltas, estimator, parameter, &sampling, boxes,
             )
@@ -346,31 +356,51 @@ impl Scene {
     }
 }
 
+/// The scene for a call that changes it, or swaps its density for the call's length. A Scene runs
+/// one call at a time; PyO3's own refusal of a second one says only "Already borrowed".
+fn exclusive<'py>(slf: &Bound<'py, Scene>) -> PyResult<PyRefMut<'py, Scene>> {
+    slf.try_borrow_mut().map_err(|_| {
+        PyRuntimeError::new_err(
+            "this Scene is busy with a call from another thread: a Scene runs one call at a time, so give each thread a Scene of its own (Scene.load or Scene.from_parts again)",
+        )
+    })
+}
+
 impl Scene {
-    /// Runs `work` without the GIL on `threads` threads, on the scene with the `density` argument,
-    /// if given, in place of its own for this call only.
-    fn run_with_density<T: Send>(
+    /// Runs `work` without the GIL on `threads` threads, on the scene with the `stand_ins`
+    /// arrays, if any, in place of its own grids for this call only.
+    fn run_with<T: Send>(
         &mut self,
         py: Python<'_>,
         threads: Option<usize>,
-        density: Option<&Bound<'_, PyAny>>,
+        stand_ins: &StandIns<'_>,
         work: impl FnOnce(&mut RustScene, &Boxes) -> anyhow::Result<T> + Send,
     ) -> PyResult<T> {
-        let density = density
-            .map(|d| {
-                arrays::float32_argument::<numpy::Ix3>(d, "density", "shaped like Scene.density")
-            })
-            .transpose()?;
-        let values = density.as_ref().map(|d| d.as_array());
+        let arrays = stand_ins.views();
         let boxes = self.boxes;
         detached::run(py, threads, || {
-            let swapped = (values.as_ref())
-                .map(|v| self.medium_with(v, None, "density"))
-                .transpose()?;
-            views::with_medium(&mut self.scene, swapped.map(|m| m.0), |scene| {
-                work(scene, &boxes)
-            })
+            let medium = self.medium_for(&arrays)?;
+            views::with_medium(&mut self.scene, medium, |scene| work(scene, &boxes))
         })
+    }
+
+    /// The medium with `arrays` in place of its grids; None when there are none.
+    fn medium_for(&self, arrays: &StandInViews<'_>) -> anyhow::Result<Option<Medium>> {
+        if !arrays.any() {
+            return Ok(None);
+        }
+        let mut medium = match &arrays.density {
+            Some(values) => self.medium_with(values, None, "density")?.0,
+            None => self.scene.medium.clone(),
+        };
+        let own = &self.scene.medium;
+        if let Some(values) = &arrays.albedo {
+            medium.albedo = media::albedo_over(own, values, self.boxes.albedo)?;
+        }
+        if let Some(values) = &arrays.emission {
+            medium.emission = Some(media::emission_over(own, values, self.boxes.emission)?);
+        }
+        Ok(Some(medium))
     }
 
     fn index_to_world_rows(&self) -> [f64; 16] {
@@ -385,15 +415,58 @@ impl Scene {
 /// What an emission array's values mean, as a scene file's `medium.emission` table without its
 /// grid: `{"radiance": [r, g, b]}` (the default, white) or `{"blackbody": {…}, "strength": s}`.
 fn emission_file(py: Python<'_>, kind: Option<&Bound<'_, PyDict>>) -> PyResult<EmissionFile> {
+    const KEYS: [&str; 3] = ["radiance", "blackbody", "strength"];
     let table = PyDict::new(py);
     table.set_item("grid", "emission")?;
     match kind {
-        Some(kind) => table.update(kind.as_mapping())?,
+        Some(kind) => {
+            for key in kind.keys() {
+                let key: String = key.str()?.extract()?;
+                if !KEYS.contains(&key.as_str()) {
+                    return Err(PyValueError::new_err(format!(
+                        "emission_kind: unknown key '{key}' (expected radiance, or blackbody with strength)"
+                    )));
+                }
+            }
+            table.update(kind.as_mapping())?
+        }
         None => table.set_item("radiance", [1.0, 1.0, 1.0])?,
     }
-    let json: String = py
+    let json = scene_json(py, table.as_any(), "emission_kind")?;
+    serde_json::from_str(&json)
+        .map_err(|e| PyValueError::new_err(format!("emission_kind: {}", without_position(&e))))
+}
+
+/// `value` (dicts and lists of numbers) as JSON for the scene file's reader: numpy arrays and
+/// scalars as their lists and numbers; a non-finite number or another object refused, naming
+/// `what` held it.
+fn scene_json(py: Python<'_>, value: &Bound<'_, PyAny>, what: &str) -> PyResult<String> {
+    let kwargs = PyDict::new(py);
+    kwargs.set_item("allow_nan", false)?;
+    let as_list = py
+        .import("operator")?
+        .call_method1("methodcaller", ("tolist",))?;
+    kwargs.set_item("default", as_list)?;
+    let json = py
         .import("json")?
-        .call_method1("dumps", (table,))?
-        .extract()?;
-    serde_json::from_str(&json).map_err(|e| PyValueError::new_err(format!("emission_kind: {e}")))
+        .call_method("dumps", (value,), Some(&kwargs));
+    let json = json.map_err(|e| {
+        if e.is_instance_of::<PyValueError>(py) {
+            PyValueError::new_err(format!("{what}: values must be finite numbers"))
+        } else {
+            PyTypeError::new_err(format!(
+                "{what}: values must be numbers, lists of numbers or numpy arrays ({e})"
+            ))
+        }
+    })?;
+    json.extract()
+}
+
+/// A JSON reader's message without "at line 1 column N": the JSON is ours, not the user's.
+fn without_position(error: &serde_json::Error) -> String {
+    let message = error.to_string();
+    match message.rfind(" at line ") {
+        Some(at) => message[..at].to_string(),
+        None => message,
+    }
 }

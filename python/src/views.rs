@@ -47,18 +47,41 @@ impl Sampling {
         })
     }
 
-    /// View i's seed: the views of one call are independent of each other.
+    /// View i's seed: seed + i·φ (mod 2⁶⁴), φ = 2⁶⁴ / the golden ratio. The views of one call
+    /// are independent of each other, and so are the calls of a training loop that passes the
+    /// iteration as the seed: with seed + i, the view at position i + 1 of one iteration would
+    /// redraw the paths it drew at position i of the one before. View 0 keeps the seed itself,
+    /// as a render of the scene's camera does.
     fn seed_of(&self, view: usize) -> u64 {
-        self.seed.wrapping_add(view as u64)
+        const VIEW_STRIDE: u64 = 0x9E37_79B9_7F4A_7C15;
+        self.seed
+            .wrapping_add((view as u64).wrapping_mul(VIEW_STRIDE))
     }
 }
 
-/// The cameras of a call: the list given (non-empty, all of one size), or the scene's own.
-pub fn cameras(own: Option<RustCamera>, cameras: Option<Vec<Camera>>) -> Result<Vec<RustCamera>> {
-    let Some(cameras) = cameras else {
-        return own.map(|c| vec![c]).context(
-            "the scene has no camera of its own (Scene.from_parts without camera=): give cameras=[…]",
-        );
+/// A call's `cameras` argument: one camera (its image is (H, W, 3), as the scene's own camera's)
+/// or a list of them ((N, H, W, 3)).
+#[derive(FromPyObject)]
+pub enum CameraArg {
+    One(Camera),
+    List(Vec<Camera>),
+}
+
+/// The cameras of a call, and whether they came as a list: the list given (non-empty, all of
+/// one size), the one camera given, or the scene's own.
+pub fn cameras(
+    own: Option<RustCamera>,
+    cameras: Option<CameraArg>,
+) -> Result<(Vec<RustCamera>, bool)> {
+    let cameras = match cameras {
+        None => {
+            let own = own.context(
+                "the scene has no camera of its own (Scene.from_parts without camera=): give cameras=[…]",
+            )?;
+            return Ok((vec![own], false));
+        }
+        Some(CameraArg::One(camera)) => return Ok((vec![camera.camera], false)),
+        Some(CameraArg::List(cameras)) => cameras,
     };
     let Some(first) = cameras.first() else {
         bail!("cameras: the list is empty (give None for the scene's own camera)");
@@ -77,7 +100,7 @@ pub fn cameras(own: Option<RustCamera>, cameras: Option<Vec<Camera>>) -> Result<
             c.camera.height
         );
     }
-    Ok(cameras.into_iter().map(|c| c.camera).collect())
+    Ok((cameras.into_iter().map(|c| c.camera).collect(), true))
 }
 
 pub fn estimator(name: &str) -> Result<Estimator> {

@@ -51,7 +51,7 @@ def test_only_bricks_with_values_are_stored(tmp_path):
 def test_an_existing_file_is_kept_unless_asked(tmp_path):
     path = tmp_path / "a.vdb"
     volgrad.write_grid(path, ball(), voxel_map())
-    with pytest.raises(ValueError, match="exists"):
+    with pytest.raises(FileExistsError, match="already exists: pass overwrite=True"):
         volgrad.write_grid(path, ball() * 2, voxel_map())
     assert volgrad.read_grid(path)[0].max() == ball().max()
     volgrad.write_grid(path, ball() * 2, voxel_map(), overwrite=True)
@@ -102,3 +102,23 @@ def test_a_sparse_grid_over_a_wide_box_is_refused_before_allocating():
     path = pathlib.Path(__file__).parent / "data" / "two-voxels-far-apart.vdb"
     with pytest.raises(ValueError, match="too large for a dense array"):
         volgrad.read_grid(path)
+
+
+def test_a_path_with_a_nul_is_refused(tmp_path):
+    """The system's calls would cut the path at the NUL: `b\0.vdb` would overwrite `b`, past
+    the checks made on the whole string."""
+    precious = tmp_path / "b"
+    precious.write_text("the user's data")
+    with pytest.raises(ValueError, match="NUL"):
+        volgrad.write_grid(str(precious) + "\0.vdb", ball(), voxel_map())
+    assert precious.read_text() == "the user's data"
+    with pytest.raises(ValueError, match="NUL"):
+        volgrad.read_grid(str(precious) + "\0.vdb")
+
+
+def test_an_array_beyond_the_dense_limit_is_refused_before_it_is_scanned(tmp_path):
+    """A broadcast view holds no memory whatever its shape: scanned, (20000,)*3 would take hours
+    and its bricks' list more memory than the machine has."""
+    huge = np.broadcast_to(np.float32(0.5), (20000, 20000, 20000))
+    with pytest.raises(ValueError, match="more than volgrad takes"):
+        volgrad.write_grid(tmp_path / "x.vdb", huge, voxel_map())

@@ -1,11 +1,13 @@
-"""volgrad.jax: jax.grad through the custom VJP is Scene.grad of the cotangent."""
+"""volgrad.jax: jax.grad through the custom VJP is Scene.grad of the cotangent; vmap and float64."""
 
 import jax
 import jax.numpy as jnp
 import numpy as np
+import pytest
 
 import volgrad
 import volgrad.jax
+from conftest import ball
 from test_scene import small_scene
 
 
@@ -21,3 +23,52 @@ def test_jax_grad_is_the_vector_jacobian_product():
     # Under jit, with the seed a traced argument: the same numbers.
     jitted = jax.jit(jax.grad(lambda d, s: jnp.sum(render(d, s) * weights)))
     np.testing.assert_array_equal(np.asarray(jitted(density, 7)), np.asarray(gradient))
+
+
+def test_vmap_over_seeds_renders_each():
+    scene = small_scene()
+    render = volgrad.jax.renderer(scene, scene.camera, spp=2, grad_spp=2)
+    density = jnp.asarray(scene.density[0])
+    images = jax.vmap(lambda s: render(density, s))(jnp.arange(2))
+    assert images.shape == (2, 24, 24, 3)
+    for s in range(2):
+        np.testing.assert_array_equal(np.asarray(images[s]), scene.render(spp=2, seed=s))
+
+
+def test_a_float64_density_gets_float64_results():
+    scene = small_scene()
+    render = volgrad.jax.renderer(scene, spp=2, grad_spp=2)
+    weights = np.random.default_rng(2).normal(size=(24, 24, 3))
+    with jax.enable_x64(True):
+        density = jnp.asarray(scene.density[0], jnp.float64)
+        image = render(density, 3)
+        gradient = jax.grad(lambda d: jnp.sum(render(d, 3) * weights))(density)
+        assert image.dtype == jnp.float64 and gradient.dtype == jnp.float64
+    np.testing.assert_array_equal(np.asarray(image), scene.render(spp=2, seed=3))
+    expected = scene.grad(weights.astype(np.float32), spp=2, seed=3)
+    np.testing.assert_allclose(np.asarray(gradient), expected, rtol=1e-6, atol=1e-9)
+
+
+def test_the_emission_as_the_argument():
+    kind = {"radiance": [1.0, 0.6, 0.2]}
+    emission = ((ball() > 0) * 0.4).astype(np.float32)
+    scene = small_scene(emission=emission, emission_kind=kind)
+    weights = np.random.default_rng(4).normal(size=(24, 24, 3)).astype(np.float32)
+    render = volgrad.jax.renderer(scene, spp=2, grad_spp=4, parameter="emission")
+    values = jnp.asarray(emission * 2)
+    np.testing.assert_array_equal(np.asarray(render(values, 5)), scene.render(spp=2, seed=5, emission=emission * 2))
+    gradient = jax.grad(lambda v: jnp.sum(render(v, 5) * weights))(values)
+    expected = scene.grad(weights, parameter="emission", spp=4, seed=5, emission=emission * 2)
+    np.testing.assert_array_equal(np.asarray(gradient), expected)
+
+
+def test_arguments_of_another_type_are_refused_while_tracing():
+    scene = small_scene()
+    render = volgrad.jax.renderer(scene, spp=2)
+    density = scene.density[0]
+    with pytest.raises(TypeError, match="density must be float32 or float64"):
+        render(jnp.asarray(density).astype(jnp.int32), 1)
+    with pytest.raises(TypeError, match="seed must be an integer"):
+        render(jnp.asarray(density), 1.7)
+    with pytest.raises(ValueError, match="estimator must be"):
+        volgrad.jax.renderer(scene, estimator="fast")

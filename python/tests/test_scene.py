@@ -6,6 +6,7 @@ import signal
 import subprocess
 import sys
 import textwrap
+import threading
 import time
 
 import numpy as np
@@ -73,12 +74,32 @@ def test_threads_do_not_change_a_bit():
     assert grads[0].shape == ball().shape
 
 
+VIEW_STRIDE = 0x9E3779B97F4A7C15
+
+
 def test_views_of_one_call_are_independent():
     scene = small_scene()
     two = scene.render([scene.camera, scene.camera], spp=2, seed=4)
     assert not np.array_equal(two[0], two[1])
     np.testing.assert_array_equal(two[0], scene.render(spp=2, seed=4))
-    np.testing.assert_array_equal(two[1], scene.render(spp=2, seed=5))
+    np.testing.assert_array_equal(two[1], scene.render(spp=2, seed=(4 + VIEW_STRIDE) % 2**64))
+
+
+def test_consecutive_seeds_never_redraw_a_view():
+    """A training loop passes the iteration as the seed and its batch's cameras as a list: a
+    camera one place earlier in the next iteration's list must not draw the same paths (with
+    view i at seed + i it did, and so did its gradient)."""
+    scene = small_scene()
+    cameras = [scene.camera] * 4
+    first = scene.render(cameras, spp=2, seed=10)
+    second = scene.render(cameras, spp=2, seed=11)
+    for i in range(1, 4):
+        assert not np.array_equal(first[i], second[i - 1])
+    adjoint = np.ones((len(cameras),) + first.shape[1:], np.float32)
+    g10 = scene.grad(adjoint[:2], cameras[:2], spp=2, seed=10)
+    g11 = scene.grad(adjoint[:1], cameras[:1], spp=2, seed=11)
+    g10_second = g10 - scene.grad(adjoint[:1], cameras[:1], spp=2, seed=10)
+    assert not np.allclose(g10_second, g11)
 
 
 def test_the_gradient_matches_finite_differences():
@@ -152,6 +173,26 @@ def test_an_emission_array_and_its_gradient():
     assert difference > 0 and abs(ours - difference) < 0.05 * difference, (ours, difference)
 
 
+def test_albedo_and_emission_arrays_stand_in_for_a_call():
+    """`albedo=` and `emission=` render and differentiate the scene as if it had been built with
+    them (the same bits), and leave it as it was."""
+    rng = np.random.default_rng(6)
+    first = rng.uniform(0.2, 0.9, ball().shape + (3,)).astype(np.float32)
+    second = rng.uniform(0.2, 0.9, ball().shape + (3,)).astype(np.float32)
+    kind = {"radiance": [1.0, 0.6, 0.2]}
+    glow, other_glow = ((ball() > 0) * rng.uniform(0, 1, ball().shape)).astype(np.float32), ball() * 0.3
+    scene = small_scene(albedo=first, emission=glow, emission_kind=kind)
+    built = small_scene(albedo=second, emission=other_glow, emission_kind=kind)
+    before = scene.render(spp=2, seed=1)
+    arrays = dict(albedo=second, emission=other_glow)
+    np.testing.assert_array_equal(scene.render(spp=2, seed=1, **arrays), built.render(spp=2, seed=1))
+    adjoint = rng.normal(size=before.shape).astype(np.float32)
+    for parameter in ("extinction", "albedo", "emission"):
+        ours = scene.grad(adjoint, parameter=parameter, spp=2, seed=3, **arrays)
+        np.testing.assert_array_equal(ours, built.grad(adjoint, parameter=parameter, spp=2, seed=3))
+    np.testing.assert_array_equal(scene.render(spp=2, seed=1), before)
+
+
 def bad_calls():
     scene = small_scene()
     density = scene.density[0]
@@ -177,16 +218,66 @@ def bad_calls():
     yield lambda: small_scene(phase_g=1.5), ValueError, "phase_g"
     yield lambda: small_scene(phase_g=float("nan")), ValueError, "phase_g must be a finite number"
     yield lambda: small_scene(density_scale=float("inf")), ValueError, "density_scale must be a finite"
-    yield lambda: small_scene(albedo=float("nan")), ValueError, "albedo and the lights' values must be finite"
-    # Any other failure to pass the parts on keeps its own message.
-    yield lambda: small_scene(lights=[{"type": "constant", "radiance": np.float32(0.5)}]), TypeError, "JSON serializable"
+    yield lambda: small_scene(albedo=float("nan")), ValueError, "albedo and the lights: values must be finite"
+    yield lambda: small_scene(lights=[{"type": "constant", "radiance": {1, 2}}]), TypeError, "lights: values must be numbers"
     yield lambda: small_scene(camera=None).render(), ValueError, "no camera of its own"
     yield lambda: small_scene(albedo=np.ones((2, 2, 2), np.float32)), ValueError, "albedo has shape"
     yield lambda: volgrad.Scene.load(REPO / "none.toml"), FileNotFoundError, "does not exist"
     yield lambda: small_scene(emission=-ball()), ValueError, "emission: .* negative"
     yield lambda: small_scene(emission=ball()[:4]), ValueError, "emission has shape"
     yield lambda: small_scene(emission=ball(), emission_kind={"radiance": [1e30, 1, 1]}), ValueError, "at most"
-    yield lambda: small_scene(emission=ball(), emission_kind={"colour": 1}), ValueError, "emission_kind: unknown field"
+    yield lambda: small_scene(emission=ball(), emission_kind={"colour": 1}), ValueError, "emission_kind: unknown key 'colour'"
+    yield lambda: small_scene(emission=ball(), emission_kind={"vdb": "x"}), ValueError, "emission_kind: unknown key 'vdb'"
+    yield lambda: small_scene(emission_kind={"radiance": 2.0}), ValueError, "give the array as emission="
+    yield lambda: scene.render(density=density[:4]), ValueError, r"scene.set_density\(array, index_to_world\)"
+    yield lambda: scene.render(albedo=np.full_like(density, 0.5)), ValueError, "albedo: the scene's albedo is a constant"
+    yield lambda: scene.render(emission=density), ValueError, "emission: the scene's medium has no emission"
+    yield lambda: small_scene(albedo=np.full_like(density, 0.5)).render(albedo=np.full_like(density, 2.0)), ValueError, "albedo: every value"
+    yield lambda: scene.render(albedo=density[:3]), ValueError, "albedo"
+    yield lambda: volgrad.Camera((0, 0, 1), (0, 0, 0), fov_deg=30, fx=20.0), ValueError, "not both"
+
+
+def test_numpy_values_stand_for_numbers_in_the_parts():
+    lights = [
+        {"type": "constant", "radiance": np.array([0.4, 0.5, 0.6], np.float32)},
+        {"type": "directional", "direction": np.array([-0.6, -1.0, -0.4]), "irradiance": np.float64(4.0)},
+    ]
+    np.testing.assert_array_equal(small_scene(lights=lights).render(spp=2, seed=1), small_scene().render(spp=2, seed=1))
+
+
+def test_one_camera_gives_one_image():
+    scene = small_scene()
+    other = volgrad.Camera((4, 0.5, 0), (0, 0, 0), width=24, height=24)
+    image = scene.render(other, spp=2, seed=3)
+    assert image.shape == (24, 24, 3)
+    np.testing.assert_array_equal(image, scene.render([other], spp=2, seed=3)[0])
+    adjoint = np.random.default_rng(0).normal(size=image.shape).astype(np.float32)
+    np.testing.assert_array_equal(scene.grad(adjoint, other, spp=2, seed=3), scene.grad(adjoint[None], [other], spp=2, seed=3))
+
+
+def test_a_busy_scene_says_so():
+    """A second call on a Scene while another thread's call runs is refused with a message that
+    says what to do (PyO3's own says "Already borrowed")."""
+    scene = small_scene()
+
+    def long_render():
+        while True:  # until this thread's call is the one that runs (not the main thread's)
+            try:
+                return scene.render(spp=3000, threads=1)
+            except RuntimeError:
+                time.sleep(0.001)
+
+    thread = threading.Thread(target=long_render)
+    thread.start()
+    refused = []
+    while thread.is_alive():
+        try:
+            scene.render(spp=1)
+        except RuntimeError as e:
+            refused.append(str(e))
+        time.sleep(0.01)
+    thread.join()
+    assert refused and "a Scene of its own" in refused[0], refused
 
 
 def test_bad_arguments_raise_by_name():

@@ -9,7 +9,7 @@ import torch
 
 import volgrad
 import volgrad.torch
-from conftest import REPO
+from conftest import REPO, ball
 from test_scene import small_scene
 
 
@@ -29,6 +29,37 @@ def test_backward_is_the_vector_jacobian_product():
     np.testing.assert_allclose(density.grad.numpy(), 2 * expected, rtol=1e-6, atol=1e-12)
 
 
+def test_each_grid_that_wants_a_gradient_gets_its_own():
+    """Albedo and emission tensors in place of the scene's grids: the backward pass gives each one
+    that requires a gradient Scene.grad with its parameter, and the density (the scene's own,
+    given as None) none."""
+    kind = {"radiance": [1.0, 0.6, 0.2]}
+    albedo = np.full(ball().shape, 0.7, np.float32)
+    emission = ((ball() > 0) * 0.4).astype(np.float32)
+    scene = small_scene(albedo=albedo, emission=emission, emission_kind=kind)
+    a = torch.from_numpy(albedo * 0.9).requires_grad_(True)
+    e = torch.from_numpy(emission * 1.5).requires_grad_(True)
+    weights = torch.from_numpy(np.random.default_rng(3).normal(size=(24, 24, 3)).astype(np.float32))
+    images = volgrad.torch.render(None, scene, albedo=a, emission=e, spp=2, grad_spp=4, seed=9)
+    (images * weights).sum().backward()
+    arrays = dict(albedo=a.detach().numpy(), emission=e.detach().numpy())
+    for tensor, parameter in ((a, "albedo"), (e, "emission")):
+        expected = scene.grad(weights.numpy(), parameter=parameter, spp=4, seed=9, **arrays)
+        np.testing.assert_array_equal(tensor.grad.numpy(), expected)
+
+
+def test_without_a_seed_each_call_draws_one_from_torch():
+    """A loop that leaves out seed= gets new noise at every step (not the scene's one seed), and
+    torch.manual_seed repeats a run."""
+    scene = small_scene()
+    density = torch.from_numpy(scene.density[0])
+    torch.manual_seed(5)
+    first, second = (volgrad.torch.render(density, scene, spp=2) for _ in range(2))
+    assert not torch.equal(first, second)
+    torch.manual_seed(5)
+    assert torch.equal(volgrad.torch.render(density, scene, spp=2), first)
+
+
 def test_a_contiguous_tensor_is_not_copied():
     tensor = torch.rand(8, 8, 8)
     assert volgrad.torch._as_array(tensor, "density").ctypes.data == tensor.data_ptr()
@@ -38,6 +69,14 @@ def test_tensors_of_another_type_are_refused_by_name():
     scene = small_scene()
     with pytest.raises(TypeError, match="density must be float32"):
         volgrad.torch.render(torch.zeros(16, 16, 16, dtype=torch.float64), scene)
+    density = torch.from_numpy(scene.density[0])
+    with pytest.raises(TypeError, match="density must be a dense tensor"):
+        volgrad.torch.render(density.to_sparse(), scene, seed=1)
+    # Settings only the backward pass uses are checked before the render is paid for.
+    with pytest.raises(ValueError, match="estimator must be"):
+        volgrad.torch.render(density, scene, estimator="fast", seed=1)
+    with pytest.raises(ValueError, match="grad_spp must be at least 1"):
+        volgrad.torch.render(density, scene, spp=2, grad_spp=0, seed=1)
 
 
 def test_the_example_reconstructs_the_ball():

@@ -31,7 +31,7 @@ class Camera:
         position: Sequence[float],
         target: Sequence[float],
         up: Sequence[float] = (0.0, 1.0, 0.0),
-        fov_deg: float = 40.0,
+        fov_deg: Optional[float] = None,
         width: int = 64,
         height: int = 64,
         fx: Optional[float] = None,
@@ -45,6 +45,19 @@ class Camera:
     @staticmethod
     def from_colmap(model: _Path, images: Optional[_Path] = None) -> List["Camera"]:
         """The cameras of a COLMAP text model (cameras.txt, images.txt)."""
+    @staticmethod
+    def orbit(
+        count: int,
+        distance: float,
+        centre: Sequence[float] = (0.0, 0.0, 0.0),
+        elevation_deg: Tuple[float, float] = (-30.0, 70.0),
+        fov_deg: float = 40.0,
+        width: int = 64,
+        height: int = 64,
+        azimuth_offset_deg: float = 0.0,
+        up: Sequence[float] = (0.0, 1.0, 0.0),
+    ) -> List["Camera"]:
+        """``count`` cameras on a Fibonacci spiral around ``centre`` (a run file's [views.orbit])."""
     @property
     def width(self) -> int: ...
     @property
@@ -83,21 +96,25 @@ class Scene:
         """(values (nx, ny, nz), 4×4 index_to_world of the array's indices)."""
     def set_density(self, density: _F32, index_to_world: Optional[_F64] = None) -> None: ...
     @property
-    def camera(self) -> Camera: ...
+    def camera(self) -> Optional[Camera]:
+        """The scene's own camera; None for ``from_parts`` without ``camera``."""
     def render(
         self,
-        cameras: Optional[Sequence[Camera]] = None,
+        cameras: Union[Camera, Sequence[Camera], None] = None,
         spp: Optional[int] = None,
         seed: Optional[int] = None,
         max_depth: Optional[int] = None,
         threads: Optional[int] = None,
         density: Optional[_F32] = None,
+        albedo: Optional[_F32] = None,
+        emission: Optional[_F32] = None,
     ) -> _F32:
-        """(H, W, 3) for the scene's camera, (N, H, W, 3) for a list: linear radiance."""
+        """(H, W, 3) for the scene's camera or one camera, (N, H, W, 3) for a list: linear
+        radiance. View i of a list draws from seed + i·0x9E3779B97F4A7C15 (mod 2⁶⁴)."""
     def grad(
         self,
         adjoint: _F32,
-        cameras: Optional[Sequence[Camera]] = None,
+        cameras: Union[Camera, Sequence[Camera], None] = None,
         estimator: str = "joint",
         parameter: str = "extinction",
         spp: Optional[int] = None,
@@ -105,5 +122,7 @@ class Scene:
         max_depth: Optional[int] = None,
         threads: Optional[int] = None,
         density: Optional[_F32] = None,
+        albedo: Optional[_F32] = None,
+        emission: Optional[_F32] = None,
     ) -> _F32:
         """Σ over pixels of adjoint · ∂image/∂θ, shaped like the parameter."""

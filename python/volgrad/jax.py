@@ -12,7 +12,7 @@ render's at the same seed, as in ``volgrad.torch``).
 
 from __future__ import annotations
 
-from typing import Optional, Sequence
+from typing import Optional, Sequence, Union
 
 import jax
 import jax.numpy as jnp
@@ -25,46 +25,77 @@ __all__ = ["renderer"]
 
 def renderer(
     scene: Scene,
-    cameras: Optional[Sequence[Camera]] = None,
+    cameras: Union[Camera, Sequence[Camera], None] = None,
     *,
     spp: Optional[int] = None,
     grad_spp: Optional[int] = None,
     estimator: str = "joint",
+    parameter: str = "extinction",
     max_depth: Optional[int] = None,
     threads: Optional[int] = None,
 ):
-    """A function ``render(density, seed)`` of ``scene`` with ``density`` (float32, shaped like
-    ``scene.density[0]``) in place of its own, differentiable in ``density`` with ``jax.grad``."""
-    cams = list(cameras) if cameras is not None else None
-    first = cams[0] if cams else scene.camera
-    if first is None:
-        raise ValueError("the scene has no camera of its own (Scene.from_parts without camera=): give cameras")
-    shape = (first.height, first.width, 3) if cams is None else (len(cams), first.height, first.width, 3)
+    """A function ``render(values, seed)`` of ``scene`` with ``values`` in place of its density
+    (shaped like ``scene.density[0]``), differentiable in ``values`` with ``jax.grad``; with
+    ``parameter="albedo"`` or ``"emission"``, in place of that grid instead (shaped as
+    ``Scene.grad`` returns its gradient). The images and the gradient come back in the values'
+    dtype (float32, or float64 under ``jax_enable_x64``; volgrad computes in float32). Under
+    ``jax.vmap`` the batch's members are rendered one after another."""
+    one = cameras is None or isinstance(cameras, Camera)
+    cams = cameras if one else list(cameras)
+    if one:
+        first = scene.camera if cameras is None else cameras
+        if first is None:
+            raise ValueError("the scene has no camera of its own (Scene.from_parts without camera=): give cameras")
+        shape = (first.height, first.width, 3)
+    elif cams:
+        shape = (len(cams), cams[0].height, cams[0].width, 3)
+    else:
+        raise ValueError("cameras: the list is empty (give None for the scene's own camera)")
 
-    def images(density, seed):
+    grid = {"extinction": "density", "albedo": "albedo", "emission": "emission"}.get(parameter)
+    if grid is None:
+        raise ValueError(f'parameter must be "extinction", "albedo" or "emission" (got "{parameter}")')
+    if estimator not in ("joint", "drt", "naive"):
+        raise ValueError(f'estimator must be "joint", "drt" or "naive" (got "{estimator}")')
+    grad_spp = spp if grad_spp is None else grad_spp
+    if grad_spp is not None and grad_spp < 1:
+        raise ValueError(f"grad_spp must be at least 1 (got {grad_spp})")
+
+    def images(values, seed):
         return scene.render(
             cams, spp=spp, seed=int(seed), max_depth=max_depth, threads=threads,
-            density=np.asarray(density, np.float32),
+            **{grid: np.asarray(values, np.float32)},
         )
 
-    def vjp(density, seed, adjoint):
+    def vjp(values, seed, adjoint):
         return scene.grad(
-            np.asarray(adjoint, np.float32), cams, estimator=estimator, spp=grad_spp or spp,
-            seed=int(seed), max_depth=max_depth, threads=threads,
-            density=np.asarray(density, np.float32),
+            np.asarray(adjoint, np.float32), cams, estimator=estimator, parameter=parameter,
+            spp=grad_spp, seed=int(seed), max_depth=max_depth, threads=threads,
+            **{grid: np.asarray(values, np.float32)},
         )
+
+    def call(function, shape, dtype, *args):
+        def typed(*values):
+            return np.asarray(function(*values), dtype)
+
+        out = jax.ShapeDtypeStruct(shape, dtype)
+        return jax.pure_callback(typed, out, *args, vmap_method="sequential")
 
     @jax.custom_vjp
-    def render(density, seed):
-        return jax.pure_callback(images, jax.ShapeDtypeStruct(shape, jnp.float32), density, seed)
+    def render(values, seed):
+        # Refused while tracing, as volgrad.torch refuses them, rather than cast in the callback.
+        if values.dtype not in (jnp.float32, jnp.float64):
+            raise TypeError(f"{grid} must be float32 or float64 (got {values.dtype})")
+        if not jnp.issubdtype(jnp.result_type(seed), jnp.integer):
+            raise TypeError(f"seed must be an integer (got {jnp.result_type(seed)})")
+        return call(images, shape, values.dtype, values, seed)
 
-    def forward(density, seed):
-        return render(density, seed), (density, seed)
+    def forward(values, seed):
+        return render(values, seed), (values, seed)
 
     def backward(saved, adjoint):
-        density, seed = saved
-        out = jax.ShapeDtypeStruct(density.shape, jnp.float32)
-        return jax.pure_callback(vjp, out, density, seed, adjoint), None
+        values, seed = saved
+        return call(vjp, values.shape, values.dtype, values, seed, adjoint), None
 
     render.defvjp(forward, backward)
     return render
