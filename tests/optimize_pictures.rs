@@ -113,9 +113,8 @@ fn a_colmap_model_with_a_png_gives_back_the_orbit_and_its_picture_over_the_sky()
         let world_to_camera = DMat3::from_cols(right, down, forward).transpose();
         let q = DQuat::from_mat3(&world_to_camera);
         let t = -(world_to_camera * c.position.as_dvec3());
-        let name = if i == 0 { "first.png" } else { "other.png" };
         images += &format!(
-            "{i} {} {} {} {} {} {} {} 3 {name}\n\n",
+            "{i} {} {} {} {} {} {} {} 3 view{i}.png\n\n",
             q.w, q.x, q.y, q.z, t.x, t.y, t.z
         );
     }
@@ -131,14 +130,13 @@ fn a_colmap_model_with_a_png_gives_back_the_orbit_and_its_picture_over_the_sky()
     // Opaque red-ish in the top-left pixel, half-covered grey beside it, empty elsewhere.
     let mut rgba = vec![0u8; 24 * 24 * 4];
     rgba[..8].copy_from_slice(&[255, 128, 0, 255, 128, 128, 128, 128]);
-    image::RgbaImage::from_raw(24, 24, rgba.clone())
-        .unwrap()
-        .save(d.join("project/images/first.png"))
-        .unwrap();
-    image::RgbaImage::from_raw(24, 24, rgba)
-        .unwrap()
-        .save(d.join("project/images/other.png"))
-        .unwrap();
+    // One picture per view (a picture named twice is refused): the same pixels in each.
+    for i in 0..orbit_problem.views.len() {
+        image::RgbaImage::from_raw(24, 24, rgba.clone())
+            .unwrap()
+            .save(d.join(format!("project/images/view{i}.png")))
+            .unwrap();
+    }
     let run = run_file("0.2", "").replace(ORBIT, "[views.colmap]\nmodel = \"project/sparse/0\"\n");
     std::fs::write(d.join("run.toml"), run).unwrap();
     let colmap_problem = run_problem(d);
