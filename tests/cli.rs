@@ -16,22 +16,7 @@ fn asset(name: &str) -> String {
 
 /// A small scene around a `make-grid` grid, written into `dir`.
 fn tiny_scene(dir: &Path, extra_medium: &str, extra: &str) -> PathBuf {
-    let vdb = dir.join("sphere.vdb");
-    if !vdb.exists() {
-        let o = volgrad(&[
-            "make-grid",
-            "sphere",
-            "--size",
-            "12",
-            "--value",
-            "1",
-            "--voxel-size",
-            "0.5",
-            "-o",
-            vdb.to_str().unwrap(),
-        ]);
-        assert!(o.status.success(), "{}", stderr(&o));
-    }
+    sphere_vdb(dir);
     let scene = dir.join("tiny.toml");
     std::fs::write(
         &scene,

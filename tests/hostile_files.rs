@@ -8,24 +8,9 @@ use std::path::{Path, PathBuf};
 mod common;
 use common::*;
 
-/// A small scene around a `make-grid` sphere in `dir`, with `extra` appended (`[render]` keys).
+/// A small scene `name` around a `make-grid` sphere in `dir`, its camera at z = `camera_z`.
 fn scene_in(dir: &Path, name: &str, camera_z: f32, density_scale: f32) -> PathBuf {
-    let vdb = dir.join("sphere.vdb");
-    if !vdb.exists() {
-        let args = [
-            "make-grid",
-            "sphere",
-            "--size",
-            "12",
-            "--value",
-            "1",
-            "--voxel-size",
-            "0.5",
-        ];
-        ok(volgrad(
-            &[&args[..], &["-o", vdb.to_str().unwrap()]].concat(),
-        ));
-    }
+    sphere_vdb(dir);
     let scene = dir.join(name);
     std::fs::write(
         &scene,

@@ -52,3 +52,16 @@ pub fn assert_clean_error(o: &Output, needles: &[&str]) {
         assert!(err.contains(n), "error does not mention {n:?}: {err}");
     }
 }
+
+/// `dir/sphere.vdb`: a `make-grid` sphere of 12 voxels at 0.5 units, value 1, made once.
+pub fn sphere_vdb(dir: &std::path::Path) -> std::path::PathBuf {
+    let vdb = dir.join("sphere.vdb");
+    if !vdb.exists() {
+        let size = ["--size", "12", "--value", "1", "--voxel-size", "0.5"];
+        let out = ["-o", vdb.to_str().expect("a UTF-8 path")];
+        ok(volgrad(
+            &[&["make-grid", "sphere"][..], &size, &out].concat(),
+        ));
+    }
+    vdb
+}
