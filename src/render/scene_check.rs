@@ -311,19 +311,40 @@ pub fn light_value(key: &str, v: Vec3) -> Result<()> {
 /// A picture of radiance a loss compares renders with (a target): every pixel finite and at most
 /// `MAX_LIGHT` in magnitude (beyond it no scene renders it, and its squared difference overflows
 /// f32). Small negative values are kept: a Lanczos or Mitchell pixel filter rings below 0 at
-/// sharp edges. `what` names the picture.
+/// sharp edges, by at most about a seventh of the edge's height; a value below
+/// −`RINGING` × the picture's brightest is not ringing but a picture of something else (a
+/// difference image, a signed AOV). `what` names the picture.
 pub fn radiance_pixels(what: &str, pixels: &[Vec3]) -> Result<()> {
     if let Some((i, p)) = (pixels.iter().enumerate())
         .find(|(_, p)| !(p.is_finite() && p.abs().max_element() <= MAX_LIGHT))
     {
         bail!("{what}: pixel {i} is {p}; radiance is finite and at most {MAX_LIGHT:e} in every channel");
     }
+    let brightest = pixels.iter().fold(0.0f32, |m, p| m.max(p.max_element()));
+    let floor = -RINGING * brightest;
+    if let Some((i, p)) = (pixels.iter().enumerate()).find(|(_, p)| p.min_element() < floor) {
+        bail!("{what}: pixel {i} is {p}, below what a pixel filter's ringing reaches (−{RINGING} × the picture's brightest value, {brightest}): radiance is not negative");
+    }
     Ok(())
 }
+
+/// How far below 0 a target's pixel may ring, as a fraction of the picture's brightest value.
+const RINGING: f32 = 0.25;
 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_target_may_ring_below_zero_but_not_be_negative() {
+        let ok = |p: &[Vec3]| radiance_pixels("t", p).is_ok();
+        // A filter's ringing beside a bright edge is kept.
+        assert!(ok(&[Vec3::ONE, Vec3::new(0.5, -0.1, 0.0)]));
+        assert!(!ok(&[Vec3::ONE, Vec3::new(0.5, -0.3, 0.0)]));
+        // A picture with nothing bright in it has nothing to ring from.
+        assert!(!ok(&[Vec3::splat(-5.0); 4]));
+        assert!(!ok(&[Vec3::ZERO, Vec3::new(0.0, -1e-3, 0.0)]));
+    }
 
     #[test]
     fn tiny_vectors_normalise_and_zero_ones_are_named() {
