@@ -282,8 +282,9 @@ enum Colour {
 
 /// The colour channels of an image with channels named `names` (none: an image volgrad made),
 /// `c` of them, alpha at `alpha`: R, G and B by name (or one layer's `x.R`, `x.G`, `x.B`), else a
-/// grey Y (with alpha or alone). An image whose channels are none of these (depth alone, X Y Z, R and G) holds no
-/// radiance to compare with and is refused, rather than its first channels read as colour.
+/// grey Y (with alpha or alone). An image whose channels are none of these (depth alone, X Y Z,
+/// R and G) holds no radiance to compare with and is refused, rather than its first channels
+/// read as colour.
 fn colour_channels(names: &[String], c: usize, alpha: Option<usize>) -> Result<Colour> {
     if names.is_empty() {
         let grey = c < 3 || alpha.is_some_and(|a| a < 3);
