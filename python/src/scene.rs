@@ -220,14 +220,16 @@ impl Scene {
 
     /// The density as (array (nx, ny, nz) float32, 4×4 index_to_world of the array's indices).
     #[getter]
-    fn density<'py>(&self, py: Python<'py>) -> PyResult<GridArrays<'py>> {
-        let place = self.boxes.density;
+    fn density<'py>(slf: &Bound<'py, Self>, py: Python<'py>) -> PyResult<GridArrays<'py>> {
+        let guard = readable(slf)?;
+        let this = &*guard;
+        let place = this.boxes.density;
         let values = detached::run(py, None, || {
-            arrays::from_brickmap(&self.scene.medium.grid, place, "the density")
+            arrays::from_brickmap(&this.scene.medium.grid, place, "the density")
         })?;
         Ok((
             values.into_pyarray(py),
-            matrix(py, self.index_to_world_rows()),
+            matrix(py, this.index_to_world_rows()),
         ))
     }
 
@@ -257,8 +259,8 @@ impl Scene {
 
     /// The scene file's camera (or the one `from_parts` was given); None without one.
     #[getter]
-    fn camera(&self) -> Option<Camera> {
-        self.own_camera().map(|camera| Camera { camera })
+    fn camera(slf: &Bound<'_, Self>) -> PyResult<Option<Camera>> {
+        Ok(readable(slf)?.own_camera().map(|camera| Camera { camera }))
     }
 
     /// Renders the scene's camera or one camera (an (H, W, 3) float32 array of linear radiance),
@@ -343,27 +345,35 @@ impl Scene {
         Ok(gradient.values.into_pyarray(py))
     }
 
-    fn __repr__(&self) -> String {
-        let m = &self.scene.medium;
-        format!(
+    fn __repr__(slf: &Bound<'_, Self>) -> PyResult<String> {
+        let this = readable(slf)?;
+        let m = &this.scene.medium;
+        Ok(format!(
             "Scene('{}', density {:?} at index {:?}, density_scale {}, {} leaves)",
-            self.scene.path.display(),
-            self.boxes.density.shape,
-            self.boxes.density.origin.to_array(),
+            this.scene.path.display(),
+            this.boxes.density.shape,
+            this.boxes.density.origin.to_array(),
             m.density_scale,
             m.grid.leaves().len()
-        )
+        ))
     }
 }
 
-/// The scene for a call that changes it, or swaps its density for the call's length. A Scene runs
+/// The scene for a call that changes it, or swaps its grids for the call's length. A Scene runs
 /// one call at a time; PyO3's own refusal of a second one says only "Already borrowed".
 fn exclusive<'py>(slf: &Bound<'py, Scene>) -> PyResult<PyRefMut<'py, Scene>> {
-    slf.try_borrow_mut().map_err(|_| {
-        PyRuntimeError::new_err(
-            "this Scene is busy with a call from another thread: a Scene runs one call at a time, so give each thread a Scene of its own (Scene.load or Scene.from_parts again)",
-        )
-    })
+    slf.try_borrow_mut().map_err(|_| busy())
+}
+
+/// The scene for a call that reads it (its density, camera, description).
+fn readable<'py>(slf: &Bound<'py, Scene>) -> PyResult<PyRef<'py, Scene>> {
+    slf.try_borrow().map_err(|_| busy())
+}
+
+fn busy() -> PyErr {
+    PyRuntimeError::new_err(
+        "this Scene is busy with a call from another thread: a Scene runs one call at a time, so give each thread a Scene of its own (Scene.load or Scene.from_parts again)",
+    )
 }
 
 impl Scene {

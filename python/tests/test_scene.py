@@ -269,15 +269,17 @@ def test_a_busy_scene_says_so():
 
     thread = threading.Thread(target=long_render)
     thread.start()
-    refused = []
+    refused = {"render": [], "density": []}
     while thread.is_alive():
-        try:
-            scene.render(spp=1)
-        except RuntimeError as e:
-            refused.append(str(e))
+        for name, call in (("render", lambda: scene.render(spp=1)), ("density", lambda: scene.density)):
+            try:
+                call()
+            except RuntimeError as e:
+                refused[name].append(str(e))
         time.sleep(0.01)
     thread.join()
-    assert refused and "a Scene of its own" in refused[0], refused
+    for said in refused.values():
+        assert said and "a Scene of its own" in said[0], refused
 
 
 def test_bad_arguments_raise_by_name():

@@ -6,7 +6,7 @@ images out, gradients back.
     density = torch.zeros(scene.density[0].shape, requires_grad=True)
     images = volgrad.torch.render(density, scene, cameras, spp=8, seed=i)
     loss = ((images - targets) ** 2).mean(); loss.backward()   # density.grad from Scene.grad
-    images = volgrad.torch.render(None, scene, cameras, emission=emission, seed=i)   # a flame's
+    images = volgrad.torch.render(None, scene, cameras, emission=emission, seed=i)  # or a flame's glow
 
 The forward pass renders with ``seed``; the backward pass traces its gradient paths with the same
 seed on volgrad's adjoint stream, which is independent of the render's: the adjoint (built from
