@@ -44,6 +44,7 @@ fn write_grids(dir: &Path, colour: impl Fn(IVec3) -> Vec3) {
         &dir.join("grids.vdb"),
         &[&density, &glow, &grey],
         &[[&r, &g, &b]],
+        false,
         true,
     )
     .unwrap();
@@ -365,4 +366,29 @@ fn coloured_smoke_renders_and_exports_an_rgb_albedo_gradient() {
         ),
         &["--parameter albedo", "constant"],
     );
+}
+
+/// `make-grid coloured-smoke --half` stores the colour grid as half floats, as `--half` does for
+/// every other shape (it was written as f32 whatever the flag).
+#[test]
+fn coloured_smoke_honours_half() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let colours = |name: &str, half: bool| -> Vec<f32> {
+        let mut args = vec!["make-grid", "coloured-smoke", "--size", "24", "-o", name];
+        if half {
+            args.push("--half");
+        }
+        ok(volgrad_in(d, &args));
+        let cd = vdb::read_components(&d.join(name), "Cd").unwrap();
+        (cd.iter())
+            .flat_map(|g| g.bricks.leaves().iter().flat_map(|l| l.values))
+            .filter(|&v| v != 0.0)
+            .collect()
+    };
+    // A normal half keeps 10 of f32's 23 mantissa bits.
+    let is_half = |v: &f32| v.to_bits() & 0x1fff == 0 && v.abs() > 6.2e-5;
+    assert!(!colours("full.vdb", false).iter().all(is_half));
+    let halves = colours("half.vdb", true);
+    assert!(!halves.is_empty() && halves.iter().all(is_half));
 }

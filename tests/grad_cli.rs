@@ -49,7 +49,7 @@ fn scene(dir: &Path, name: &str, density_scale: f32) -> PathBuf {
 fn grad_writes_a_vdb_that_openvdb_reads_with_the_inputs_transform() {
     let dir = tempfile::tempdir().unwrap();
     let scene = scene(dir.path(), "s.toml", 1.0);
-    let out = dir.path().join("g.vdb");
+    let out = dir.path().join("g.grad.vdb");
     let o = ok(volgrad(&[
         "grad",
         s(&scene),
@@ -95,7 +95,7 @@ fn grad_writes_a_vdb_that_openvdb_reads_with_the_inputs_transform() {
         .iter()
         .flat_map(|l| l.values)
         .all(f32::is_finite));
-    for picture in ["g.png", "g.dpixel.exr", "g.dpixel.png"] {
+    for picture in ["g.grad.png", "g.grad.dpixel.exr", "g.grad.dpixel.png"] {
         assert!(dir.path().join(picture).exists(), "{picture} missing");
     }
     // OpenVDB's own tool reads it, with our grid and transform.

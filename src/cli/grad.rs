@@ -101,14 +101,22 @@ pub struct Args {
 
 /// What `grad` writes: the VDB, its picture, and with `--image-of` the derivative image as EXR and
 /// PNG. All are checked before any work so that a refusal to overwrite costs nothing.
+/// The names are the VDB's with `.vdb` replaced, whatever dots the rest holds: `cloud.grad.vdb`
+/// gives `cloud.grad.png` and `cloud.grad.dpixel.exr` (`Path::with_extension` would replace
+/// `.grad` and make `a.x.vdb` and `a.y.vdb` write the same pictures).
 fn outputs(vdb: &Path, image_of: bool) -> Vec<PathBuf> {
-    let stem = vdb.with_extension("");
-    let mut paths = vec![vdb.to_path_buf(), vdb.with_extension("png")];
+    let stem = match vdb.extension() {
+        Some(e) if e.eq_ignore_ascii_case("vdb") => vdb.with_extension(""),
+        _ => vdb.to_path_buf(),
+    };
+    let beside = |suffix: &str| {
+        let mut name = stem.clone().into_os_string();
+        name.push(suffix);
+        PathBuf::from(name)
+    };
+    let mut paths = vec![vdb.to_path_buf(), beside(".png")];
     if image_of {
-        paths.extend([
-            stem.with_extension("dpixel.exr"),
-            stem.with_extension("dpixel.png"),
-        ]);
+        paths.extend([beside(".dpixel.exr"), beside(".dpixel.png")]);
     }
     paths
 }
@@ -309,14 +317,14 @@ pub fn run(args: &Args, cluster: &Cluster) -> Result<()> {
         );
         let as_grid =
             |bricks| gradient_files::gradient_grid(bricks, &parameter_name, transform, &provenance);
-        let png = vdb_out.with_extension("png");
+        let png = outputs(&vdb_out, false).swap_remove(1);
         let (scale, grid_name, voxels) = if let [r, g, b] = channels.as_slice() {
             // An RGB parameter: one vec3 grid, as the input; the picture sums the channels.
             let [r, g, b] = [r, g, b].map(|c| as_grid(c.to_brickmap()));
             let mut total = channels[0].empty_like();
             channels.iter().for_each(|c| total.merge(c, 1.0));
             let scale = gradient_files::write_projection_png(&png, &as_grid(total.to_brickmap()))?;
-            vdb::write_grids_with_colours(&vdb_out, &[], &[[&r, &g, &b]], args.force)?;
+            vdb::write_grids_with_colours(&vdb_out, &[], &[[&r, &g, &b]], false, args.force)?;
             (scale, r.name.clone(), r.bricks.active_voxel_count())
         } else {
             let gradient = channels.pop().expect("one pass at least");
@@ -482,4 +490,30 @@ fn finite_differences(args: &Args, scene: &Scene, target: Option<&RgbImage>) -> 
     }
     bar.finish_and_clear();
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn outputs_replace_only_the_vdb_extension() {
+        let names = |vdb: &str| -> Vec<String> {
+            (outputs(Path::new(vdb), true).iter())
+                .map(|p| p.display().to_string())
+                .collect()
+        };
+        assert_eq!(
+            names("cloud.grad.vdb"),
+            [
+                "cloud.grad.vdb",
+                "cloud.grad.png",
+                "cloud.grad.dpixel.exr",
+                "cloud.grad.dpixel.png"
+            ]
+        );
+        // Two outputs that differ before the last dot keep their pictures apart.
+        assert_ne!(names("a.x.vdb")[1..], names("a.y.vdb")[1..]);
+        assert_eq!(names("out")[1], "out.png");
+    }
 }

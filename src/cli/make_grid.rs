@@ -94,7 +94,13 @@ pub fn run(args: &Args) -> Result<()> {
     }
     if args.kind == GridKind::ColouredSmoke {
         let [r, g, b] = coloured_smoke_albedo(&spec)?;
-        vdb::write_grids_with_colours(&args.output, &[&grid], &[[&r, &g, &b]], args.force)?;
+        vdb::write_grids_with_colours(
+            &args.output,
+            &[&grid],
+            &[[&r, &g, &b]],
+            args.half,
+            args.force,
+        )?;
         eprintln!(
             "wrote {} with grids '{}' and 'Cd' (vec3)",
             args.output.display(),

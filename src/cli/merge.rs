@@ -24,7 +24,7 @@ pub fn run(args: &Args) -> Result<()> {
     let paths: Vec<&Path> = inputs.iter().map(|p| p.as_path()).collect();
     match gradient_files::merge(&paths)?.as_slice() {
         [grid] => vdb::write_grids(output, &[grid], false, force)?,
-        [r, g, b] => vdb::write_grids_with_colours(output, &[], &[[r, g, b]], force)?,
+        [r, g, b] => vdb::write_grids_with_colours(output, &[], &[[r, g, b]], false, force)?,
         _ => unreachable!("a gradient has one or three channels"),
     }
     eprintln!("wrote {} ({} inputs)", output.display(), inputs.len());

@@ -75,7 +75,8 @@ crate::display_as_value_enum!(Estimator);
 )]
 #[serde(rename_all = "kebab-case")]
 pub enum Suffix {
-    /// One suffix path per camera path, on a segment chosen by a reservoir (linear cost).
+    /// K suffix paths per camera path (`--suffix-paths`, 2 by default), on segments picked
+    /// ∝ |β|·ℓ (linear cost).
     PerPath,
     /// A suffix path on every segment (quadratic cost).
     PerSegment,

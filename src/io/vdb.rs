@@ -181,18 +181,22 @@ pub fn read_components(path: &Path, name: &str) -> Result<Vec<Grid>> {
 }
 
 /// Writes float grids and vec3 grids (colours, each made of three float components, with the
-/// first's name and transform) to `path`. Refuses to replace an existing file unless `overwrite`.
+/// first's name and transform) to `path`, as half floats with `save_half`. Refuses to replace an
+/// existing file unless `overwrite`.
 pub fn write_grids_with_colours(
     path: &Path,
     grids: &[&Grid],
     colours: &[[&Grid; 3]],
+    save_half: bool,
     overwrite: bool,
 ) -> Result<()> {
     check_vdb_name(path)?;
     crate::io::output::refuse_overwrite(path, overwrite)?;
+    check_half(grids, save_half)?;
+    check_half(&colours.concat(), save_half)?;
     let data: Vec<FloatGridData> = grids.iter().map(|g| g.to_data()).collect();
     let colours: Vec<FloatGridData> = colours.iter().flatten().map(|g| g.to_data()).collect();
-    ffi::write_grids_with_colours(path_str(path)?, &data, &colours, false)
+    ffi::write_grids_with_colours(path_str(path)?, &data, &colours, save_half)
         .map_err(|e| anyhow!("{}", e.what()))
 }
 

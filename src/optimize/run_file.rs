@@ -243,12 +243,15 @@ impl RunFile {
 impl UnknownFile {
     fn validate(&self, has_truth: bool) -> Result<()> {
         match &self.bounds {
-            BoundsFile::Named(name) if name == "truth" && !has_truth => {
-                bail!("unknown.bounds = \"truth\" needs a `truth` grid")
-            }
-            BoundsFile::Named(name) if name == "start" => {
-                if !matches!(self.start, Some(StartFile::Vdb(_))) {
+            BoundsFile::Named(name) if name == "truth" || name == "start" => {
+                if name == "truth" && !has_truth {
+                    bail!("unknown.bounds = \"truth\" needs a `truth` grid");
+                }
+                if name == "start" && !matches!(self.start, Some(StartFile::Vdb(_))) {
                     bail!("unknown.bounds = \"start\" needs unknown.start to be a VDB file");
+                }
+                if self.voxel_size.is_some() {
+                    bail!("unknown.voxel_size: with bounds = \"{name}\" the final voxel size is that grid's; leave it out");
                 }
             }
             BoundsFile::Named(name) if name == "views" => {
@@ -256,7 +259,7 @@ impl UnknownFile {
                     bail!("unknown.voxel_size must be a positive number (got {v})");
                 }
             }
-            BoundsFile::Named(name) if name != "truth" => bail!(
+            BoundsFile::Named(name) => bail!(
                 "unknown.bounds must be \"truth\", \"start\", \"views\" or {{ min = [x, y, z], max = [x, y, z] }} (got \"{name}\")"
             ),
             BoundsFile::Box { min, max } => {
@@ -267,11 +270,6 @@ impl UnknownFile {
                     Some(v) if v > 0.0 && v.is_finite() => {}
                     Some(v) => bail!("unknown.voxel_size must be a positive number (got {v})"),
                     None => bail!("unknown.voxel_size: a world box needs the final voxel size"),
-                }
-            }
-            BoundsFile::Named(_) => {
-                if self.voxel_size.is_some() {
-                    bail!("unknown.voxel_size: with bounds = \"truth\" or \"start\" the final voxel size is that grid's; leave it out");
                 }
             }
         }
@@ -461,6 +459,16 @@ mod tests {
                     "bounds = { min = [0,0,0], max = [0,1,1] }\nvoxel_size = 0.1",
                 ),
                 "unknown.bounds",
+            ),
+            // The final voxel size of bounds = "truth" or "start" is that grid's.
+            (
+                GOOD.replace("bounds = \"truth\"", "bounds = \"truth\"\nvoxel_size = 0.5"),
+                "unknown.voxel_size",
+            ),
+            (
+                GOOD.replace("bounds = \"truth\"", "bounds = \"start\"\nvoxel_size = 0.5")
+                    .replace("start = 0.1", "start = \"s.vdb\""),
+                "unknown.voxel_size",
             ),
             (GOOD.replace("truth = \"t.vdb\"", ""), "truth"),
             (
