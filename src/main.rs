@@ -26,11 +26,13 @@ struct Cli {
 
 #[derive(Subcommand)]
 enum Command {
-    /// List every grid in a .vdb file: type, class, transform, voxel counts, bounds, metadata.
+    /// List every grid in a .vdb file (type, class, transform, voxel counts, bounds, metadata), or
+    /// a scene file's grids and medium.
     Info(cli::info::Args),
     /// Render a scene to a linear EXR and a tonemapped PNG beside it.
     Render(cli::render::Args),
-    /// Write a small analytic grid (box, sphere, slab, single dense voxel) as a .vdb file.
+    /// Write a small analytic grid (box, sphere, slab, single dense voxel, fireball, coloured
+    /// smoke) as a .vdb file.
     MakeGrid(cli::make_grid::Args),
     /// Gradient of a loss with respect to every voxel, written as a VDB (plus pictures).
     Grad(cli::grad::Args),
@@ -41,8 +43,8 @@ enum Command {
     Compare(cli::compare::Args),
     /// Combine gradient VDBs from runs with different seeds, weighted by their spp.
     Merge(cli::merge::Args),
-    /// Reconstruct a density grid from images (inverse rendering), or compare estimators on it
-    /// at equal time (--estimators).
+    /// Reconstruct a density or emission grid from images (inverse rendering), or compare
+    /// estimators on it at equal time (--estimators).
     Optimize(cli::optimize::Args),
 }
 

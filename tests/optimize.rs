@@ -491,7 +491,7 @@ fn a_run_logged_to_a_file_says_its_progress_and_force_replaces_an_earlier_run() 
         &["optimize", "run.toml", "--iterations", "6", "--out", "o"],
     ));
     let said = stderr(&first);
-    assert!(said.contains("one iteration took"), "{said}");
+    assert!(said.contains("the first 6 iterations took"), "{said}");
     assert!(
         said.contains("it 6 · level") && said.contains("held-out PSNR"),
         "{said}"

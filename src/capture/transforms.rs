@@ -123,7 +123,7 @@ fn known_keys(value: &serde_json::Value, what: &str, own: &[&str]) -> Result<()>
     for key in object.keys() {
         let key = key.as_str();
         if !(own.contains(&key) || LENS_KEYS.contains(&key) || IGNORED_KEYS.contains(&key)) {
-            bail!("{what}: unknown key \"{key}\" (the keys volgrad reads and ignores are listed in the manual's run-file reference)");
+            bail!("{what}: unknown key \"{key}\" (the keys volgrad reads and ignores are listed in the manual, docs/pictures.md, \"Cameras\")");
         }
     }
     Ok(())

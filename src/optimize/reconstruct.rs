@@ -82,16 +82,29 @@ pub fn run_fingerprint(problem: &Problem, estimator: Estimator) -> String {
     f.hex()
 }
 
+/// The costs of an iteration are said once this process has made this many iterations, or spent
+/// this many seconds on them, whichever comes first (or at the end of a shorter run).
+const COSTS_AFTER_ITERATIONS: u64 = 10;
+const COSTS_AFTER_SECONDS: f64 = 2.0;
+
 /// Runs the optimisation, writing `settings.toml`, checkpoints, `log.csv`, `progress.png/.svg`,
 /// held-out pictures and `final.vdb` into `options.out`.
 pub fn reconstruct(problem: &Problem, options: &RunOptions) -> Result<Outcome> {
     let mut run = Run::start(problem, options)?;
-    let first = run.position.iteration;
+    let (first, seconds) = (run.position.iteration, run.position.optimisation_seconds);
+    let mut costs_said = false;
     while run.fraction() < 1.0 {
-        let seconds = run.position.optimisation_seconds;
         run.iterate()?;
-        if run.position.iteration == first + 1 {
-            run.say_costs(run.position.optimisation_seconds - seconds);
+        // The first iterations are the cheapest (the start is thin; paths grow longer as the
+        // density does), so the costs are said from the mean of the first few.
+        let (done, spent) = (
+            run.position.iteration - first,
+            run.position.optimisation_seconds - seconds,
+        );
+        let soon = done >= COSTS_AFTER_ITERATIONS || spent >= COSTS_AFTER_SECONDS;
+        if !costs_said && (soon || run.fraction() >= 1.0) {
+            run.say_costs(spent / done as f64, done);
+            costs_said = true;
         }
         if run.interrupted {
             break;
@@ -389,10 +402,10 @@ impl<'a> Run<'a> {
         m
     }
 
-    /// What one iteration (the first of this process, `seconds`) and one evaluation cost, and
-    /// what the stop rule then amounts to, on stderr: a run whose views are far larger than
-    /// the defaults assume says so in its first seconds, not after its budget.
-    fn say_costs(&self, seconds: f64) {
+    /// What one iteration (`seconds`, the mean of this process's first `iterations`) and one
+    /// evaluation cost, and what the stop rule then amounts to, on stderr: a run whose views are
+    /// far larger than the defaults assume says so in its first seconds, not after its budget.
+    fn say_costs(&self, seconds: f64, iterations: u64) {
         // Every evaluation so far (a resumed run's too) and the spp each took: an
         // evaluation's time is about proportional to its spp, which tells what "auto" may
         // come to.
@@ -419,9 +432,13 @@ impl<'a> Run<'a> {
             Stop::Replay(_) => String::new(),
         };
         self.say(&format!(
-                "one iteration took {seconds:.2} s and one evaluation {evaluation:.2} s ({spp}; every {} iterations){total}",
-                self.problem.settings.eval_every
-            ));
+            "{} and one evaluation {evaluation:.2} s ({spp}; every {} iterations){total}",
+            match iterations {
+                1 => format!("the first iteration took {seconds:.2} s"),
+                n => format!("the first {n} iterations took {seconds:.2} s each"),
+            },
+            self.problem.settings.eval_every
+        ));
     }
 
     /// A line for the user on stderr: above the progress bar on a terminal, and as a plain line
