@@ -101,6 +101,7 @@ pub struct Args {
 
 /// What `grad` writes: the VDB, its picture, and with `--image-of` the derivative image as EXR and
 /// PNG. All are checked before any work so that a refusal to overwrite costs nothing.
+///
 /// The names are the VDB's with `.vdb` replaced, whatever dots the rest holds: `cloud.grad.vdb`
 /// gives `cloud.grad.png` and `cloud.grad.dpixel.exr` (`Path::with_extension` would replace
 /// `.grad` and make `a.x.vdb` and `a.y.vdb` write the same pictures).
