@@ -471,3 +471,53 @@ impl<R: Rng> Replay<'_, R> {
         in_scattered
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::volume::brickmap::{BrickMap, BrickMapBuilder};
+    use rand::{rngs::StdRng, SeedableRng};
+
+    /// Records every splat as (voxel, weight).
+    struct Recorded(Vec<(IVec3, f32)>);
+
+    impl GradientSink for Recorded {
+        fn add(&mut self, voxel: IVec3, d_pixel: Vec3) {
+            self.0.push((voxel, d_pixel.x));
+        }
+    }
+
+    /// A splat is the adjoint of the lookup: the weights it gives the voxels, applied to any grid,
+    /// give back that grid's lookup at the point, Σₖ wₖ(p)·θₖ = σ(p). A splat that gave a corner
+    /// its mirror's weight, or named the corners in another order than the lookup reads them,
+    /// would still sum to 1 (and pass every test through ⟨g, 1⟩); this catches it.
+    #[test]
+    fn a_splat_is_the_adjoint_of_the_lookup() {
+        let mut rng = StdRng::seed_from_u64(7);
+        let mut builder = BrickMapBuilder::new();
+        for x in -3..13 {
+            for y in -3..13 {
+                for z in -3..13 {
+                    builder.set(IVec3::new(x, y, z), rng.gen::<f32>(), true);
+                }
+            }
+        }
+        let grid: BrickMap = builder.build();
+        for _ in 0..200 {
+            // Inside the block, straddling brick boundaries (at 0 and 8) too.
+            let p = Vec3::new(rng.gen(), rng.gen(), rng.gen()) * 14.0 - 2.0;
+            for (filter, lookup) in [
+                (Filter::Trilinear, grid.trilinear(p)),
+                (Filter::Nearest, grid.nearest(p)),
+            ] {
+                let mut splats = Recorded(Vec::new());
+                splat_lookup(filter, p, Vec3::ONE, &mut splats);
+                let adjoint: f32 = (splats.0.iter()).map(|&(v, w)| w * grid.voxel(v)).sum();
+                assert!(
+                    (adjoint - lookup).abs() < 1e-5,
+                    "{filter:?} at {p}: Σ w·θ = {adjoint}, lookup {lookup}"
+                );
+            }
+        }
+    }
+}
