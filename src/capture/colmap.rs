@@ -156,7 +156,7 @@ fn views(text: &str, sensors: &HashMap<u32, Sensor>, images: &Path) -> Result<Ve
     // of the file).
     let lines: Vec<(usize, &str)> = data_lines(text).collect();
     let (mut views, mut ids) = (Vec::new(), std::collections::HashSet::new());
-    let mut names = std::collections::HashMap::new();
+    let mut line_numbers = Vec::new();
     for pair in lines.chunks(2) {
         let (number, line) = pair[0];
         if line.trim().is_empty() {
@@ -170,18 +170,16 @@ fn views(text: &str, sensors: &HashMap<u32, Sensor>, images: &Path) -> Result<Ve
         if !ids.insert(id) {
             bail!("line {number}: image {id} is listed twice");
         }
-        // One picture under two IDs would weigh twice in the fit.
-        if let Some(first) = names.insert(view.image.clone(), number) {
-            bail!("line {number}: image {id} names the picture of line {first} again");
-        }
         if let Some(&(number, points)) = pair.get(1) {
             points_line(points).with_context(|| format!("line {number}: expected the POINTS2D line of image {id} (X Y POINT3D_ID triples, or empty: COLMAP writes one after each image's line)"))?;
         }
         views.push(view);
+        line_numbers.push(number);
     }
     if views.is_empty() {
         bail!("no images");
     }
+    super::refuse_repeated_images(&views, |i| format!("line {}", line_numbers[i]))?;
     Ok(views)
 }
 

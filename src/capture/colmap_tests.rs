@@ -147,7 +147,7 @@ fn what_is_not_a_pinhole_or_not_colmap_is_refused_naming_the_line() {
         (
             "1 PINHOLE 8 8 10 10 4 4\n",
             "1 1 0 0 0 0 0 5 1 a.png\n\n2 1 0 0 0 0 0 6 1 a.png\n",
-            "image 2 names the picture of line 1 again",
+            "line 1 and line 3 name the same image",
         ),
         ("1 PINHOLE 8 8 1e-30 10 4 4\n", pose, "180°"),
     ] {

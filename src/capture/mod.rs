@@ -27,3 +27,26 @@ fn quoted_number(v: f64) -> String {
         plain
     }
 }
+
+/// An error if two views name one image (as one file, however its path is written): a picture
+/// listed twice would weigh twice in the fit, and is more likely a mistake in the export than a
+/// wish. `what` names a view by its index.
+pub(crate) fn refuse_repeated_images(
+    views: &[CapturedView],
+    what: impl Fn(usize) -> String,
+) -> anyhow::Result<()> {
+    let mut seen = std::collections::HashMap::new();
+    for (i, view) in views.iter().enumerate() {
+        let Some(image) = &view.image else { continue };
+        let key = image.canonicalize().unwrap_or_else(|_| image.clone());
+        if let Some(first) = seen.insert(key, i) {
+            anyhow::bail!(
+                "{} and {} name the same image '{}': list each picture once",
+                what(first),
+                what(i),
+                image.display()
+            );
+        }
+    }
+    Ok(())
+}

@@ -174,7 +174,7 @@ pub fn read(path: &Path) -> Result<Vec<CapturedView>> {
                 .with_context(|| format!("'{}': frames[{i}]", path.display()))
         })
         .collect::<Result<Vec<_>>>()?;
-    refuse_repeated_images(&views, |i| format!("frames[{i}]"))
+    super::refuse_repeated_images(&views, |i| format!("frames[{i}]"))
         .with_context(|| format!("'{}'", path.display()))?;
     Ok(views)
 }
@@ -337,28 +337,6 @@ fn image_path(dir: &Path, name: &str) -> Result<PathBuf> {
         }
     }
     bail!("file_path '{name}': no '{}.exr' or '.png'", path.display())
-}
-
-/// An error if two frames name one image: a picture listed twice would weigh twice in the fit,
-/// and is more likely a mistake in the export than a wish. `what` names a frame (by its index).
-fn refuse_repeated_images(
-    views: &[CapturedView],
-    what: impl Fn(usize) -> String,
-) -> anyhow::Result<()> {
-    let mut seen = std::collections::HashMap::new();
-    for (i, view) in views.iter().enumerate() {
-        let Some(image) = &view.image else { continue };
-        let key = image.canonicalize().unwrap_or_else(|_| image.clone());
-        if let Some(first) = seen.insert(key, i) {
-            anyhow::bail!(
-                "{} and {} name the same image '{}': list each picture once",
-                what(first),
-                what(i),
-                image.display()
-            );
-        }
-    }
-    Ok(())
 }
 
 /// The camera-to-world matrix, rows of 4, of a camera at `position` looking at `target` with `up`
