@@ -402,3 +402,49 @@ fn an_unknown_exposure_is_fitted_from_pictures_with_alpha() {
     // Seen 1.292; with the sky behind the medium left at the scene's brightness, 1.243.
     assert!((fitted - 1.3).abs() < 0.03, "{fitted}");
 }
+
+/// The exposure's gradient is the loss's derivative in its log-factor x (k = eˣ). With the render
+/// held (one iteration's seeds) the loss is quadratic in k, so a central difference in k gives
+/// it to rounding. Pictures with alpha over a bright sky: the target's composited background
+/// moves with k too (T(k) = P + k·(1 − α)·B), and the gradient must carry that term.
+#[test]
+fn the_exposure_gradient_is_the_derivative_of_the_loss() {
+    use volgrad::gradient::adjoint::Estimator;
+    use volgrad::optimize::iteration::images_gradient;
+    let dir = fixture(&run_file("0.2", "alpha_weight = 1"));
+    let d = dir.path();
+    let bright_sky = SCENE.replace(
+        "radiance = [0.03, 0.04, 0.06]",
+        "radiance = [0.8, 1.0, 1.2]",
+    );
+    std::fs::write(d.join("scene.toml"), bright_sky).unwrap();
+    write_pictures(d, 1.3, "alpha_weight = 1");
+    let cluster = Cluster::single();
+    let problem = Problem::load(&d.join("images.toml"), None, false, None, &cluster).unwrap();
+    assert!(problem.views.iter().all(|v| v.background.is_some()));
+    let mut scene = problem.scene_at(problem.start.to_brickmap(), 0);
+    let level_box = problem.domain.voxel_box(0);
+    let mut at = |k: f32| {
+        images_gradient(
+            &problem,
+            &cluster,
+            &mut scene,
+            Estimator::Joint,
+            3,
+            &[k],
+            level_box,
+        )
+        .unwrap()
+    };
+    let (k, h) = (1.1f32, 0.01f32);
+    let gradient = at(k).exposure_gradients[0];
+    let difference = (at(k + h).loss - at(k - h).loss) / f64::from(2.0 * h);
+    // ∂loss/∂x = k·∂loss/∂k.
+    let expected = f64::from(k) * difference;
+    eprintln!("∂loss/∂x {gradient} against {expected} by differences");
+    assert!(expected.abs() > 1e-3, "{expected}");
+    assert!(
+        (gradient - expected).abs() < 1e-3 * expected.abs(),
+        "{gradient} vs {expected}"
+    );
+}
