@@ -3,7 +3,8 @@
 //! threads. With `VOLGRAD_BASELINE=<a volgrad binary>` (speed's baseline: a build of commit
 //! 5c81ad2) every command also runs through that binary, interleaved with this build's, and the
 //! table gives this build's ratios to it: these machines are shared and noisy, so only ratios
-//! measured in one run mean anything.
+//! measured in one run mean anything. `VOLGRAD_CURRENT=<a volgrad binary>` times that binary in
+//! this build's place (a profile-guided build, `scripts/build-pgo.sh`, against a plain one).
 //!
 //! Variance is measured from two seeds of the same command, E[(A − B)²]/2 per pixel or voxel,
 //! averaged; variance × time compares estimators at equal spp whatever their speed (below 1 is
@@ -176,7 +177,9 @@ fn seconds_per_collision(scene: &Scene) -> f64 {
 
 fn main() {
     let root = PathBuf::from(env!("CARGO_MANIFEST_DIR"));
-    let current = PathBuf::from(env!("CARGO_BIN_EXE_volgrad"));
+    let current = std::env::var("VOLGRAD_CURRENT")
+        .map(PathBuf::from)
+        .unwrap_or_else(|_| PathBuf::from(env!("CARGO_BIN_EXE_volgrad")));
     let baseline = std::env::var("VOLGRAD_BASELINE").ok().map(PathBuf::from);
     let dir = tempfile::tempdir().expect("temp dir");
     let mut binaries = vec![current.as_path()];
