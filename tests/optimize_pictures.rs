@@ -376,20 +376,27 @@ fn alpha_targets_bring_the_volume_nearer_the_truth() {
     assert!(rmse[0] < 0.7 * rmse[1], "{rmse:?}");
 }
 
+/// The fixture with alpha targets and a sky brighter than the lit ball, over most of every
+/// picture.
+fn bright_sky_fixture() -> tempfile::TempDir {
+    let dir = fixture(&run_file("0.2", "alpha_weight = 1"));
+    let scene = SCENE.replace(
+        "radiance = [0.03, 0.04, 0.06]",
+        "radiance = [0.8, 1.0, 1.2]",
+    );
+    std::fs::write(dir.path().join("scene.toml"), scene).unwrap();
+    dir
+}
+
 /// RGBA pictures of a capture 30 % brighter than the lights say: the fitted exposure scales the
 /// sky seen through the medium as it scales the medium's light, so it finds 1.3 from pictures
 /// over a transparent film as from opaque ones.
 #[test]
 fn an_unknown_exposure_is_fitted_from_pictures_with_alpha() {
-    let dir = fixture(&run_file("0.2", "alpha_weight = 1"));
+    // Were the sky left at the scene's brightness behind the medium, it would hold the exposure
+    // near 1.
+    let dir = bright_sky_fixture();
     let d = dir.path();
-    // A sky brighter than the lit ball, over most of every picture: were it left at the scene's
-    // brightness behind the medium, it would hold the exposure near 1.
-    let scene = SCENE.replace(
-        "radiance = [0.03, 0.04, 0.06]",
-        "radiance = [0.8, 1.0, 1.2]",
-    );
-    std::fs::write(d.join("scene.toml"), scene).unwrap();
     write_pictures(d, 1.3, "iterations = 60\nfit_exposure = true");
     ok(volgrad_in(
         d,
@@ -411,13 +418,8 @@ fn an_unknown_exposure_is_fitted_from_pictures_with_alpha() {
 fn the_exposure_gradient_is_the_derivative_of_the_loss() {
     use volgrad::gradient::adjoint::Estimator;
     use volgrad::optimize::iteration::images_gradient;
-    let dir = fixture(&run_file("0.2", "alpha_weight = 1"));
+    let dir = bright_sky_fixture();
     let d = dir.path();
-    let bright_sky = SCENE.replace(
-        "radiance = [0.03, 0.04, 0.06]",
-        "radiance = [0.8, 1.0, 1.2]",
-    );
-    std::fs::write(d.join("scene.toml"), bright_sky).unwrap();
     write_pictures(d, 1.3, "alpha_weight = 1");
     let cluster = Cluster::single();
     let problem = Problem::load(&d.join("images.toml"), None, false, None, &cluster).unwrap();
