@@ -393,8 +393,8 @@ fn bright_sky_fixture() -> tempfile::TempDir {
 /// over a transparent film as from opaque ones.
 #[test]
 fn an_unknown_exposure_is_fitted_from_pictures_with_alpha() {
-    // Were the sky left at the scene's brightness behind the medium, it would hold the exposure
-    // near 1.
+    // The fixture's bright sky: were it left at the scene's brightness behind the medium, it
+    // would hold the exposure near 1.
     let dir = bright_sky_fixture();
     let d = dir.path();
     write_pictures(d, 1.3, "iterations = 60\nfit_exposure = true");
@@ -411,9 +411,12 @@ fn an_unknown_exposure_is_fitted_from_pictures_with_alpha() {
 }
 
 /// The exposure's gradient is the loss's derivative in its log-factor x (k = eˣ). With the render
-/// held (one iteration's seeds) the loss is quadratic in k, so a central difference in k gives
-/// it to rounding. Pictures with alpha over a bright sky: the target's composited background
-/// moves with k too (T(k) = P + k·(1 − α)·B), and the gradient must carry that term.
+/// held (one iteration's seeds) the fixture's L2 loss is quadratic in k (alpha's loss does not
+/// depend on k), so a central difference in k gives it to rounding. Pictures with alpha over a
+/// bright sky: the target's composited background moves with k too (T(k) = P + k·(1 − α)·B), and
+/// the gradient must carry that term. The exposure is not fitted here, so the gradient comes
+/// from one render; a fitted exposure's pairs two halves of it, by design not the derivative
+/// of either half's loss (`piece_adjoint`).
 #[test]
 fn the_exposure_gradient_is_the_derivative_of_the_loss() {
     use volgrad::gradient::adjoint::Estimator;
@@ -440,7 +443,8 @@ fn the_exposure_gradient_is_the_derivative_of_the_loss() {
     };
     let (k, h) = (1.1f32, 0.01f32);
     let gradient = at(k).exposure_gradients[0];
-    let difference = (at(k + h).loss - at(k - h).loss) / f64::from(2.0 * h);
+    let step = f64::from(k + h) - f64::from(k - h);
+    let difference = (at(k + h).loss - at(k - h).loss) / step;
     // ∂loss/∂x = k·∂loss/∂k.
     let expected = f64::from(k) * difference;
     eprintln!("∂loss/∂x {gradient} against {expected} by differences");

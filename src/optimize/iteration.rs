@@ -50,8 +50,8 @@ pub struct ImagesGradient {
     pub voxels: Vec<(glam::IVec3, f64)>,
     /// The batch's loss.
     pub loss: f64,
-    /// ∂loss/∂x of each capture's exposure log-factor x (`exposure`): Σ δ′·I′ over the batch's
-    /// views of that capture.
+    /// ∂loss/∂x of each capture's exposure log-factor x (`exposure`): Σ δ′·(I′ − k·B) over the
+    /// batch's views of that capture (B: `piece_adjoint`).
     pub exposure_gradients: Vec<f64>,
     pub traffic: Traffic,
 }
@@ -172,7 +172,7 @@ pub fn images_gradient(
 
 /// A piece's share of the batch: its loss, the adjoint image the gradient pass traces (k·δ′,
 /// zero where it draws no pixel), its primal paths' lookups per path and its part of ∂loss/∂x
-/// (Σ δ′·I′).
+/// (Σ δ′·(I′ − k·B)).
 struct PieceAdjoint {
     loss: f64,
     delta: Vec<Vec3>,
