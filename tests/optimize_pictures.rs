@@ -384,6 +384,7 @@ fn bright_sky_fixture() -> tempfile::TempDir {
         "radiance = [0.03, 0.04, 0.06]",
         "radiance = [0.8, 1.0, 1.2]",
     );
+    assert_ne!(scene, SCENE, "the fixture's sky is where this expects it");
     std::fs::write(dir.path().join("scene.toml"), scene).unwrap();
     dir
 }

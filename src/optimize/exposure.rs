@@ -7,8 +7,8 @@
 //! ∂loss/∂θ = Σ δ′·k·∂I/∂θ (the gradient pass runs on k·δ′), and ∂loss/∂x = Σ δ′·(I′ − k·B)
 //! over the batch's pixels and channels, B the background a picture with alpha was composited
 //! over (the target's part that scales with k too; 0 for opaque pictures): one dot product per
-//! iteration, no extra paths. x steps by Adam in
-//! log units, so that a factor of 1.3 is as far from 1 as one of 1/1.3.
+//! iteration, no extra paths. x steps by Adam in log units, so that a factor of 1.3 is as far
+//! from 1 as one of 1/1.3.
 
 use crate::optimize::adam::{Adam, AdamStep, ScalarMoments};
 
