@@ -508,19 +508,10 @@ fn bad_gradient_inputs_give_clear_errors() {
         ),
         ("--fd", "voxels:3,3,3;500,0,0", "is not a parameter"),
     ] {
-        let mut args = vec![
-            "grad",
-            s(&scene),
-            flag,
-            spec,
-            "-o",
-            s(&out),
-            "-q",
-            "--spp",
-            "1",
-        ];
-        if flag == "--fd" {
-            args.extend(["--estimator", "fd"]);
+        let mut args = vec!["grad", s(&scene), flag, spec, "-q"];
+        match flag {
+            "--fd" => args.extend(["--estimator", "fd"]),
+            _ => args.extend(["-o", s(&out), "--spp", "1"]),
         }
         assert_clean_error(&volgrad(&args), &[flag.trim_start_matches('-'), needle]);
     }

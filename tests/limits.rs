@@ -86,6 +86,23 @@ fn an_unknown_box_whose_voxel_count_overflows_is_refused() {
     );
 }
 
+/// Voxels smaller than a VDB transform can hold (OpenVDB calls it nearly singular below about
+/// 1e-5): refused before anything runs, not by the first checkpoint's write after the targets.
+#[test]
+fn voxels_too_small_to_write_are_refused() {
+    let run = run_file("0.1", "iterations = 1").replace(
+        "bounds = \"truth\"",
+        "bounds = { min = [0, 0, 0], max = [1e-5, 1e-5, 1e-5] }\nvoxel_size = 1e-6",
+    );
+    let dir = fixture(&run);
+    let cached = ["optimize", "run.toml", "--target-cache", "cache", "-q"];
+    let o = volgrad_in(dir.path(), &cached);
+    assert_clean_error(&o, &["unknown.voxel_size", "1e-4"]);
+    assert!(!dir.path().join("cache").exists(), "targets were rendered");
+    let grid = ["make-grid", "box", "--voxel-size", "1e-5", "-o", "g.vdb"];
+    assert_clean_error(&volgrad_in(dir.path(), &grid), &["--voxel-size", "1e-4"]);
+}
+
 /// Values beyond an extinction of 1e15 per unit (the cap every grid the renderer loads is held
 /// to): a start there is refused before any target is rendered, and steps that would go there (a
 /// learning rate of 1e30, which ran for hours) stop at it.
@@ -240,6 +257,35 @@ fn flags_that_would_be_ignored_or_replaced_are_refused() {
         &["--loss mean", "no target"],
     );
     assert_clean_error(&grad(&["--fd", "ones"]), &["--fd", "--estimator fd"]);
+    // Each method's own flags with the other: finite differences write no file and take their
+    // samples from --fd-spp; the path estimators take no step.
+    let fd = |extra: &[&str]| {
+        let args = [
+            "grad",
+            "scene.toml",
+            "--estimator",
+            "fd",
+            "--fd",
+            "ones",
+            "-q",
+        ];
+        volgrad_in(d, &[&args[..], extra].concat())
+    };
+    for extra in [
+        &["-o", "g.vdb"][..],
+        &["--spp", "4"],
+        &["--stats"],
+        &["--image-of", "all"],
+        &["--suffix-paths", "3"],
+    ] {
+        assert_clean_error(&fd(extra), &[extra[0], "path estimators", "--fd-spp"]);
+    }
+    assert_clean_error(&grad(&["--fd-spp", "4"]), &["--fd-spp", "--estimator fd"]);
+    assert_clean_error(&grad(&["--repeats", "2"]), &["--repeats", "joint"]);
+    assert_clean_error(
+        &grad(&["--target-spp", "4"]),
+        &["--target-spp", "--target-scene"],
+    );
     let check = [
         "gradcheck",
         "scene.toml",
@@ -262,10 +308,7 @@ fn flags_that_would_be_ignored_or_replaced_are_refused() {
         "-q",
     ];
     assert_clean_error(&volgrad_in(d, &check), &["--eps", "f32 resolves"]);
-    assert_clean_error(
-        &grad(&["--estimator", "fd", "--fd", "ones", "--eps", "1e-45"]),
-        &["--eps"],
-    );
+    assert_clean_error(&fd(&["--eps", "1e-45"]), &["--eps"]);
     for thickness in ["0", "1000"] {
         let slab = [
             "make-grid",

@@ -231,7 +231,34 @@ fn bad_run_files_name_the_key() {
         ),
         (
             good.replace("batch = 3", "batch = 3\nalpha_weight = -1"),
-            vec!["optimizer.alpha_weight", "≥ 0"],
+            vec!["optimizer.alpha_weight", "from 0"],
+        ),
+        // Past it the squared gradients overflow: the run emptied its grid without a word.
+        (
+            good.replace("batch = 3", "batch = 3\nalpha_weight = 1e22"),
+            vec!["optimizer.alpha_weight", "1e6"],
+        ),
+        // 2 × spp, the default primal_spp, wrapped to 0.
+        (
+            good.replace("\nspp = 1\n", "\nspp = 2147483648\n"),
+            vec!["optimizer.spp", "more than"],
+        ),
+        // One of the two was dropped without a word.
+        (
+            good.replace("lr = 0.1", "lr = 0.1\nstep_optical_depth = 0.5"),
+            vec!["step_optical_depth", "lr", "give one"],
+        ),
+        // NaN cameras, scored as a perfect match.
+        (
+            good.replace("azimuth_offset_deg = 60", "azimuth_offset_deg = nan"),
+            vec!["holdouts.orbit", "azimuth_offset_deg", "finite"],
+        ),
+        // A scene file where a run file belongs: said so, not "unknown field `camera`".
+        (SCENE.to_string(), vec!["is a scene file", "volgrad render"]),
+        // Read as "the scene's lights", which leaving the key out already says.
+        (
+            good.replace("[views.orbit]\n", "[views.orbit]\nlight = []\n"),
+            vec!["light = []", "leave `light` out"],
         ),
         (
             good.replace(

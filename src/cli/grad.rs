@@ -9,11 +9,11 @@ use clap::ValueEnum;
 use glam::IVec3;
 
 use super::values::{self, FdDirection, IndexBox};
-use super::{report_non_finite, set_threads, AdjointArgs, Domain, FdArgs};
+use super::{report_non_finite, set_threads, AdjointArgs, Domain, FdArgs, FD_REPEATS, FD_SPP};
 use volgrad::cluster::images::render_shared;
 use volgrad::cluster::passes::{adjoint_shared, gradient_shared};
 use volgrad::cluster::Cluster;
-use volgrad::gradient::adjoint::Estimator;
+use volgrad::gradient::adjoint::{Estimator, Suffix, DEFAULT_SUFFIX_PATHS};
 use volgrad::gradient::fd;
 use volgrad::gradient::grid::GradientGrid;
 use volgrad::gradient::loss::Loss;
@@ -30,6 +30,9 @@ use volgrad::render::lights::luminance;
 use volgrad::render::scene::Scene;
 use volgrad::render::scene_check;
 use volgrad::volume::transform::IndexTransform;
+
+/// `--target-spp` when not given.
+const TARGET_SPP: u32 = 256;
 
 /// What `grad` computes: an estimator's gradient of every voxel, or finite differences along
 /// directions. The names are the estimators' own, plus `fd`.
@@ -75,7 +78,7 @@ pub struct Args {
     #[arg(long)]
     pub target_scene: Option<PathBuf>,
     /// Samples per pixel of the --target-scene render.
-    #[arg(long, default_value_t = 256, value_parser = clap::value_parser!(u32).range(1..))]
+    #[arg(long, default_value_t = TARGET_SPP, value_parser = clap::value_parser!(u32).range(1..))]
     pub target_spp: u32,
     /// Output gradient VDB (a picture of it goes beside it as .png). Default: <scene>.grad.vdb.
     #[arg(short, long)]
@@ -214,7 +217,38 @@ fn check_flags(args: &Args, ranks: usize, vdb_out: &Path) -> Result<()> {
     if !args.loss.needs_target() && (args.target.is_some() || args.target_scene.is_some()) {
         bail!("--loss {} compares with no target: leave out --target and --target-scene, or choose a loss that compares (l2, l1, relative-l2)", args.loss);
     }
-    if ranks > 1 && (args.estimator == Method::FiniteDifferences || args.image_of.is_some()) {
+    let fd = args.estimator == Method::FiniteDifferences;
+    // Flags the chosen method would ignore without a word.
+    let (a, f) = (&args.adjoint, &args.fd_args);
+    let ignored: Vec<&str> = if fd {
+        vec![
+            ("--output", args.output.is_some()),
+            ("--image-of", args.image_of.is_some()),
+            ("--stats", args.stats),
+            ("--spp", a.sampling.spp.is_some()),
+            ("--suffix", a.suffix != Suffix::PerPath),
+            ("--suffix-paths", a.suffix_paths != DEFAULT_SUFFIX_PATHS),
+        ]
+    } else {
+        vec![
+            ("--eps", f.eps.is_some()),
+            ("--fd-spp", f.fd_spp != FD_SPP),
+            ("--repeats", f.repeats != FD_REPEATS),
+        ]
+    }
+    .into_iter()
+    .filter_map(|(flag, given)| given.then_some(flag))
+    .collect();
+    if let Some(flag) = ignored.first() {
+        match fd {
+            true => bail!("{flag} is for the path estimators: --estimator fd prints a table of finite differences (--fd-spp samples, --repeats times) and writes no file"),
+            false => bail!("{flag} is for --estimator fd; leave it out with --estimator {}", args.estimator.to_possible_value().map_or(String::new(), |v| v.get_name().to_string())),
+        }
+    }
+    if args.target_scene.is_none() && args.target_spp != TARGET_SPP {
+        bail!("--target-spp is the samples of the --target-scene render: give --target-scene, or leave it out");
+    }
+    if ranks > 1 && (fd || args.image_of.is_some()) {
         bail!("grad --estimator fd and --image-of run as one process: start them without mpirun");
     }
     Ok(())

@@ -134,12 +134,16 @@ pub struct FdArgs {
     #[arg(long)]
     pub eps: Option<f32>,
     /// Samples per pixel of each finite-difference render.
-    #[arg(long, default_value_t = 256)]
+    #[arg(long, default_value_t = FD_SPP)]
     pub fd_spp: u32,
     /// Independent finite-difference repetitions, for the standard error.
-    #[arg(long, default_value_t = 8)]
+    #[arg(long, default_value_t = FD_REPEATS)]
     pub repeats: u32,
 }
+
+/// `--fd-spp` and `--repeats` when not given.
+pub const FD_SPP: u32 = 256;
+pub const FD_REPEATS: u32 = 8;
 
 impl FdArgs {
     /// The options of steps in `perturbed`, the grid whose values they change (the density, or

@@ -80,9 +80,9 @@ pub fn equal_time(scene: &Scene, name: &str, out: &Path, o: &EqualTimeOptions) -
     let names: Vec<String> = o.estimators.iter().map(|e| e.to_string()).collect();
     let names: Vec<&str> = names.iter().map(String::as_str).collect();
     let mut summary = format!(
-        "### `volgrad compare {}`\n\nBudget {:.0} s per estimator; reference: {} runs × {} spp (joint and drt alternating); {} threads.\n\n#### Reference against finite differences\n\n{check_table}\n",
+        "### `volgrad compare {}`\n\nBudget {} s per estimator; reference: {} runs × {} spp (joint and drt alternating); {} threads.\n\n#### Reference against finite differences\n\n{check_table}\n",
         scene.path.display(),
-        o.budget.as_secs_f64(),
+        o.budget.as_secs_f64(), // as given: 0.2 s, not "0"
         reference.runs,
         reference.spp_per_run,
         rayon::current_num_threads()

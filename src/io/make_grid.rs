@@ -5,6 +5,7 @@ use glam::{DMat3, DVec3, IVec3};
 use crate::io::vdb::{meta, Grid};
 use crate::volume::brickmap::{BrickMap, BrickMapBuilder};
 use crate::volume::transform::IndexTransform;
+use crate::volume::transform::MIN_VOXEL_SIZE;
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
 pub enum GridKind {
@@ -80,8 +81,11 @@ pub fn make_grid(spec: &GridSpec) -> anyhow::Result<Grid> {
     if !(spec.value.is_finite() && spec.value >= 0.0) {
         anyhow::bail!("--value must be a finite number ≥ 0 (got {})", spec.value);
     }
-    if spec.voxel_size.iter().any(|&s| !(s > 0.0 && s.is_finite())) {
-        anyhow::bail!("--voxel-size must be positive (got {:?})", spec.voxel_size);
+    if (spec.voxel_size.iter()).any(|&s| !(s >= f64::from(MIN_VOXEL_SIZE) && s.is_finite())) {
+        anyhow::bail!(
+            "--voxel-size must be from {MIN_VOXEL_SIZE:e} up (got {:?})",
+            spec.voxel_size
+        );
     }
     if spec.class == Class::Levelset {
         if spec.kind != GridKind::Sphere {

@@ -277,7 +277,7 @@ pub fn read_state(path: &Path, fingerprint: &str) -> Result<(Position, Parameter
     let stored = read_text(&mut r, size).with_context(context)?;
     if stored != fingerprint {
         bail!(
-            "'{}' belongs to another run: the run file, its scene or its targets changed since this checkpoint (fingerprint {stored}, now {fingerprint})",
+            "'{}' belongs to another run: the run file, its scene, its targets, --seed or --estimator differ from the checkpoint's, or another version of volgrad wrote it (fingerprint {stored}, now {fingerprint})",
             path.display()
         );
     }

@@ -21,10 +21,12 @@ pub const BATCH_PIXELS: u32 = 32_768;
 #[serde(deny_unknown_fields, default)]
 pub struct OptimizerFile {
     /// The learning rate as the optical depth along the unknown box's longest edge that one
-    /// Adam step may change (each voxel moves by about lr = τ·u in grid values).
-    pub step_optical_depth: f32,
+    /// Adam step may change (each voxel moves by about lr = τ·u in grid values; default
+    /// `STEP_OPTICAL_DEPTH`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub step_optical_depth: Option<f32>,
     /// The learning rate in grid values, instead of `step_optical_depth` (settings.toml writes
-    /// the one a run used).
+    /// the one a run used, as `lr`).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub lr: Option<f32>,
     pub beta1: f32,
@@ -104,7 +106,7 @@ impl Default for OptimizerFile {
             scale,
         };
         OptimizerFile {
-            step_optical_depth: scene_units::STEP_OPTICAL_DEPTH,
+            step_optical_depth: None,
             lr: None,
             beta1: 0.9,
             beta2: 0.999,
@@ -164,6 +166,15 @@ pub const MAX_SUFFIX_PATHS: u32 = 64;
 /// The most pixels one iteration may draw (2²⁴: 512 times the sample-matching paper's 32,768).
 pub const MAX_BATCH_PIXELS: u32 = 1 << 24;
 
+/// The most samples per pixel of an iteration's passes (`spp`, `primal_spp`): 2²⁰, far past any
+/// use, so that the default primal_spp = 2 × spp cannot wrap.
+pub const MAX_SPP: u32 = 1 << 20;
+
+/// The largest `alpha_weight`: alpha counting as a million colour channels is colour not fitted
+/// at all, and far beyond it the loss's squared gradients overflow f32 (at 10²² a run empties its
+/// grid without a word).
+pub const MAX_ALPHA_WEIGHT: f32 = 1e6;
+
 #[derive(Debug, Clone, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct PriorFile {
@@ -193,8 +204,11 @@ where
 
 impl OptimizerFile {
     pub fn validate(&self) -> Result<()> {
+        if self.step_optical_depth.is_some() && self.lr.is_some() {
+            bail!("optimizer.step_optical_depth and optimizer.lr both set the learning rate: give one");
+        }
         for (key, value) in [
-            ("step_optical_depth", Some(self.step_optical_depth)),
+            ("step_optical_depth", self.step_optical_depth),
             ("lr", self.lr),
         ] {
             match value {
@@ -245,8 +259,13 @@ impl OptimizerFile {
                 self.average_from
             );
         }
-        if let Some(w) = self.alpha_weight.filter(|w| !(*w >= 0.0 && w.is_finite())) {
-            bail!("optimizer.alpha_weight must be a number ≥ 0 (got {w})");
+        if let Some(w) = self
+            .alpha_weight
+            .filter(|w| !(0.0..=MAX_ALPHA_WEIGHT).contains(w))
+        {
+            bail!(
+                "optimizer.alpha_weight must be a number from 0 to {MAX_ALPHA_WEIGHT:e} (got {w})"
+            );
         }
         if self.loss == Loss::Mean {
             bail!("optimizer.loss must compare against the targets: l2, l1 or relative-l2");
@@ -269,6 +288,14 @@ impl OptimizerFile {
         ] {
             if n == 0 {
                 bail!("optimizer.{key} must be at least 1");
+            }
+        }
+        for (key, n) in [
+            ("spp", self.spp),
+            ("primal_spp", self.primal_spp.unwrap_or(1)),
+        ] {
+            if n > MAX_SPP {
+                bail!("optimizer.{key} is {n}, more than {MAX_SPP} samples per pixel");
             }
         }
         if self.suffix_paths > MAX_SUFFIX_PATHS {
@@ -305,7 +332,9 @@ impl OptimizerFile {
     /// across the views, so that an iteration costs the same on 64² views and on 800² ones.
     /// `view_pixels` are the training views' sizes.
     pub fn resolve(&mut self, units: &SceneUnits, view_pixels: &[u64]) {
-        self.lr = Some(self.lr.unwrap_or(units.theta(self.step_optical_depth)));
+        // settings.toml gives the learning rate as `lr` alone: with both, it would not load.
+        self.lr = Some(self.learning_rate(units));
+        self.step_optical_depth = None;
         if self.batch.is_none() && self.batch_pixels.is_none() {
             let views = view_pixels.len().min(8);
             // The largest views: what a batch of whole views may cost.
@@ -344,10 +373,18 @@ impl OptimizerFile {
         Ok(())
     }
 
+    /// The learning rate in grid values: `lr`, or `step_optical_depth` along the box.
+    fn learning_rate(&self, units: &SceneUnits) -> f32 {
+        let step = self
+            .step_optical_depth
+            .unwrap_or(scene_units::STEP_OPTICAL_DEPTH);
+        self.lr.unwrap_or_else(|| units.theta(step))
+    }
+
     /// Adam's settings once `resolve` has run.
     pub fn adam(&self, units: &SceneUnits) -> Adam {
         Adam {
-            lr: self.lr.unwrap_or(units.theta(self.step_optical_depth)),
+            lr: self.learning_rate(units),
             beta1: self.beta1,
             beta2: self.beta2,
             epsilon: self.epsilon,

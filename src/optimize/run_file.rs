@@ -16,6 +16,7 @@ use crate::optimize::view_files::{
     check_sizes, check_view_lights, one_set, view_sets, view_tables, ViewFile, ViewSetFile,
 };
 use crate::render::scene_file::{table_or_value, TableOr};
+use crate::volume::transform::MIN_VOXEL_SIZE;
 
 #[derive(Debug, Clone, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
@@ -147,6 +148,11 @@ pub enum UnknownGrid {
     Emission,
 }
 
+/// A voxel size a grid can be written with.
+fn voxel_size_ok(v: f32) -> bool {
+    v >= MIN_VOXEL_SIZE && v.is_finite()
+}
+
 fn default_moments() -> Moments {
     Moments::Resample
 }
@@ -188,8 +194,17 @@ impl RunFile {
     pub fn read(path: &Path) -> Result<RunFile> {
         let text = crate::io::input::read_text(path)
             .with_context(|| format!("cannot read run file '{}'", path.display()))?;
-        let file: RunFile = toml::from_str(&text)
-            .map_err(|e| anyhow::anyhow!("{}: {}", path.display(), e.to_string().trim_end()))?;
+        let file: RunFile = toml::from_str(&text).map_err(|e| {
+            // A scene file is what a run file names (the reverse of `SceneFile::parse`'s hint).
+            let table = toml::from_str::<toml::Table>(&text).ok();
+            match table.is_some_and(|t| t.contains_key("medium") && !t.contains_key("scene")) {
+                true => anyhow::anyhow!(
+                    "{} is a scene file (it has a [medium]), not a run file: give it to `volgrad render`, or name it as a run file's `scene`",
+                    path.display()
+                ),
+                false => anyhow::anyhow!("{}: {}", path.display(), e.to_string().trim_end()),
+            }
+        })?;
         file.validate()
             .with_context(|| format!("invalid run file '{}'", path.display()))?;
         Ok(file)
@@ -255,8 +270,8 @@ impl UnknownFile {
                 }
             }
             BoundsFile::Named(name) if name == "views" => {
-                if let Some(v) = self.voxel_size.filter(|v| !(*v > 0.0 && v.is_finite())) {
-                    bail!("unknown.voxel_size must be a positive number (got {v})");
+                if let Some(v) = self.voxel_size.filter(|v| !voxel_size_ok(*v)) {
+                    bail!("unknown.voxel_size must be a number from {MIN_VOXEL_SIZE:e} up (got {v})");
                 }
             }
             BoundsFile::Named(name) => bail!(
@@ -267,8 +282,8 @@ impl UnknownFile {
                     bail!("unknown.bounds: min must be below max on every axis (got {min:?}, {max:?})");
                 }
                 match self.voxel_size {
-                    Some(v) if v > 0.0 && v.is_finite() => {}
-                    Some(v) => bail!("unknown.voxel_size must be a positive number (got {v})"),
+                    Some(v) if voxel_size_ok(v) => {}
+                    Some(v) => bail!("unknown.voxel_size must be a number from {MIN_VOXEL_SIZE:e} up (got {v})"),
                     None => bail!("unknown.voxel_size: a world box needs the final voxel size"),
                 }
             }

@@ -38,7 +38,11 @@ pub struct ViewFile {
     pub image: Option<String>,
     /// The lights this view was taken under, as a scene file's `[[light]]`s (default: the
     /// scene's).
-    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    #[serde(
+        default,
+        deserialize_with = "listed_lights",
+        skip_serializing_if = "Vec::is_empty"
+    )]
     pub light: Vec<LightFile>,
 }
 
@@ -57,7 +61,11 @@ pub struct ViewSetFile {
     #[serde(skip_serializing_if = "Option::is_none")]
     pub colmap: Option<ColmapFile>,
     /// The lights of the transforms file's and COLMAP model's views (default: the scene's).
-    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    #[serde(
+        default,
+        deserialize_with = "listed_lights",
+        skip_serializing_if = "Vec::is_empty"
+    )]
     pub light: Vec<LightFile>,
     /// How the set's images (listed and the transforms file's) decode to radiance: "srgb" or
     /// "linear" (default: as each file declares, else sRGB for 8/16-bit and linear for float).
@@ -113,7 +121,11 @@ pub struct OrbitFile {
     )]
     pub up: [f32; 3],
     /// The lights of these views, as a scene file's `[[light]]`s (default: the scene's).
-    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    #[serde(
+        default,
+        deserialize_with = "listed_lights",
+        skip_serializing_if = "Vec::is_empty"
+    )]
     pub light: Vec<LightFile>,
 }
 
@@ -199,6 +211,19 @@ pub fn target_pixels(pixels: u64) -> Result<()> {
         );
     }
     Ok(())
+}
+
+/// A view's or set's `light` list as written. Leaving the key out means the scene's lights, so an
+/// empty list would silently mean them too, not the darkness it seems to say: it is refused.
+fn listed_lights<'de, D: serde::Deserializer<'de>>(d: D) -> Result<Vec<LightFile>, D::Error> {
+    let lights = Vec::<LightFile>::deserialize(d)?;
+    if lights.is_empty() {
+        return Err(serde::de::Error::custom(
+            "light = [] lists no light: leave `light` out for the scene's lights, or give \
+             [{ type = \"constant\", radiance = 0 }] for pictures taken in the dark",
+        ));
+    }
+    Ok(lights)
 }
 
 /// Every view's and orbit's own lights, as a scene file's are checked.

@@ -44,6 +44,12 @@ impl Orbit {
         if lo.abs().max(hi.abs()) > MAX_ELEVATION_DEG {
             bail!("views.orbit.elevation_deg must lie within ±{MAX_ELEVATION_DEG}° (got [{lo}, {hi}]): the pole is the cameras' up");
         }
+        if !self.azimuth_offset_deg.is_finite() {
+            bail!(
+                "views.orbit.azimuth_offset_deg must be a finite number of degrees (got {})",
+                self.azimuth_offset_deg
+            );
+        }
         let up = unit("views.orbit.up", self.up)?;
         // The spiral is laid out about +y, then turned onto `up` (exactly the identity for +y).
         let to_up = Quat::from_rotation_arc(Vec3::Y, up);

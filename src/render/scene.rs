@@ -169,7 +169,8 @@ fn density_grid(file: &SceneFile, vdb_path: &Path) -> Result<vdb::Grid> {
         (None, Some(i)) => GridSelector::Index(i),
         (None, None) => GridSelector::Default,
     };
-    let grid = vdb::read_density(vdb_path, &selector, file.medium.levelset)?;
+    let grid =
+        vdb::read_density(vdb_path, &selector, file.medium.levelset).context("medium.vdb")?;
     if grid.bricks.min_value() < 0.0 {
         bail!(
             "grid '{}' in '{}' has negative values (min {}): extinction must be ≥ 0 (signed distances must be stored as class \"level set\" to be converted)",

@@ -104,8 +104,10 @@ pub fn calibrated_camera(
     height: u32,
 ) -> Result<Camera> {
     if !position.is_finite() || position.abs().max_element() > f64::from(MAX_COORDINATE) {
+        // Debug, not Display: 1e300 as "1e300", not as 301 digits.
         bail!(
-            "the camera's position {position} must be finite and within ±{MAX_COORDINATE:e} of the origin in each coordinate"
+            "the camera's position {:?} must be finite and within ±{MAX_COORDINATE:e} of the origin in each coordinate",
+            position.to_array()
         );
     }
     if !(forward.is_finite() && up.is_finite()) || forward == DVec3::ZERO || up == DVec3::ZERO {

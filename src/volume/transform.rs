@@ -7,6 +7,11 @@
 
 use glam::{DAffine3, DMat3, DVec3, Vec3};
 
+/// The smallest voxel a grid may have, in world units. OpenVDB will not write a transform whose
+/// determinant (a voxel's volume) is within 10⁻¹⁵ of 0 ("nearly singular"), so a grid of voxels
+/// under 10⁻⁵ could be made and computed with but never saved; 10⁻⁴ leaves a margin.
+pub const MIN_VOXEL_SIZE: f32 = 1e-4;
+
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct IndexTransform {
     index_to_world: DAffine3,
