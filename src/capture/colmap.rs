@@ -131,7 +131,7 @@ fn sensor(line: &str) -> Result<Sensor> {
             bail!("{model} with {} parameters: too few", params.len())
         }
         _ => bail!(
-            "camera model {model} is not a pinhole: volgrad reads SIMPLE_PINHOLE, PINHOLE, and SIMPLE_RADIAL, RADIAL, OPENCV, FULL_OPENCV with zero distortion (undistort with `colmap image_undistorter`)"
+            "camera model {model} is not one volgrad reads: it reads COLMAP's SIMPLE_PINHOLE and PINHOLE, and SIMPLE_RADIAL, RADIAL, OPENCV, FULL_OPENCV with zero distortion, as COLMAP writes them, in capitals (undistort other models with `colmap image_undistorter`)"
         ),
     };
     if params.len() != expected {

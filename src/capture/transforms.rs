@@ -330,13 +330,15 @@ fn image_path(dir: &Path, name: &str) -> Result<PathBuf> {
     if path.extension().is_some() {
         return Ok(path);
     }
-    for ext in ["exr", "png"] {
-        let with = path.with_extension(ext);
-        if with.is_file() {
-            return Ok(with);
-        }
+    let tried = ["exr", "png"].map(|ext| path.with_extension(ext));
+    if let Some(found) = tried.iter().find(|p| p.is_file()) {
+        return Ok(found.clone());
     }
-    bail!("file_path '{name}': no '{}.exr' or '.png'", path.display())
+    bail!(
+        "file_path '{name}' has no extension, and neither '{}' nor '{}' is a file",
+        tried[0].display(),
+        tried[1].display()
+    )
 }
 
 /// The camera-to-world matrix, rows of 4, of a camera at `position` looking at `target` with `up`

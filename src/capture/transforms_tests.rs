@@ -195,3 +195,23 @@ fn two_frames_of_one_image_are_refused() {
         "{error}"
     );
 }
+
+/// A file_path without an extension is looked for as .exr, then .png; when neither is there the
+/// error names both files it looked for.
+#[test]
+fn an_image_without_an_extension_is_looked_for_as_exr_then_png() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    std::fs::write(d.join("b.png"), b"").unwrap();
+    std::fs::write(d.join("b.exr"), b"").unwrap();
+    assert_eq!(image_path(d, "b").unwrap(), d.join("b.exr"));
+    std::fs::remove_file(d.join("b.exr")).unwrap();
+    assert_eq!(image_path(d, "b").unwrap(), d.join("b.png"));
+    assert_eq!(image_path(d, "c.jpg").unwrap(), d.join("c.jpg"));
+    let error = image_path(d, "a").unwrap_err().to_string();
+    assert!(error.contains("'a' has no extension"), "{error}");
+    assert!(
+        error.contains("a.exr") && error.contains("a.png"),
+        "{error}"
+    );
+}
