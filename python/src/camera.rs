@@ -46,6 +46,14 @@ impl Camera {
                 "the focal length is either fov_deg or fx/fy (in pixels), not both",
             ));
         }
+        // A focal length given alone stands for both (square pixels): name the one given.
+        for (key, focal) in [("fx", fx), ("fy", fy)] {
+            if let Some(f) = focal.filter(|f| !(*f > 0.0 && f.is_finite())) {
+                return Err(PyValueError::new_err(format!(
+                    "the focal length {key} must be a finite number of pixels > 0 (got {f})"
+                )));
+            }
+        }
         let fov_deg = fov_deg.unwrap_or(40.0);
         let file = CameraFile {
             position,

@@ -128,12 +128,21 @@ impl Scene {
         let medium = PyDict::new(py);
         medium.set_item("density_scale", density_scale)?;
         medium.set_item("phase_g", phase_g)?;
+        // An array shaped like the density is a grid; a number or a triple, numpy's included
+        // (a 0-d or 1-d array), is the constant albedo a scene file would give.
+        let is_grid = |a: &Bound<'_, PyAny>| -> PyResult<bool> {
+            Ok(a.hasattr("ndim")? && a.getattr("ndim")?.extract::<usize>()? >= 3)
+        };
         let albedo_array = match albedo {
-            Some(a) if a.hasattr("shape")? => Some(arrays::float32_argument::<numpy::IxDyn>(
+            Some(a) if is_grid(a)? => Some(arrays::float32_argument::<numpy::IxDyn>(
                 a,
                 "albedo",
                 "shaped like the density",
             )?),
+            Some(a) if a.hasattr("tolist")? => {
+                medium.set_item("albedo", a.call_method0("tolist")?)?;
+                None
+            }
             Some(a) => {
                 medium.set_item("albedo", a)?;
                 None

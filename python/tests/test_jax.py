@@ -72,3 +72,5 @@ def test_arguments_of_another_type_are_refused_while_tracing():
         render(jnp.asarray(density), 1.7)
     with pytest.raises(ValueError, match="estimator must be"):
         volgrad.jax.renderer(scene, estimator="fast")
+    with pytest.raises(ValueError, match="^spp must be a whole number"):
+        volgrad.jax.renderer(scene, spp=0)

@@ -213,7 +213,9 @@ def bad_calls():
     yield lambda: scene.grad(adjoint, parameter="emission"), ValueError, "no emission"
     yield lambda: volgrad.Camera((0, 0, 0), (0, 0, 0)), ValueError, "camera"
     yield lambda: volgrad.Camera((0, 0, 1), (0, 0, 0), width=0), ValueError, "width"
-    yield lambda: volgrad.Camera((0, 0, 1), (0, 0, 0), fx=-1.0), ValueError, "focal length"
+    yield lambda: volgrad.Camera((0, 0, 1), (0, 0, 0), fx=-1.0), ValueError, "focal length fx"
+    # fy alone stands for both; the error names it, not fx.
+    yield lambda: volgrad.Camera((0, 0, 1), (0, 0, 0), fy=-5.0), ValueError, "focal length fy"
     yield lambda: small_scene(lights=[{"type": "sun"}]), ValueError, "sun"
     yield lambda: small_scene(phase_g=1.5), ValueError, "phase_g"
     yield lambda: small_scene(phase_g=float("nan")), ValueError, "phase_g must be a finite number"
@@ -235,6 +237,11 @@ def bad_calls():
     yield lambda: small_scene(albedo=np.full_like(density, 0.5)).render(albedo=np.full_like(density, 2.0)), ValueError, "albedo: every value"
     yield lambda: scene.render(albedo=density[:3]), ValueError, "albedo"
     yield lambda: volgrad.Camera((0, 0, 1), (0, 0, 0), fov_deg=30, fx=20.0), ValueError, "not both"
+    # An orbit's cameras pass a listed camera's checks: 2³² − 1 of them asked for 300 GB (an abort),
+    # a NaN centre or a distance lost beside the centre put cameras where they see nothing.
+    yield lambda: volgrad.Camera.orbit(2**32 - 1, 4.0), ValueError, "count must be from 1 to 10000"
+    yield lambda: volgrad.Camera.orbit(1, 4.0, centre=(float("nan"), 0, 0)), ValueError, "centre"
+    yield lambda: volgrad.Camera.orbit(1, 1e-3, centre=(1e9, 1e9, 1e9)), ValueError, "distance is too small"
 
 
 def test_numpy_values_stand_for_numbers_in_the_parts():
@@ -243,6 +250,9 @@ def test_numpy_values_stand_for_numbers_in_the_parts():
         {"type": "directional", "direction": np.array([-0.6, -1.0, -0.4]), "irradiance": np.float64(4.0)},
     ]
     np.testing.assert_array_equal(small_scene(lights=lights).render(spp=2, seed=1), small_scene().render(spp=2, seed=1))
+    # The albedo too: a numpy number or triple is the constant a Python one is.
+    for albedo, same in [(np.float64(0.8), 0.8), (np.array([0.8, 0.5, 0.2], np.float32), [0.8, 0.5, 0.2])]:
+        np.testing.assert_array_equal(small_scene(albedo=albedo).render(spp=2, seed=1), small_scene(albedo=same).render(spp=2, seed=1))
 
 
 def test_one_camera_gives_one_image():

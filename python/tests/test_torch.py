@@ -75,8 +75,9 @@ def test_tensors_of_another_type_are_refused_by_name():
     # Settings only the backward pass uses are checked before the render is paid for.
     with pytest.raises(ValueError, match="estimator must be"):
         volgrad.torch.render(density, scene, estimator="fast", seed=1)
-    with pytest.raises(ValueError, match="grad_spp must be at least 1"):
-        volgrad.torch.render(density, scene, spp=2, grad_spp=0, seed=1)
+    for spp, grad_spp, name in [(2, 0, "grad_spp"), (2, 2.5, "grad_spp"), (2, "4", "grad_spp"), (0, None, "spp"), (-1, 2, "spp")]:
+        with pytest.raises(ValueError, match=f"^{name} must be a whole number ≥ 1"):
+            volgrad.torch.render(density, scene, spp=spp, grad_spp=grad_spp, seed=1)
 
 
 def test_the_example_reconstructs_the_ball():

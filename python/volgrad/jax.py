@@ -18,6 +18,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from volgrad import _checks
 from volgrad._volgrad import Camera, Scene
 
 __all__ = ["renderer"]
@@ -57,9 +58,7 @@ def renderer(
         raise ValueError(f'parameter must be "extinction", "albedo" or "emission" (got "{parameter}")')
     if estimator not in ("joint", "drt", "naive"):
         raise ValueError(f'estimator must be "joint", "drt" or "naive" (got "{estimator}")')
-    grad_spp = spp if grad_spp is None else grad_spp
-    if grad_spp is not None and grad_spp < 1:
-        raise ValueError(f"grad_spp must be at least 1 (got {grad_spp})")
+    grad_spp = _checks.samples(spp, grad_spp)
 
     def images(values, seed):
         return scene.render(

@@ -23,6 +23,7 @@ from typing import Optional, Sequence, Union
 import numpy as np
 import torch
 
+from volgrad import _checks
 from volgrad._volgrad import Camera, Scene
 
 __all__ = ["render"]
@@ -108,9 +109,7 @@ def render(
     # Checked here, not when the backward pass first uses them: the render is paid for by then.
     if estimator not in _ESTIMATORS:
         raise ValueError(f'estimator must be "joint", "drt" or "naive" (got "{estimator}")')
-    grad_spp = spp if grad_spp is None else grad_spp
-    if grad_spp is not None and grad_spp < 1:
-        raise ValueError(f"grad_spp must be at least 1 (got {grad_spp})")
+    grad_spp = _checks.samples(spp, grad_spp)
     if seed is None:
         seed = int(torch.randint(0, 2**63 - 1, ()))
     return _Render.apply(

@@ -7,12 +7,9 @@ use serde::{Deserialize, Serialize};
 
 use crate::io::images::ColorSpace;
 use crate::optimize::optimizer_file::one_or_many;
-use crate::optimize::views::Orbit;
+use crate::optimize::views::{Orbit, MAX_VIEWS};
 use crate::render::scene_check::check_lights;
 use crate::render::scene_file::LightFile;
-
-/// The most views in a set (`[[view]]`s and the orbit's, or the held-out ones).
-pub const MAX_VIEWS: u64 = 10_000;
 
 /// The most target pixels of a run, all views together (2^28: 3 GiB of RGB f32).
 pub const MAX_TARGET_PIXELS: u64 = 1 << 28;

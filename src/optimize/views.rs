@@ -3,11 +3,11 @@
 //! every camera about the same share of the band's area (equal steps in sin(elevation), azimuths a
 //! golden angle apart), so no side is seen twice as often as another.
 
-use anyhow::{bail, Result};
+use anyhow::{bail, Context, Result};
 use glam::{Quat, Vec3};
 
 use crate::render::camera::Camera;
-use crate::render::scene_check::{image_size, unit, MAX_COORDINATE};
+use crate::render::scene_check::{coordinates, image_size, unit, view_frame, MAX_COORDINATE};
 
 /// `[views.orbit]` of a run file.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -28,14 +28,22 @@ pub struct Orbit {
 
 /// Elevations this close to the poles would make `up` parallel to the view.
 const MAX_ELEVATION_DEG: f32 = 89.0;
+/// The most views in a set (`[[view]]`s and the orbit's, or the held-out ones), and so in an
+/// orbit: each is a target image held in memory, and an orbit of 2³² − 1 cameras would ask for
+/// 300 GB (an abort, not an error).
+pub const MAX_VIEWS: u64 = 10_000;
 
 impl Orbit {
     /// The cameras, looking at `centre`.
     pub fn cameras(&self, centre: Vec3) -> Result<Vec<Camera>> {
         let (lo, hi) = self.elevation_deg;
-        if self.count == 0 {
-            bail!("views.orbit.count must be at least 1");
+        if !(1..=MAX_VIEWS).contains(&u64::from(self.count)) {
+            bail!(
+                "views.orbit.count must be from 1 to {MAX_VIEWS} (got {})",
+                self.count
+            );
         }
+        coordinates("the orbit's centre", centre.to_array())?;
         if !(lo.is_finite() && hi.is_finite() && lo <= hi) {
             bail!(
                 "views.orbit.elevation_deg must be [low, high] with low ≤ high (got [{lo}, {hi}])"
@@ -73,7 +81,7 @@ impl Orbit {
         )?;
         let golden_angle = std::f32::consts::PI * (3.0 - 5f32.sqrt());
         let (s_lo, s_hi) = (lo.to_radians().sin(), hi.to_radians().sin());
-        Ok((0..self.count)
+        (0..self.count)
             .map(|i| {
                 // Midpoints of `count` equal steps in sin(elevation): equal areas of the band.
                 let s = s_lo + (s_hi - s_lo) * (i as f32 + 0.5) / self.count as f32;
@@ -86,16 +94,22 @@ impl Orbit {
                     elevation.sin(),
                     elevation.cos() * azimuth.cos(),
                 );
-                Camera::new(
-                    centre + self.distance * (to_up * offset),
+                let position = centre + self.distance * (to_up * offset);
+                // As a listed camera is checked: a distance lost beside the centre's coordinates
+                // in f32 would put the camera on its target.
+                coordinates("an orbit camera's position", position.to_array())?;
+                view_frame(position.to_array(), centre.to_array(), up.to_array())
+                    .context("views.orbit.distance is too small beside the centre's coordinates")?;
+                Ok(Camera::new(
+                    position,
                     centre,
                     up,
                     self.fov_deg,
                     self.width,
                     self.height,
-                )
+                ))
             })
-            .collect())
+            .collect()
     }
 }
 

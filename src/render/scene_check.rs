@@ -258,7 +258,8 @@ fn finite3(key: &str, v: [f32; 3]) -> Result<()> {
     }
 }
 
-fn coordinates(key: &str, v: [f32; 3]) -> Result<()> {
+/// Three finite numbers within `MAX_COORDINATE` of the origin.
+pub fn coordinates(key: &str, v: [f32; 3]) -> Result<()> {
     finite3(key, v)?;
     if v.iter().any(|x| x.abs() > MAX_COORDINATE) {
         bail!(
