@@ -33,6 +33,9 @@ pub struct Scene {
     /// Whether the scene has a camera of its own (a scene file's, or `from_parts`' `camera`):
     /// without one, every render and gradient names its cameras.
     pub has_camera: bool,
+    /// How many times `set_density` has replaced the density: an autograd function that rendered
+    /// the scene's own density checks that its backward pass differentiates the same one.
+    pub density_changes: u64,
 }
 
 impl Scene {
@@ -89,6 +92,7 @@ impl Scene {
             scene,
             boxes,
             has_camera: true,
+            density_changes: 0,
         })
     }
 
@@ -224,6 +228,7 @@ impl Scene {
             scene,
             boxes,
             has_camera,
+            density_changes: 0,
         })
     }
 
@@ -263,7 +268,14 @@ impl Scene {
             detached::run(py, None, || this.medium_with(&values, transform, "density"))?;
         this.scene.medium = medium;
         this.boxes.density = place;
+        this.density_changes += 1;
         Ok(())
+    }
+
+    /// How many times `set_density` has replaced the density (for `volgrad.torch`).
+    #[getter]
+    fn _density_changes(&self) -> u64 {
+        self.density_changes
     }
 
     /// The scene file's camera (or the one `from_parts` was given); None without one.

@@ -47,6 +47,13 @@ def test_each_grid_that_wants_a_gradient_gets_its_own():
         expected = scene.grad(weights.numpy(), parameter=parameter, spp=4, seed=9, **arrays)
         np.testing.assert_array_equal(tensor.grad.numpy(), expected)
 
+    # The scene's own density replaced between the render and its backward pass: refused, not a
+    # gradient of another volume.
+    images = volgrad.torch.render(None, scene, albedo=a, spp=2, seed=9)
+    scene.set_density(ball() * 2)
+    with pytest.raises(RuntimeError, match="set_density"):
+        (images * weights).sum().backward()
+
 
 def test_without_a_seed_each_call_draws_one_from_torch():
     """A loop that leaves out seed= gets new noise at every step (not the scene's one seed), and

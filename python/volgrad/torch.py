@@ -55,12 +55,19 @@ class _Render(torch.autograd.Function):
         images = scene.render(cameras, spp=spp, seed=seed, max_depth=max_depth, threads=threads, **grids)
         ctx.save_for_backward(*tensors)
         ctx.settings = (scene, cameras, estimator, grad_spp, seed, max_depth, threads)
+        ctx.density_changes = scene._density_changes
         return torch.from_numpy(images)
 
     @staticmethod
     @torch.autograd.function.once_differentiable
     def backward(ctx, grad_output):
         scene, cameras, estimator, spp, seed, max_depth, threads = ctx.settings
+        if ctx.saved_tensors[0] is None and scene._density_changes != ctx.density_changes:
+            raise RuntimeError(
+                "the scene's density was replaced (set_density) between this render and its backward "
+                "pass, which would differentiate the new one: pass the density as a tensor, or call "
+                "backward before set_density"
+            )
         grids = _grids(ctx.saved_tensors)
         adjoint = _as_array(grad_output, "grad_output")
         # One gradient pass per grid that wants one, each with the same paths.
