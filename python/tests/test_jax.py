@@ -74,3 +74,9 @@ def test_arguments_of_another_type_are_refused_while_tracing():
         volgrad.jax.renderer(scene, estimator="fast")
     with pytest.raises(ValueError, match="^spp must be a whole number"):
         volgrad.jax.renderer(scene, spp=0)
+    # Checked before the callback, whose errors lose their type on the way out of JAX.
+    with pytest.raises(ValueError, match="seed must be ≥ 0"):
+        render(jnp.asarray(density), -1)
+    mixed = [scene.camera, volgrad.Camera((4, 0.5, 0), (0, 0, 0), width=8, height=8)]
+    with pytest.raises(ValueError, match="share a size"):
+        volgrad.jax.renderer(scene, mixed)

@@ -50,6 +50,11 @@ def renderer(
         shape = (first.height, first.width, 3)
     elif cams:
         shape = (len(cams), cams[0].height, cams[0].width, 3)
+        # Errors inside the callback reach the caller as JAX's runtime errors, their type lost:
+        # what can be checked before is checked here and while tracing.
+        sizes = {(c.width, c.height) for c in cams}
+        if len(sizes) > 1:
+            raise ValueError(f"cameras: one call's images share a size (got {sorted(sizes)})")
     else:
         raise ValueError("cameras: the list is empty (give None for the scene's own camera)")
 
@@ -87,6 +92,8 @@ def renderer(
             raise TypeError(f"{grid} must be float32 or float64 (got {values.dtype})")
         if not jnp.issubdtype(jnp.result_type(seed), jnp.integer):
             raise TypeError(f"seed must be an integer (got {jnp.result_type(seed)})")
+        if isinstance(seed, int) and seed < 0:
+            raise ValueError(f"seed must be ≥ 0 (got {seed})")
         return call(images, shape, values.dtype, values, seed)
 
     def forward(values, seed):
