@@ -1,6 +1,6 @@
 //! volgrad's errors as Python exceptions, with the command line's messages: a missing file is
 //! `FileNotFoundError`, another failure to read or write one `OSError`, the rest (bad values, bad
-//! scenes) `ValueError`.
+//! scenes, a file whose contents are not what it should hold) `ValueError`.
 
 use pyo3::exceptions::{PyFileNotFoundError, PyOSError, PyValueError};
 use pyo3::PyErr;
@@ -15,6 +15,8 @@ pub fn to_py(error: anyhow::Error) -> PyErr {
         .map(|e| e.kind());
     match io_kind {
         Some(std::io::ErrorKind::NotFound) => PyFileNotFoundError::new_err(message),
+        // The file was read, and its contents are wrong (a scene file that is not UTF-8).
+        Some(std::io::ErrorKind::InvalidData) => PyValueError::new_err(message),
         Some(_) => PyOSError::new_err(message),
         // The scene and grid readers check a file's existence themselves, with a message that
         // names the key it came from.

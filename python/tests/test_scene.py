@@ -225,6 +225,8 @@ def bad_calls():
     yield lambda: small_scene(camera=None).render(), ValueError, "no camera of its own"
     yield lambda: small_scene(albedo=np.ones((2, 2, 2), np.float32)), ValueError, "albedo has shape"
     yield lambda: volgrad.Scene.load(REPO / "none.toml"), FileNotFoundError, "does not exist"
+    # Read, but not text: its contents are wrong, not the file system.
+    yield lambda: volgrad.Scene.load(REPO / "scenes" / "assets" / "smoke.vdb"), ValueError, "UTF-8"
     yield lambda: small_scene(emission=-ball()), ValueError, "emission: .* negative"
     yield lambda: small_scene(emission=ball()[:4]), ValueError, "emission has shape"
     yield lambda: small_scene(emission=ball(), emission_kind={"radiance": [1e30, 1, 1]}), ValueError, "at most"
