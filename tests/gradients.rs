@@ -14,7 +14,8 @@ use volgrad::gradient::fd::{self, FdOptions};
 use volgrad::gradient::grid::{GradientGrid, Quanta};
 use volgrad::gradient::loss::Loss;
 use volgrad::gradient::passes::{
-    add_gradient_of, derivative_image, gradient, gradient_grid_for, quantum_for, GradOptions,
+    add_gradient_of, derivative_image, gradient, gradient_grid_for, quantum_for, sample_scale,
+    GradOptions, Parameter,
 };
 use volgrad::gradient::pixel_samples::PixelSamples;
 use volgrad::gradient::runs::MeanAndError;
@@ -419,7 +420,8 @@ fn passes_added_into_one_grid_sum_to_their_own_gradients() {
         })
         .collect();
     let spp = 16;
-    let quantum = quantum_for(adjoints.iter().map(|a| &a[..]), spp);
+    let scale = sample_scale(&scene, Parameter::Extinction);
+    let quantum = quantum_for(adjoints.iter().map(|a| (&a[..], scale)), spp);
     let every_pixel = PixelSet::All(pixels);
     let base = options(&scene, Estimator::Joint, spp, 0);
     let mut shared = gradient_grid_for::<Quanta>(&scene, &base);

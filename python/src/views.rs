@@ -11,7 +11,7 @@ use pyo3::prelude::*;
 use volgrad::gradient::adjoint::Estimator;
 use volgrad::gradient::grid::{GradientGrid, Quanta};
 use volgrad::gradient::passes::{
-    add_gradient_of, gradient_grid_for, quantum_for, GradOptions, Parameter,
+    add_gradient_of, gradient_grid_for, quantum_for, sample_scale, GradOptions, Parameter,
 };
 use volgrad::render::camera::Camera as RustCamera;
 use volgrad::render::image::{self as image_loop, RenderOptions};
@@ -296,7 +296,8 @@ pub fn grad(
             non_finite: 0,
         });
     }
-    let quantum = quantum_for(deltas.iter().map(|d| &d[..]), sampling.spp);
+    let scale = sample_scale(scene, parameter);
+    let quantum = quantum_for(deltas.iter().map(|d| (&d[..], scale)), sampling.spp);
     // `volgrad grad`'s defaults: per-path suffixes, radiance.
     let pass = GradOptions {
         parameter,

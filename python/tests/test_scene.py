@@ -257,6 +257,25 @@ def test_numpy_values_stand_for_numbers_in_the_parts():
         np.testing.assert_array_equal(small_scene(albedo=albedo).render(spp=2, seed=1), small_scene(albedo=same).render(spp=2, seed=1))
 
 
+def test_a_gradient_does_not_depend_on_the_units():
+    """The gradient is summed in whole quanta (exact, so any thread count gives the same bits); the
+    quantum follows the scene's units, so that grid values of 1e12 under a density_scale of
+    4e-12, or lights 1e-10 as bright, give the gradient scaled (all zeros, from a quantum sized by
+    the adjoint alone), and values of 1e-10 under 4e10 do not saturate it."""
+    adjoint = np.ones((24, 24, 3), np.float32)
+    expected = small_scene().grad(adjoint, spp=4, seed=1)
+    assert np.abs(expected).max() > 0
+    dim = [{**light, **{k: np.float32(v) * 1e-10 for k, v in light.items() if k in ("radiance", "irradiance")}} for light in LIGHTS]
+    for scene, factor in [
+        (small_scene(lights=dim), 1e-10),
+        (volgrad.Scene.from_parts(ball() * np.float32(1e12), voxel_map(), density_scale=4e-12, albedo=0.8, phase_g=0.3, lights=LIGHTS, camera=small_scene().camera), 1e-12),
+        (volgrad.Scene.from_parts(ball() * np.float32(1e-10), voxel_map(), density_scale=4e10, albedo=0.8, phase_g=0.3, lights=LIGHTS, camera=small_scene().camera), 1e10),
+    ]:
+        gradient = scene.grad(adjoint, spp=4, seed=1) / factor
+        np.testing.assert_allclose(gradient.sum(), expected.sum(), rtol=1e-3)
+        np.testing.assert_allclose(gradient, expected, rtol=1e-3, atol=1e-4 * np.abs(expected).max())
+
+
 def test_one_camera_gives_one_image():
     scene = small_scene()
     other = volgrad.Camera((4, 0.5, 0), (0, 0, 0), width=24, height=24)

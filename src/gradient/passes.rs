@@ -23,25 +23,75 @@ use crate::volume::albedo::{Albedo, AlbedoGrid};
 use crate::volume::brickmap::{corner, BrickMap};
 use crate::volume::tracking::TrackingStats;
 
-/// The quantum of a gradient pass with adjoint images `deltas` at `spp`: the power of two just
-/// above the largest |δ| / spp, over 2³². A sample δ/spp · d_pixel is then at most 2³²·|d_pixel|
-/// quanta, and a voxel's sum has 2²⁹ such samples' headroom before i64 saturates; samples below
-/// 2⁻³³ of the largest weight round to 0 (an f32 sum keeps 2⁻²⁴ of its total).
-pub fn quantum_for<'a>(deltas: impl IntoIterator<Item = &'a [Vec3]>, spp: u32) -> f64 {
+/// The quantum of a gradient pass with adjoint images `deltas` at `spp`, each with the scale of
+/// its samples' d_pixel (`sample_scale`): the power of two just above the largest |δ|·scale / spp,
+/// over 2³². A sample δ/spp · d_pixel is then at most 2³²·|d_pixel|/scale quanta, and a voxel's
+/// sum has 2²⁹ such samples' headroom before i64 saturates; samples below 2⁻³³ of the largest
+/// round to 0 (an f32 sum keeps 2⁻²⁴ of its total).
+pub fn quantum_for<'a>(deltas: impl IntoIterator<Item = (&'a [Vec3], f64)>, spp: u32) -> f64 {
     // Over the finite values only: one infinite δ would make the quantum 1 and round every other
     // sample to 0 (its own samples are dropped and counted by the pass).
     let largest = deltas
         .into_iter()
-        .flatten()
-        .map(|d| d.abs().max_element())
+        .flat_map(|(delta, scale)| {
+            delta
+                .iter()
+                .map(move |d| d.abs().max_element() as f64 * scale)
+        })
         .filter(|x| x.is_finite())
-        .fold(0.0f32, f32::max) as f64
+        .fold(0.0f64, f64::max)
         / spp.max(1) as f64;
     if largest > 0.0 && largest.is_finite() {
         2f64.powi(largest.log2().ceil() as i32 - 32)
     } else {
         1.0
     }
+}
+
+/// How large one path's sample of ∂pixel/∂θ can be in `scene`, per unit of adjoint, to within a
+/// modest factor: the brightest radiance a path carries (its lights', its emission's) times, for
+/// the extinction, the optical depth a unit of θ adds across the medium's box (density_scale ×
+/// its longest edge, in world units, the units a segment's length is in). The quantum scales with
+/// it, so that a scene in other units (grid values of 10¹² under a density_scale of 4·10⁻¹²,
+/// lights of 10⁻¹⁰) keeps the precision and headroom of one in the usual units, where a quantum
+/// from the adjoint alone rounded every sample to 0 or saturated the sums. An emission's samples
+/// follow its model's units and keep scale 1.
+pub fn sample_scale(scene: &Scene, parameter: Parameter) -> f64 {
+    let lights = &scene.lights;
+    let envmap = (lights.environment.map.as_ref()).map_or(0.0f32, |m| {
+        m.texels()
+            .2
+            .iter()
+            .map(|t| t.max_element())
+            .fold(0.0, f32::max)
+    });
+    let brightest = (lights.directional.iter())
+        .map(|d| d.irradiance.max_element())
+        .fold(
+            lights.environment.constant.max_element().max(envmap),
+            f32::max,
+        ) as f64;
+    let emission = (scene.medium.emission.as_ref()).map_or(0.0, |e| e.largest_radiance().0);
+    let radiance = brightest.max(emission);
+    let scale = match parameter {
+        Parameter::Extinction => radiance * optical_depth_per_unit(scene),
+        Parameter::Albedo => radiance,
+        Parameter::Emission => 1.0,
+    };
+    if scale > 0.0 && scale.is_finite() {
+        scale
+    } else {
+        1.0
+    }
+}
+
+/// The optical depth one unit of θ adds across the medium's box: the scale of alpha's samples
+/// (`alpha_gradient`), which carry no radiance.
+pub fn optical_depth_per_unit(scene: &Scene) -> f64 {
+    let medium = &scene.medium;
+    let (lo, hi) = medium.bounds;
+    let edges = (hi - lo).as_dvec3() * medium.transform.voxel_size();
+    f64::from(medium.density_scale) * edges.max_element()
 }
 
 pub struct GradientRun {
@@ -363,7 +413,8 @@ pub fn gradient_of(
     options: &GradOptions,
     set: &PixelSet,
 ) -> GradientRun {
-    let quantum = quantum_for([adjoint], options.spp);
+    let scale = sample_scale(scene, options.parameter);
+    let quantum = quantum_for([(adjoint, scale)], options.spp);
     let mut gradient = gradient_grid_for(scene, options);
     let (image, stats) = add_gradient_of(scene, adjoint, options, quantum, set, &mut gradient);
     GradientRun {

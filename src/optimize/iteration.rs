@@ -27,7 +27,8 @@ use crate::gradient::adjoint::Estimator;
 use crate::gradient::grid::Quanta;
 use crate::gradient::objective::check_target;
 use crate::gradient::passes::{
-    add_gradient_of, gradient_grid_for, quantum_for, GradOptions, Measured, Parameter,
+    add_gradient_of, gradient_grid_for, optical_depth_per_unit, quantum_for, sample_scale,
+    GradOptions, Measured, Parameter,
 };
 use crate::gradient::pixel_samples::{path_cost, PixelSamples};
 use crate::io::images::RgbImage;
@@ -101,6 +102,9 @@ pub fn images_gradient(
     let mut exposure_gradients = vec![0.0; exposures.len()];
     let view_weight = 1.0 / pieces.len() as f64;
     let mut alpha_adjoints = Vec::with_capacity(pieces.len());
+    // Each adjoint's samples' scale, under its view's lights (`passes::sample_scale`).
+    let mut scales = Vec::with_capacity(pieces.len());
+    let parameter = problem.unknown.parameter();
     for piece in &pieces {
         let view = &problem.views[piece.view];
         problem.look_through(scene, &mut lit, view);
@@ -109,20 +113,28 @@ pub fn images_gradient(
         loss += adjoint.loss;
         exposure_gradients[view.capture] += adjoint.exposure_gradient;
         adjoints.push(adjoint);
+        scales.push(sample_scale(scene, parameter));
         let alpha = alpha_adjoint(problem, cluster, scene, piece, view_weight);
         if let Some(alpha) = &alpha {
             loss += alpha.loss;
         }
         alpha_adjoints.push(alpha);
     }
-    let every_adjoint = adjoints.iter().chain(alpha_adjoints.iter().flatten());
-    let quantum = quantum_for(every_adjoint.map(|a| &a.delta[..]), s.spp);
+    let alpha_scale = optical_depth_per_unit(scene);
+    let quantum = quantum_for(
+        (adjoints.iter().map(|a| &a.delta[..]).zip(scales)).chain(
+            alpha_adjoints
+                .iter()
+                .flatten()
+                .map(|a| (&a.delta[..], alpha_scale)),
+        ),
+        s.spp,
+    );
     let colour_samples = pixel_samples(problem, &pieces, adjoints.iter().map(Some));
     let alpha_samples = pixel_samples(problem, &pieces, alpha_adjoints.iter().map(Option::as_ref));
     // An emission unknown's gradient is wanted over its whole box: the pass would otherwise
     // cover only its current bricks (none for an empty start, which then never grows) and their
     // apron (outside the box). The density's domain is the medium's bounds already.
-    let parameter = problem.unknown.parameter();
     let domain = (parameter != Parameter::Extinction).then_some(level_box);
     let mut pass = GradOptions {
         parameter,
