@@ -272,6 +272,20 @@ impl Scene {
         Ok(())
     }
 
+    /// The shape `grad(…, parameter=…)` returns and a stand-in for that grid takes (for
+    /// `volgrad.jax`, which checks it while tracing: errors inside its callback lose their type);
+    /// a `ValueError` where the scene has no such grid.
+    fn _values_shape(&self, parameter: &str) -> PyResult<Vec<usize>> {
+        let parameter = views::parameter(parameter).or_raise()?;
+        let (place, channels) =
+            views::parameter_box(&self.scene, parameter, &self.boxes).or_raise()?;
+        let mut shape = place.shape.to_vec();
+        if channels > 1 {
+            shape.push(channels);
+        }
+        Ok(shape)
+    }
+
     /// How many times `set_density` has replaced the density (for `volgrad.torch`).
     #[getter]
     fn _density_changes(&self) -> u64 {

@@ -249,7 +249,7 @@ impl Boxes {
 /// The box of values a parameter's gradient comes back in (and the passes' domain, so that voxels
 /// at 0 get theirs too) and its number of colour channels; refused where the scene has no such
 /// grid.
-fn parameter_box(
+pub fn parameter_box(
     scene: &RustScene,
     parameter: Parameter,
     boxes: &Boxes,

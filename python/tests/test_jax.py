@@ -75,6 +75,10 @@ def test_arguments_of_another_type_are_refused_while_tracing():
     with pytest.raises(ValueError, match="^spp must be a whole number"):
         volgrad.jax.renderer(scene, spp=0)
     # Checked before the callback, whose errors lose their type on the way out of JAX.
+    with pytest.raises(ValueError, match="density has shape"):
+        render(jnp.asarray(density[:4]), 1)
+    with pytest.raises(ValueError, match="albedo is a constant"):
+        volgrad.jax.renderer(scene, parameter="albedo")
     with pytest.raises(ValueError, match="seed must be ≥ 0"):
         render(jnp.asarray(density), -1)
     mixed = [scene.camera, volgrad.Camera((4, 0.5, 0), (0, 0, 0), width=8, height=8)]

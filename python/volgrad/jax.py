@@ -64,6 +64,8 @@ def renderer(
     if estimator not in ("joint", "drt", "naive"):
         raise ValueError(f'estimator must be "joint", "drt" or "naive" (got "{estimator}")')
     grad_spp = _checks.samples(spp, grad_spp)
+    # A ValueError now where the scene has no such grid.
+    values_shape = tuple(scene._values_shape(parameter))
 
     def images(values, seed):
         return scene.render(
@@ -90,6 +92,8 @@ def renderer(
         # Refused while tracing, as volgrad.torch refuses them, rather than cast in the callback.
         if values.dtype not in (jnp.float32, jnp.float64):
             raise TypeError(f"{grid} must be float32 or float64 (got {values.dtype})")
+        if tuple(values.shape) != values_shape:
+            raise ValueError(f"{grid} has shape {tuple(values.shape)}: the scene's is {values_shape}")
         if not jnp.issubdtype(jnp.result_type(seed), jnp.integer):
             raise TypeError(f"seed must be an integer (got {jnp.result_type(seed)})")
         if isinstance(seed, int) and seed < 0:
