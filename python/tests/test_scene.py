@@ -225,6 +225,8 @@ def bad_calls():
     yield lambda: small_scene(camera=None).render(), ValueError, "no camera of its own"
     yield lambda: small_scene(albedo=np.ones((2, 2, 2), np.float32)), ValueError, "albedo has shape"
     yield lambda: volgrad.Scene.load(REPO / "none.toml"), FileNotFoundError, "does not exist"
+    # What the file system says, from the C++ side too: OSError, not ValueError.
+    yield lambda: volgrad.read_grid(REPO), OSError, "is a directory"
     # Read, but not text: its contents are wrong, not the file system.
     yield lambda: volgrad.Scene.load(REPO / "scenes" / "assets" / "smoke.vdb"), ValueError, "UTF-8"
     yield lambda: small_scene(emission=-ball()), ValueError, "emission: .* negative"

@@ -181,6 +181,32 @@ pub mod ffi {
 
 pub use ffi::{FloatGridData, GridSummary, ImageData, LeafData, MetaEntry};
 
+/// A C++ exception as an error, its message as the C++ side wrote it. Where that message ends in
+/// what the file system said (`cpp/files.cpp`'s `errno_text` and the checks beside it), the
+/// error carries an `std::io::Error` of that kind in its chain, as a Rust file error would, so
+/// that callers can tell a missing or unwritable file from a bad one (Python's FileNotFoundError
+/// and OSError against ValueError).
+pub fn bridge_error(e: cxx::Exception) -> anyhow::Error {
+    use std::io::ErrorKind;
+    let message = e.what().to_string();
+    let kind = [
+        (": no such file", ErrorKind::NotFound),
+        ("does not exist", ErrorKind::NotFound),
+        (": permission denied", ErrorKind::PermissionDenied),
+        ("is a directory", ErrorKind::IsADirectory),
+        ("is not a directory", ErrorKind::NotADirectory),
+        (": not a regular file", ErrorKind::InvalidInput),
+        (": no space left on device", ErrorKind::StorageFull),
+        (": read-only file system", ErrorKind::ReadOnlyFilesystem),
+    ]
+    .into_iter()
+    .find_map(|(said, kind)| message.contains(said).then_some(kind));
+    match kind {
+        Some(kind) => std::io::Error::new(kind, message).into(),
+        None => anyhow::anyhow!(message),
+    }
+}
+
 /// `v` as `len` zeros, for the bridge to fill (an image's pixels): a fresh zeroed allocation gets
 /// its zero pages from the kernel as they are first written, where `resize` would write every
 /// byte once more first.

@@ -18,8 +18,8 @@ use anyhow::{anyhow, bail, Context, Result};
 use glam::Vec3;
 use serde::{Deserialize, Serialize};
 
-use crate::io::bridge::ffi;
 use crate::io::bridge::ImageData;
+use crate::io::bridge::{bridge_error, ffi};
 
 /// A linear RGB image, rows top to bottom.
 #[derive(Debug, Clone, PartialEq)]
@@ -125,13 +125,13 @@ pub fn write_exr(path: &Path, image: &RgbImage, half: bool) -> Result<()> {
         &image.to_data(|v| v),
         if half { "half" } else { "float" },
     )
-    .map_err(|e| anyhow!("{}", e.what()))
+    .map_err(bridge_error)
 }
 
 /// Writes an 8-bit PNG: `exposure`·value, clamped, sRGB-encoded here (OpenImageIO does not).
 pub fn write_png(path: &Path, image: &RgbImage, exposure: f32) -> Result<()> {
     let data = image.to_data(|v| srgb_encode(v * exposure));
-    ffi::write_image(path_str(path)?, &data, "uint8").map_err(|e| anyhow!("{}", e.what()))
+    ffi::write_image(path_str(path)?, &data, "uint8").map_err(bridge_error)
 }
 
 /// Reads any image OpenImageIO opens as linear RGB (grey images are spread to three channels),
@@ -223,7 +223,7 @@ const ALPHA_OVERSHOOT: f32 = 0.01;
 
 /// Reads a picture: colour decoded to linear (see the module's documentation) and alpha.
 pub fn read_picture(path: &Path, override_space: Option<ColorSpace>) -> Result<Picture> {
-    let data = ffi::read_image(path_str(path)?).map_err(|e| anyhow!("{}", e.what()))?;
+    let data = ffi::read_image(path_str(path)?).map_err(bridge_error)?;
     let c = data.channels as usize;
     if c == 0 {
         bail!("'{}' has no channels", path.display());

@@ -7,7 +7,7 @@ use anyhow::{anyhow, bail, Result};
 use glam::IVec3;
 use rayon::prelude::*;
 
-use crate::io::bridge::ffi;
+use crate::io::bridge::{bridge_error, ffi};
 use crate::io::bridge::{FloatGridData, GridSummary, LeafData, MetaEntry};
 use crate::io::images::HALF_MAX;
 use crate::volume::brickmap::{BrickMap, Leaf, Tile};
@@ -54,12 +54,12 @@ fn path_str(path: &Path) -> Result<&str> {
 }
 
 pub fn list_grids(path: &Path) -> Result<Vec<GridSummary>> {
-    ffi::list_grids(path_str(path)?).map_err(|e| anyhow!("{}", e.what()))
+    ffi::list_grids(path_str(path)?).map_err(bridge_error)
 }
 
 /// The names of the grids in the file, in file order, without reading the grids.
 pub fn list_grid_names(path: &Path) -> Result<Vec<String>> {
-    ffi::list_grid_names(path_str(path)?).map_err(|e| anyhow!("{}", e.what()))
+    ffi::list_grid_names(path_str(path)?).map_err(bridge_error)
 }
 
 /// Reads a float grid as it is stored (any class, any background).
@@ -166,15 +166,15 @@ fn read_data(path: &Path, selector: &GridSelector, to_fog: bool) -> Result<Float
             }
         }
     }
-    .map_err(|e| anyhow!("{}", e.what()))
+    .map_err(bridge_error)
 }
 
 /// Reads the grid named `name` as float components: one for a float grid, three (x, y, z) for a
 /// vec3 grid, each as it is stored (any background).
 pub fn read_components(path: &Path, name: &str) -> Result<Vec<Grid>> {
     let threads = bridge_threads();
-    let data = ffi::read_grid_components(path_str(path)?, name, -1, threads)
-        .map_err(|e| anyhow!("{}", e.what()))?;
+    let data =
+        ffi::read_grid_components(path_str(path)?, name, -1, threads).map_err(bridge_error)?;
     data.into_iter()
         .map(|d| Grid::from_data(d).map_err(|e| anyhow!("grid in '{}': {e}", path.display())))
         .collect()
@@ -196,8 +196,7 @@ pub fn write_grids_with_colours(
     check_half(&colours.concat(), save_half)?;
     let data: Vec<FloatGridData> = grids.iter().map(|g| g.to_data()).collect();
     let colours: Vec<FloatGridData> = colours.iter().flatten().map(|g| g.to_data()).collect();
-    ffi::write_grids_with_colours(path_str(path)?, &data, &colours, save_half)
-        .map_err(|e| anyhow!("{}", e.what()))
+    ffi::write_grids_with_colours(path_str(path)?, &data, &colours, save_half).map_err(bridge_error)
 }
 
 /// Refuses a name that does not end in `.vdb`: every reader of the file (Blender, Houdini,
@@ -234,7 +233,7 @@ pub fn write_grids(path: &Path, grids: &[&Grid], save_half: bool, overwrite: boo
     crate::io::output::refuse_overwrite(path, overwrite)?;
     check_half(grids, save_half)?;
     let data: Vec<FloatGridData> = grids.iter().map(|g| g.to_data()).collect();
-    ffi::write_float_grids(path_str(path)?, &data, save_half).map_err(|e| anyhow!("{}", e.what()))
+    ffi::write_float_grids(path_str(path)?, &data, save_half).map_err(bridge_error)
 }
 
 /// As `write_grids` for one grid that the caller no longer needs: its leaves become the bridge's
@@ -250,7 +249,7 @@ pub fn write_grid_consumed(
     crate::io::output::refuse_overwrite(path, overwrite)?;
     check_half(&[&grid], save_half)?;
     let data = grid.into_data();
-    ffi::write_float_grids(path_str(path)?, &[data], save_half).map_err(|e| anyhow!("{}", e.what()))
+    ffi::write_float_grids(path_str(path)?, &[data], save_half).map_err(bridge_error)
 }
 
 impl Grid {

@@ -161,7 +161,10 @@ fn density_grid(file: &SceneFile, vdb_path: &Path) -> Result<vdb::Grid> {
             vdb_path.display()
         ),
         // A link loop, a folder without permission: the system's own words.
-        Err(e) => bail!("medium.vdb: cannot read '{}': {e}", vdb_path.display()),
+        Err(e) => {
+            let context = format!("medium.vdb: cannot read '{}'", vdb_path.display());
+            return Err(anyhow::Error::new(e).context(context));
+        }
         Ok(_) => {}
     }
     let selector = match (&file.medium.grid, file.medium.grid_index) {
