@@ -268,6 +268,18 @@ pub fn matrix_argument(
     name: &str,
 ) -> pyo3::PyResult<IndexTransform> {
     use pyo3::types::PyAnyMethods;
+    // Python converts a bool or a complex array's items to floats (1.0; the real part, with only a
+    // warning): an array says what its items are.
+    if value.hasattr("dtype")? {
+        let dtype = value.getattr("dtype")?;
+        let kind: String = dtype.getattr("kind")?.extract()?;
+        if !matches!(kind.as_str(), "f" | "i" | "u") {
+            return Err(pyo3::exceptions::PyTypeError::new_err(format!(
+                "{name} must be a 4×4 matrix of real numbers (got an array of {})",
+                dtype.str()?
+            )));
+        }
+    }
     let rows: Vec<Vec<f64>> = value.extract().map_err(|_| {
         pyo3::exceptions::PyTypeError::new_err(format!("{name} must be a 4×4 matrix of numbers"))
     })?;

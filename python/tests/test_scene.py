@@ -225,6 +225,9 @@ def bad_calls():
     yield lambda: small_scene(camera=None).render(), ValueError, "no camera of its own"
     yield lambda: small_scene(albedo=np.ones((2, 2, 2), np.float32)), ValueError, "albedo has shape"
     yield lambda: volgrad.Scene.load(REPO / "none.toml"), FileNotFoundError, "does not exist"
+    # Items Python would turn into floats (True as 1.0, a complex number's real part).
+    for dtype in (bool, np.complex128):
+        yield lambda: small_scene().set_density(ball(), np.eye(4, dtype=dtype)), TypeError, "index_to_world must be a 4×4 matrix of real numbers"
     # What the file system says, from the C++ side too: OSError, not ValueError.
     yield lambda: volgrad.read_grid(REPO), OSError, "is a directory"
     # Read, but not text: its contents are wrong, not the file system.
