@@ -228,6 +228,9 @@ def bad_calls():
     # Items Python would turn into floats (True as 1.0, a complex number's real part).
     for dtype in (bool, np.complex128):
         yield lambda: small_scene().set_density(ball(), np.eye(4, dtype=dtype)), TypeError, "index_to_world must be a 4×4 matrix of real numbers"
+    # A NUL would end the name or the path where the C++ side reads it.
+    yield lambda: volgrad.write_grid(REPO / "no-such-folder" / "x.vdb", ball(), voxel_map(), name="a\0b"), ValueError, "grid name .* NUL"
+    yield lambda: small_scene(lights=[{"type": "envmap", "file": str(REPO / "scenes" / "sky.exr") + "\0.png"}]), ValueError, "NUL"
     # What the file system says, from the C++ side too: OSError, not ValueError.
     yield lambda: volgrad.read_grid(REPO), OSError, "is a directory"
     # Read, but not text: its contents are wrong, not the file system.

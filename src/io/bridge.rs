@@ -181,6 +181,28 @@ pub mod ffi {
 
 pub use ffi::{FloatGridData, GridSummary, ImageData, LeafData, MetaEntry};
 
+/// A path as the C++ side takes it: UTF-8, and without a NUL, at which the C library's calls would
+/// cut it short (`sky.png\0.exr` would open `sky.png`, past every check made on the whole path).
+pub fn bridge_path(path: &std::path::Path) -> anyhow::Result<&str> {
+    let text = (path.to_str())
+        .ok_or_else(|| anyhow::anyhow!("path '{}' is not valid UTF-8", path.display()))?;
+    if text.contains('\0') {
+        anyhow::bail!("path '{}' holds a NUL character", text.replace('\0', "\\0"));
+    }
+    Ok(text)
+}
+
+/// A grid's name as the C++ side takes it: without a NUL, at which OpenVDB's C strings end.
+pub fn check_grid_name(name: &str) -> anyhow::Result<()> {
+    if name.contains('\0') {
+        anyhow::bail!(
+            "the grid name '{}' holds a NUL character",
+            name.replace('\0', "\\0")
+        );
+    }
+    Ok(())
+}
+
 /// A C++ exception as an error, its message as the C++ side wrote it. Where that message ends in
 /// what the file system said (`cpp/files.cpp`'s `errno_text` and the checks beside it), the
 /// error carries an `std::io::Error` of that kind in its chain, as a Rust file error would, so

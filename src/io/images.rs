@@ -14,12 +14,12 @@
 
 use std::path::Path;
 
-use anyhow::{anyhow, bail, Context, Result};
+use anyhow::{bail, Context, Result};
 use glam::Vec3;
 use serde::{Deserialize, Serialize};
 
 use crate::io::bridge::ImageData;
-use crate::io::bridge::{bridge_error, ffi};
+use crate::io::bridge::{bridge_error, bridge_path, ffi};
 
 /// A linear RGB image, rows top to bottom.
 #[derive(Debug, Clone, PartialEq)]
@@ -91,11 +91,6 @@ impl RgbImage {
     }
 }
 
-fn path_str(path: &Path) -> Result<&str> {
-    path.to_str()
-        .ok_or_else(|| anyhow!("path '{}' is not valid UTF-8", path.display()))
-}
-
 /// The sRGB transfer function (IEC 61966-2-1) of a linear value in [0, 1].
 pub fn srgb_encode(linear: f32) -> f32 {
     let x = linear.clamp(0.0, 1.0);
@@ -121,7 +116,7 @@ pub fn write_exr(path: &Path, image: &RgbImage, half: bool) -> Result<()> {
         }
     }
     ffi::write_image(
-        path_str(path)?,
+        bridge_path(path)?,
         &image.to_data(|v| v),
         if half { "half" } else { "float" },
     )
@@ -131,7 +126,7 @@ pub fn write_exr(path: &Path, image: &RgbImage, half: bool) -> Result<()> {
 /// Writes an 8-bit PNG: `exposure`·value, clamped, sRGB-encoded here (OpenImageIO does not).
 pub fn write_png(path: &Path, image: &RgbImage, exposure: f32) -> Result<()> {
     let data = image.to_data(|v| srgb_encode(v * exposure));
-    ffi::write_image(path_str(path)?, &data, "uint8").map_err(bridge_error)
+    ffi::write_image(bridge_path(path)?, &data, "uint8").map_err(bridge_error)
 }
 
 /// Reads any image OpenImageIO opens as linear RGB (grey images are spread to three channels),
@@ -223,7 +218,7 @@ const ALPHA_OVERSHOOT: f32 = 0.01;
 
 /// Reads a picture: colour decoded to linear (see the module's documentation) and alpha.
 pub fn read_picture(path: &Path, override_space: Option<ColorSpace>) -> Result<Picture> {
-    let data = ffi::read_image(path_str(path)?).map_err(bridge_error)?;
+    let data = ffi::read_image(bridge_path(path)?).map_err(bridge_error)?;
     let c = data.channels as usize;
     if c == 0 {
         bail!("'{}' has no channels", path.display());

@@ -7,7 +7,7 @@ use anyhow::{anyhow, bail, Result};
 use glam::IVec3;
 use rayon::prelude::*;
 
-use crate::io::bridge::{bridge_error, ffi};
+use crate::io::bridge::{bridge_error, bridge_path, check_grid_name, ffi};
 use crate::io::bridge::{FloatGridData, GridSummary, LeafData, MetaEntry};
 use crate::io::images::HALF_MAX;
 use crate::volume::brickmap::{BrickMap, Leaf, Tile};
@@ -48,18 +48,13 @@ pub struct Grid {
     pub metadata: Vec<MetaEntry>,
 }
 
-fn path_str(path: &Path) -> Result<&str> {
-    path.to_str()
-        .ok_or_else(|| anyhow!("path '{}' is not valid UTF-8", path.display()))
-}
-
 pub fn list_grids(path: &Path) -> Result<Vec<GridSummary>> {
-    ffi::list_grids(path_str(path)?).map_err(bridge_error)
+    ffi::list_grids(bridge_path(path)?).map_err(bridge_error)
 }
 
 /// The names of the grids in the file, in file order, without reading the grids.
 pub fn list_grid_names(path: &Path) -> Result<Vec<String>> {
-    ffi::list_grid_names(path_str(path)?).map_err(bridge_error)
+    ffi::list_grid_names(bridge_path(path)?).map_err(bridge_error)
 }
 
 /// Reads a float grid as it is stored (any class, any background).
@@ -135,7 +130,7 @@ fn refuse_repeated_name(path: &Path, grids: &[String], name: &str) -> Result<()>
 }
 
 fn read_data(path: &Path, selector: &GridSelector, to_fog: bool) -> Result<FloatGridData> {
-    let p = path_str(path)?;
+    let p = bridge_path(path)?;
     let threads = bridge_threads();
     match selector {
         GridSelector::Name(name) => {
@@ -174,7 +169,7 @@ fn read_data(path: &Path, selector: &GridSelector, to_fog: bool) -> Result<Float
 pub fn read_components(path: &Path, name: &str) -> Result<Vec<Grid>> {
     let threads = bridge_threads();
     let data =
-        ffi::read_grid_components(path_str(path)?, name, -1, threads).map_err(bridge_error)?;
+        ffi::read_grid_components(bridge_path(path)?, name, -1, threads).map_err(bridge_error)?;
     data.into_iter()
         .map(|d| Grid::from_data(d).map_err(|e| anyhow!("grid in '{}': {e}", path.display())))
         .collect()
@@ -190,13 +185,27 @@ pub fn write_grids_with_colours(
     save_half: bool,
     overwrite: bool,
 ) -> Result<()> {
-    check_vdb_name(path)?;
-    crate::io::output::refuse_overwrite(path, overwrite)?;
-    check_half(grids, save_half)?;
-    check_half(&colours.concat(), save_half)?;
+    check_write(
+        path,
+        &[grids, &colours.concat()].concat(),
+        save_half,
+        overwrite,
+    )?;
     let data: Vec<FloatGridData> = grids.iter().map(|g| g.to_data()).collect();
     let colours: Vec<FloatGridData> = colours.iter().flatten().map(|g| g.to_data()).collect();
-    ffi::write_grids_with_colours(path_str(path)?, &data, &colours, save_half).map_err(bridge_error)
+    ffi::write_grids_with_colours(bridge_path(path)?, &data, &colours, save_half)
+        .map_err(bridge_error)
+}
+
+/// What every write checks before it begins: the file's name and whether it may be replaced, the
+/// grids' names, and their values against half floats' range when saved as halves.
+fn check_write(path: &Path, grids: &[&Grid], save_half: bool, overwrite: bool) -> Result<()> {
+    check_vdb_name(path)?;
+    crate::io::output::refuse_overwrite(path, overwrite)?;
+    for g in grids {
+        check_grid_name(&g.name)?;
+    }
+    check_half(grids, save_half)
 }
 
 /// Refuses a name that does not end in `.vdb`: every reader of the file (Blender, Houdini,
@@ -229,11 +238,9 @@ fn check_half(grids: &[&Grid], save_half: bool) -> Result<()> {
 
 /// Writes grids to `path`. Refuses to replace an existing file unless `overwrite`.
 pub fn write_grids(path: &Path, grids: &[&Grid], save_half: bool, overwrite: bool) -> Result<()> {
-    check_vdb_name(path)?;
-    crate::io::output::refuse_overwrite(path, overwrite)?;
-    check_half(grids, save_half)?;
+    check_write(path, grids, save_half, overwrite)?;
     let data: Vec<FloatGridData> = grids.iter().map(|g| g.to_data()).collect();
-    ffi::write_float_grids(path_str(path)?, &data, save_half).map_err(bridge_error)
+    ffi::write_float_grids(bridge_path(path)?, &data, save_half).map_err(bridge_error)
 }
 
 /// As `write_grids` for one grid that the caller no longer needs: its leaves become the bridge's
@@ -245,11 +252,9 @@ pub fn write_grid_consumed(
     save_half: bool,
     overwrite: bool,
 ) -> Result<()> {
-    check_vdb_name(path)?;
-    crate::io::output::refuse_overwrite(path, overwrite)?;
-    check_half(&[&grid], save_half)?;
+    check_write(path, &[&grid], save_half, overwrite)?;
     let data = grid.into_data();
-    ffi::write_float_grids(path_str(path)?, &[data], save_half).map_err(bridge_error)
+    ffi::write_float_grids(bridge_path(path)?, &[data], save_half).map_err(bridge_error)
 }
 
 impl Grid {
