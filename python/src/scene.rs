@@ -279,11 +279,7 @@ impl Scene {
         let parameter = views::parameter(parameter).or_raise()?;
         let (place, channels) =
             views::parameter_box(&self.scene, parameter, &self.boxes).or_raise()?;
-        let mut shape = place.shape.to_vec();
-        if channels > 1 {
-            shape.push(channels);
-        }
-        Ok(shape)
+        Ok(views::values_shape(&place, channels))
     }
 
     /// How many times `set_density` has replaced the density (for `volgrad.torch`).

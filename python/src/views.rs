@@ -270,6 +270,15 @@ pub fn parameter_box(
     })
 }
 
+/// The shape of a parameter's values over `place`: a last axis for a colour grid's channels.
+pub fn values_shape(place: &VoxelBox, channels: usize) -> Vec<usize> {
+    let mut shape = place.shape.to_vec();
+    if channels > 1 {
+        shape.push(channels);
+    }
+    shape
+}
+
 /// Σ over the views' pixels of δ · ∂image/∂θ, dense over the parameter's box (a last axis of 3
 /// for an RGB albedo grid, one pass per channel with the same paths, as `volgrad grad` does).
 pub fn grad(
@@ -285,13 +294,8 @@ pub fn grad(
     // Before any path is traced: the result is a dense array of this box.
     place.checked_len("the gradient")?;
     if place.is_empty() {
-        let shape = [
-            &place.shape[..],
-            if channels > 1 { &[3][..] } else { &[][..] },
-        ]
-        .concat();
         return Ok(Computed {
-            values: ArrayD::zeros(IxDyn(&shape)),
+            values: ArrayD::zeros(IxDyn(&values_shape(&place, channels))),
             paths: 0,
             non_finite: 0,
         });

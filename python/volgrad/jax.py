@@ -12,6 +12,7 @@ render's at the same seed, as in ``volgrad.torch``).
 
 from __future__ import annotations
 
+import numbers
 from typing import Optional, Sequence, Union
 
 import jax
@@ -96,7 +97,7 @@ def renderer(
             raise ValueError(f"{grid} has shape {tuple(values.shape)}: the scene's is {values_shape}")
         if not jnp.issubdtype(jnp.result_type(seed), jnp.integer):
             raise TypeError(f"seed must be an integer (got {jnp.result_type(seed)})")
-        if isinstance(seed, int) and seed < 0:
+        if isinstance(seed, numbers.Integral) and seed < 0:
             raise ValueError(f"seed must be ≥ 0 (got {seed})")
         return call(images, shape, values.dtype, values, seed)
 

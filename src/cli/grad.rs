@@ -220,7 +220,7 @@ fn check_flags(args: &Args, ranks: usize, vdb_out: &Path) -> Result<()> {
     let fd = args.estimator == Method::FiniteDifferences;
     // Flags the chosen method would ignore without a word.
     let (a, f) = (&args.adjoint, &args.fd_args);
-    let ignored: Vec<&str> = if fd {
+    let ignored = if fd {
         vec![
             ("--output", args.output.is_some()),
             ("--image-of", args.image_of.is_some()),
@@ -237,9 +237,8 @@ fn check_flags(args: &Args, ranks: usize, vdb_out: &Path) -> Result<()> {
         ]
     }
     .into_iter()
-    .filter_map(|(flag, given)| given.then_some(flag))
-    .collect();
-    if let Some(flag) = ignored.first() {
+    .find_map(|(flag, given)| given.then_some(flag));
+    if let Some(flag) = ignored {
         match fd {
             true => bail!("{flag} is for the path estimators: --estimator fd prints a table of finite differences (--fd-spp samples, --repeats times) and writes no file"),
             false => bail!("{flag} is for --estimator fd; leave it out with --estimator {}", args.estimator.to_possible_value().map_or(String::new(), |v| v.get_name().to_string())),

@@ -57,22 +57,8 @@ pub fn quantum_for<'a>(deltas: impl IntoIterator<Item = (&'a [Vec3], f64)>, spp:
 /// from the adjoint alone rounded every sample to 0 or saturated the sums. An emission's samples
 /// follow its model's units and keep scale 1.
 pub fn sample_scale(scene: &Scene, parameter: Parameter) -> f64 {
-    let lights = &scene.lights;
-    let envmap = (lights.environment.map.as_ref()).map_or(0.0f32, |m| {
-        m.texels()
-            .2
-            .iter()
-            .map(|t| t.max_element())
-            .fold(0.0, f32::max)
-    });
-    let brightest = (lights.directional.iter())
-        .map(|d| d.irradiance.max_element())
-        .fold(
-            lights.environment.constant.max_element().max(envmap),
-            f32::max,
-        ) as f64;
     let emission = (scene.medium.emission.as_ref()).map_or(0.0, |e| e.largest_radiance().0);
-    let radiance = brightest.max(emission);
+    let radiance = f64::from(scene.lights.brightest()).max(emission);
     let scale = match parameter {
         Parameter::Extinction => radiance * optical_depth_per_unit(scene),
         Parameter::Albedo => radiance,

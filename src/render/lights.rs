@@ -16,6 +16,8 @@ pub struct EnvMap {
     texels: Vec<Vec3>,
     rows: Distribution1D,
     columns: Vec<Distribution1D>,
+    /// The largest channel of any texel.
+    brightest: f32,
 }
 
 pub fn luminance(c: Vec3) -> f32 {
@@ -37,12 +39,14 @@ impl EnvMap {
             })
             .collect();
         let rows = Distribution1D::new(&columns.iter().map(|c| c.total).collect::<Vec<_>>());
+        let brightest = texels.iter().fold(0.0f32, |m, c| m.max(c.max_element()));
         EnvMap {
             width,
             height,
             texels,
             rows,
             columns,
+            brightest,
         }
     }
 
@@ -159,6 +163,18 @@ pub struct DirectionalLight {
 pub struct Lights {
     pub environment: Environment,
     pub directional: Vec<DirectionalLight>,
+}
+
+impl Lights {
+    /// The largest channel of any light: the environment's constant or brightest texel, a sun's
+    /// irradiance (the scale of what a path can carry, `gradient::passes::sample_scale`).
+    pub fn brightest(&self) -> f32 {
+        let env = &self.environment;
+        let map = env.map.as_ref().map_or(0.0, |m| m.brightest);
+        (self.directional.iter())
+            .map(|d| d.irradiance.max_element())
+            .fold(env.constant.max_element().max(map), f32::max)
+    }
 }
 
 #[cfg(test)]
