@@ -477,6 +477,11 @@ fn bad_inputs_give_clear_errors_and_a_nonzero_exit() {
         "directional\"\ndirection = [0, 1, 0]\nirradiance = inf",
         &["light[0].irradiance"],
     );
+    // A light's own error is shown at the list's first table: the message names the light.
+    light(
+        "constant\"\nradiance = 1\n[[light]]\ntype = \"directional\"\ndirection = [0, 1, 0]\nirradiance = 1\nfrobnicate = 1",
+        &["light[1]: unknown field `frobnicate`"],
+    );
     let zero = write_scene("zero.toml", &format!("vdb = {tiny:?}"), "");
     std::fs::write(
         &zero,

@@ -260,6 +260,14 @@ fn bad_run_files_name_the_key() {
             good.replace("[views.orbit]\n", "[views.orbit]\nlight = []\n"),
             vec!["light = []", "leave `light` out"],
         ),
+        // A held-out capture no training set names, with no exposure fitted.
+        (
+            good.replace(
+                "[holdouts.orbit]\n",
+                "[holdouts]\ncapture = \"bright\"\n[holdouts.orbit]\n",
+            ),
+            vec!["holdouts.orbit", "capture \"bright\" is no training set's"],
+        ),
         (
             good.replace(
                 "start = 0.1",

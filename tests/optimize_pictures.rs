@@ -322,7 +322,7 @@ fn each_capture_has_its_own_exposure() {
     std::fs::write(d.join("unnamed.toml"), &run).unwrap();
     assert_clean_error(
         &volgrad_in(d, &["optimize", "unnamed.toml", "--out", "x", "-q"]),
-        &["holdout[0]", "capture \"\" is no training set's"],
+        &["holdout[0]", "the unnamed capture is no training set's"],
     );
     std::fs::write(
         d.join("named.toml"),

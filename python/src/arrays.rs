@@ -247,6 +247,7 @@ pub fn float32_argument<'py, D: numpy::ndarray::Dimension>(
     shape: &str,
 ) -> pyo3::PyResult<numpy::PyReadonlyArray<'py, f32, D>> {
     use pyo3::types::{PyAnyMethods, PyTypeMethods};
+    refuse_masked(value, name)?;
     value.extract().map_err(|_| {
         let got = match (value.getattr("dtype"), value.getattr("shape")) {
             (Ok(dtype), Ok(shape)) => format!("an array of {dtype} with shape {shape}"),
@@ -261,6 +262,19 @@ pub fn float32_argument<'py, D: numpy::ndarray::Dimension>(
     })
 }
 
+/// Refuses a numpy masked array: its data would be read whole, the values under its mask with
+/// the rest, and the mask ignored without a word.
+fn refuse_masked(value: &pyo3::Bound<'_, pyo3::PyAny>, name: &str) -> pyo3::PyResult<()> {
+    use pyo3::types::PyAnyMethods;
+    let masked = value.py().import("numpy.ma")?.getattr("MaskedArray")?;
+    if value.is_instance(&masked)? {
+        return Err(pyo3::exceptions::PyTypeError::new_err(format!(
+            "{name} is a masked array, whose mask volgrad would ignore: give `{name}.filled(x)`, x the value the masked entries stand for"
+        )));
+    }
+    Ok(())
+}
+
 /// A 4×4 index-to-world matrix given as nested sequences (a numpy array of any float type, or
 /// lists), as an affine map.
 pub fn matrix_argument(
@@ -268,6 +282,7 @@ pub fn matrix_argument(
     name: &str,
 ) -> pyo3::PyResult<IndexTransform> {
     use pyo3::types::PyAnyMethods;
+    refuse_masked(value, name)?;
     // Python converts a bool or a complex array's items to floats (1.0; the real part, with only a
     // warning): an array says what its items are.
     if value.hasattr("dtype")? {

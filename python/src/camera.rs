@@ -13,7 +13,7 @@ use volgrad::render::camera::{Camera as RustCamera, Intrinsics};
 use volgrad::render::scene::CameraFile;
 use volgrad::render::scene_check::calibrated_camera;
 
-use crate::errors::{check_path, OrRaise};
+use crate::errors::{check_path, narrow, OrRaise};
 
 /// A pinhole camera. `fov_deg` is the horizontal field of view (40° by default); `fx`, `fy` (one
 /// alone for square pixels), `cx`, `cy` (pixels, (0, 0) the top-left corner of the image) give
@@ -33,14 +33,21 @@ impl Camera {
         position: [f32; 3],
         target: [f32; 3],
         up: [f32; 3],
-        fov_deg: Option<f32>,
+        fov_deg: Option<f64>,
         width: u32,
         height: u32,
-        fx: Option<f32>,
-        fy: Option<f32>,
-        cx: Option<f32>,
-        cy: Option<f32>,
+        fx: Option<f64>,
+        fy: Option<f64>,
+        cx: Option<f64>,
+        cy: Option<f64>,
     ) -> PyResult<Self> {
+        let narrow = |key, value: Option<f64>| value.map(|v| narrow(key, v)).transpose();
+        let (fov_deg, fx, fy) = (
+            narrow("fov_deg", fov_deg)?,
+            narrow("fx", fx)?,
+            narrow("fy", fy)?,
+        );
+        let (cx, cy) = (narrow("cx", cx)?, narrow("cy", cy)?);
         if fov_deg.is_some() && (fx.is_some() || fy.is_some()) {
             return Err(PyValueError::new_err(
                 "the focal length is either fov_deg or fx/fy (in pixels), not both",
@@ -119,15 +126,18 @@ impl Camera {
     #[allow(clippy::too_many_arguments)]
     fn orbit(
         count: u32,
-        distance: f32,
+        distance: f64,
         centre: [f32; 3],
         elevation_deg: (f32, f32),
-        fov_deg: f32,
+        fov_deg: f64,
         width: u32,
         height: u32,
-        azimuth_offset_deg: f32,
+        azimuth_offset_deg: f64,
         up: [f32; 3],
     ) -> PyResult<Vec<Camera>> {
+        let distance = narrow("distance", distance)?;
+        let fov_deg = narrow("fov_deg", fov_deg)?;
+        let azimuth_offset_deg = narrow("azimuth_offset_deg", azimuth_offset_deg)?;
         let orbit = Orbit {
             count,
             elevation_deg,

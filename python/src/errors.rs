@@ -4,6 +4,7 @@
 
 use pyo3::exceptions::{PyFileNotFoundError, PyOSError, PyValueError};
 use pyo3::PyErr;
+use pyo3::PyResult;
 
 /// The exception for `error`, its message the whole chain ("reading x: cause: ...") as the
 /// command line prints it.
@@ -47,4 +48,17 @@ pub fn check_path(path: &std::path::Path, argument: &str) -> pyo3::PyResult<()> 
         )));
     }
     Ok(())
+}
+
+/// A number argument as the f32 volgrad computes in. Python's float is an f64: a non-zero value
+/// beyond f32's range would become 0 or infinity without a word (a `density_scale` of 1e-46, an
+/// empty medium), so it is refused by name, as is a NaN or an infinity.
+pub fn narrow(argument: &str, value: f64) -> PyResult<f32> {
+    let narrowed = value as f32;
+    if !narrowed.is_finite() || (narrowed == 0.0) != (value == 0.0) {
+        return Err(PyValueError::new_err(format!(
+            "{argument} must be a finite number within a 32-bit float's range, about 1e-45 to 3e38 in magnitude (got {value:e})"
+        )));
+    }
+    Ok(narrowed)
 }

@@ -16,7 +16,7 @@ use volgrad::volume::transform::IndexTransform;
 use crate::arrays::{self, VoxelBox};
 use crate::camera::Camera;
 use crate::detached;
-use crate::errors::{check_path, OrRaise};
+use crate::errors::{self, check_path, OrRaise};
 use crate::grids::{matrix, GridArrays};
 use crate::media;
 use crate::stand_ins::{StandInViews, StandIns};
@@ -106,9 +106,9 @@ impl Scene {
         py: Python<'_>,
         density: &Bound<'_, PyAny>,
         index_to_world: &Bound<'_, PyAny>,
-        density_scale: f32,
+        density_scale: f64,
         albedo: Option<&Bound<'_, PyAny>>,
-        phase_g: f32,
+        phase_g: f64,
         lights: Option<&Bound<'_, PyAny>>,
         camera: Option<Camera>,
         spp: Option<u32>,
@@ -122,13 +122,8 @@ impl Scene {
             arrays::float32_argument::<numpy::Ix3>(density, "density", "of shape (nx, ny, nz)")?;
         // The constants go through the scene file's own reader, so that they are checked and
         // named as a scene file's keys are.
-        for (key, value) in [("density_scale", density_scale), ("phase_g", phase_g)] {
-            if !value.is_finite() {
-                return Err(PyValueError::new_err(format!(
-                    "{key} must be a finite number (got {value})"
-                )));
-            }
-        }
+        let density_scale = errors::narrow("density_scale", density_scale)?;
+        let phase_g = errors::narrow("phase_g", phase_g)?;
         let medium = PyDict::new(py);
         medium.set_item("density_scale", density_scale)?;
         medium.set_item("phase_g", phase_g)?;

@@ -252,6 +252,18 @@ def bad_calls():
     yield lambda: volgrad.Camera.orbit(2**32 - 1, 4.0), ValueError, "count must be from 1 to 10000"
     yield lambda: volgrad.Camera.orbit(1, 4.0, centre=(float("nan"), 0, 0)), ValueError, "centre"
     yield lambda: volgrad.Camera.orbit(1, 1e-3, centre=(1e9, 1e9, 1e9)), ValueError, "distance is too small"
+    # A masked array's data would be read whole, its mask ignored.
+    masked = np.ma.masked_less(density, 0.5)
+    yield lambda: scene.render(density=masked), TypeError, r"density is a masked array.*density.filled"
+    yield lambda: volgrad.write_grid(REPO / "no-such-folder" / "x.vdb", masked, voxel_map()), TypeError, "array is a masked array"
+    yield lambda: small_scene().set_density(ball(), np.ma.masked_equal(voxel_map(), 0.0)), TypeError, "index_to_world is a masked array"
+    # Python's floats are f64: past f32's range a number would become 0 or inf without a word (a
+    # density_scale of 1e-46, an empty medium).
+    yield lambda: small_scene(density_scale=1e-46), ValueError, r"density_scale must be .* 32-bit float's range.*got 1e-46"
+    yield lambda: small_scene(phase_g=1e300), ValueError, "phase_g must be"
+    yield lambda: volgrad.Camera((0, 0, 1), (0, 0, 0), fov_deg=1e-50), ValueError, r"fov_deg must be .*got 1e-50"
+    yield lambda: volgrad.Camera((0, 0, 1), (0, 0, 0), cx=1e39), ValueError, "cx must be"
+    yield lambda: volgrad.Camera.orbit(1, 1e40), ValueError, "distance must be"
 
 
 def test_numpy_values_stand_for_numbers_in_the_parts():
@@ -282,6 +294,24 @@ def test_a_gradient_does_not_depend_on_the_units():
         gradient = scene.grad(adjoint, spp=4, seed=1) / factor
         np.testing.assert_allclose(gradient.sum(), expected.sum(), rtol=1e-3)
         np.testing.assert_allclose(gradient, expected, rtol=1e-3, atol=1e-4 * np.abs(expected).max())
+
+
+def test_an_emission_gradient_does_not_depend_on_the_units():
+    """An emission grid's samples carry dLe/dv: with the radiance 1e-10 (or 1e10) as large, its
+    gradient is the usual one scaled, not rounded to 0 (or stopped at a ceiling) by a quantum
+    sized for other units."""
+    adjoint = np.ones((24, 24, 3), np.float32)
+
+    def gradient(radiance):
+        scene = small_scene(emission=ball(), emission_kind={"radiance": [radiance, 0.6 * radiance, 0.2 * radiance]})
+        return scene.grad(adjoint, parameter="emission", spp=4, seed=1)
+
+    expected = gradient(1.0)
+    assert np.abs(expected).max() > 0
+    for factor in (1e-10, 1e10):
+        scaled = gradient(factor) / factor
+        np.testing.assert_allclose(scaled.sum(), expected.sum(), rtol=1e-3)
+        np.testing.assert_allclose(scaled, expected, rtol=1e-3, atol=1e-4 * np.abs(expected).max())
 
 
 def test_one_camera_gives_one_image():

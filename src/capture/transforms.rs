@@ -154,7 +154,7 @@ pub fn read(path: &Path) -> Result<Vec<CapturedView>> {
     let text = crate::io::input::read_text(path)
         .with_context(|| format!("cannot read '{}'", path.display()))?;
     let not_transforms = || format!("'{}' is not a transforms.json", path.display());
-    let value: serde_json::Value = serde_json::from_str(&text).with_context(not_transforms)?;
+    let value = crate::io::json::parse(&text).with_context(not_transforms)?;
     known_keys(&value, "the top level", &TOP_KEYS)
         .and_then(|_| match value["frames"].as_array() {
             Some(frames) => frames

@@ -105,6 +105,8 @@ fn what_a_pinhole_cannot_be_is_refused_naming_the_key() {
             r#"{{ "camera_angle_x": 0.5, "w": 8, "h": 8, {keys} "frames": [{IDENTITY_AT_5}] }}"#
         )
     };
+    let sized =
+        |keys: &str| format!(r#"{{ "camera_angle_x": 0.5, {keys} "frames": [{IDENTITY_AT_5}] }}"#);
     let matrix = |rows: &str| {
         format!(
             r#"{{ "camera_angle_x": 0.5, "w": 8, "h": 8, "frames": [{{ "transform_matrix": {rows} }}] }}"#
@@ -125,8 +127,10 @@ fn what_a_pinhole_cannot_be_is_refused_naming_the_key() {
         (with(r#""cx": 1e40,"#), "principal point"),
         (with(r#""scale": 0,"#), "scale"),
         (with(r#""frobnicate": 1,"#), "unknown key \"frobnicate\""),
-        (with(r#""w": 65536, "h": 65536,"#), "too large"),
-        (with(r#""w": 0,"#), "at least 1"),
+        // serde_json would keep the second.
+        (with(r#""w": 8,"#), "\"w\" is given twice"),
+        (sized(r#""w": 65536, "h": 65536,"#), "too large"),
+        (sized(r#""w": 0, "h": 8,"#), "at least 1"),
         (
             r#"{ "camera_angle_x": 0.5, "w": 8, "h": 8, "frames": [] }"#.to_string(),
             "empty",

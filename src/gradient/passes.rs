@@ -54,15 +54,17 @@ pub fn quantum_for<'a>(deltas: impl IntoIterator<Item = (&'a [Vec3], f64)>, spp:
 /// its longest edge, in world units, the units a segment's length is in). The quantum scales with
 /// it, so that a scene in other units (grid values of 10¹² under a density_scale of 4·10⁻¹²,
 /// lights of 10⁻¹⁰) keeps the precision and headroom of one in the usual units, where a quantum
-/// from the adjoint alone rounded every sample to 0 or saturated the sums. An emission's samples
-/// follow its model's units and keep scale 1.
+/// from the adjoint alone rounded every sample to 0 or saturated the sums. An emission grid's
+/// samples carry ∂Le/∂v (its largest, `largest_radiance_derivative`) and no optical depth.
 pub fn sample_scale(scene: &Scene, parameter: Parameter) -> f64 {
     let emission = (scene.medium.emission.as_ref()).map_or(0.0, |e| e.largest_radiance().0);
     let radiance = f64::from(scene.lights.brightest()).max(emission);
     let scale = match parameter {
         Parameter::Extinction => radiance * optical_depth_per_unit(scene),
         Parameter::Albedo => radiance,
-        Parameter::Emission => 1.0,
+        Parameter::Emission => {
+            (scene.medium.emission.as_ref()).map_or(1.0, |e| e.largest_radiance_derivative())
+        }
     };
     if scale > 0.0 && scale.is_finite() {
         scale

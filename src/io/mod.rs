@@ -9,6 +9,7 @@ pub mod fingerprint;
 pub mod gradient_files;
 pub mod images;
 pub mod input;
+pub mod json;
 pub mod make_grid;
 pub mod output;
 pub mod progress;

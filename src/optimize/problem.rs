@@ -347,9 +347,7 @@ impl Inputs {
         let mut light_sets = LightSets::new(scene.lights.clone());
         let training = read_views(run_path, training, &mut light_sets)?;
         let held_out = read_views(run_path, held_out, &mut light_sets)?;
-        if file.optimizer.fit_exposure {
-            check_captures(&held_out, &captures(&training))?;
-        }
+        check_captures(&held_out, &captures(&training))?;
         Ok(Inputs {
             file,
             scene,

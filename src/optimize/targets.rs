@@ -297,15 +297,20 @@ pub fn captures(training: &[ReadView]) -> Vec<String> {
     names
 }
 
-/// With the exposure fitted, a held-out view is compared at its capture's factor: one no
-/// training view was taken in has none.
+/// A held-out view is compared at its capture's exposure (with `fit_exposure`, that capture's
+/// fitted factor): a capture no training view was taken in has none, with or without the fit.
 pub fn check_captures(held_out: &[ReadView], captures: &[String]) -> Result<()> {
     match held_out.iter().find(|v| !captures.contains(&v.capture)) {
-        Some(v) => bail!(
-            "{}: capture \"{}\" is no training set's, so its exposure cannot be fitted (give the set the `capture` of the training set its pictures were taken with)",
-            v.name,
-            v.capture
-        ),
+        Some(v) => {
+            let named = match v.capture.as_str() {
+                "" => "the unnamed capture".to_string(),
+                name => format!("capture \"{name}\""),
+            };
+            bail!(
+                "{}: {named} is no training set's (give a held-out set the `capture` of the training set its pictures were taken with)",
+                v.name
+            )
+        }
         None => Ok(()),
     }
 }

@@ -213,7 +213,7 @@ pub fn target_pixels(pixels: u64) -> Result<()> {
 /// A view's or set's `light` list as written. Leaving the key out means the scene's lights, so an
 /// empty list would silently mean them too, not the darkness it seems to say: it is refused.
 fn listed_lights<'de, D: serde::Deserializer<'de>>(d: D) -> Result<Vec<LightFile>, D::Error> {
-    let lights = Vec::<LightFile>::deserialize(d)?;
+    let lights = crate::render::scene_file::light_list(d)?;
     if lights.is_empty() {
         return Err(serde::de::Error::custom(
             "light = [] lists no light: leave `light` out for the scene's lights, or give \

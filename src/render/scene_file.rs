@@ -58,7 +58,7 @@ pub struct SceneFile {
     /// it out (each view is its own camera).
     pub camera: Option<CameraFile>,
     pub medium: MediumFile,
-    #[serde(default)]
+    #[serde(default, deserialize_with = "light_list")]
     pub light: Vec<LightFile>,
     #[serde(default)]
     pub render: RenderFile,
@@ -220,6 +220,20 @@ pub enum LightFile {
         direction: [f32; 3],
         irradiance: Spectrum,
     },
+}
+
+/// A list of lights, each error naming the light it is in (`light[1]: unknown field …`). A light
+/// is a tagged enum, which serde reads from a copy of the table: its errors lose their own place
+/// and are shown at the list's first line, whichever light they are in.
+pub fn light_list<'de, D: serde::Deserializer<'de>>(d: D) -> Result<Vec<LightFile>, D::Error> {
+    use serde::de::Error;
+    let tables = Vec::<toml::Value>::deserialize(d)?;
+    (tables.into_iter().enumerate())
+        .map(|(i, table)| {
+            LightFile::deserialize(table)
+                .map_err(|e| D::Error::custom(format!("light[{i}]: {}", e.message())))
+        })
+        .collect()
 }
 
 #[derive(Debug, Clone, Deserialize)]

@@ -102,6 +102,29 @@ impl Emission {
         }
     }
 
+    /// The largest channel of ∂Le/∂v anywhere (`radiance_derivative`'s bound), in f64: `radiance`
+    /// for a radiance grid; for a blackbody strength × |scale| × the steepest slope of the table
+    /// up to the hottest temperature (`largest_radiance`'s).
+    pub fn largest_radiance_derivative(&self) -> f64 {
+        match self.kind {
+            EmissionKind::Radiance(rgb) => f64::from(rgb.abs().max_element()),
+            EmissionKind::Blackbody {
+                scale, strength, ..
+            } => {
+                let (_, kelvin) = self.largest_radiance();
+                if kelvin <= 0.0 {
+                    return 0.0;
+                }
+                let last = ((kelvin / f64::from(TABLE_KELVIN_STEP)).ceil() as usize)
+                    .min(TABLE_ENTRIES - 1);
+                let steepest = (self.table[..=last].windows(2))
+                    .map(|pair| (pair[1] - pair[0]).abs().max_element() / TABLE_KELVIN_STEP)
+                    .fold(0.0, f32::max);
+                f64::from(strength) * f64::from(scale).abs() * f64::from(steepest)
+            }
+        }
+    }
+
     /// The grid's value at index point `index`, through the medium's filter.
     fn value(&self, index: Vec3) -> f32 {
         match self.filter {
@@ -178,6 +201,46 @@ mod tests {
 
     fn constant(value: f32) -> BrickMap {
         BrickMap::block(4, |_: IVec3| value)
+    }
+
+    /// The bound the gradient's quantum is sized by holds wherever the grid is read, and for a
+    /// radiance grid it is the radiance itself.
+    #[test]
+    fn the_largest_radiance_derivative_bounds_every_point() {
+        let transform = IndexTransform::uniform(1.0, DVec3::ZERO);
+        let ramp = BrickMap::block(8, |v: IVec3| 0.5 + 0.25 * v.x as f32);
+        let kinds = [
+            EmissionKind::Radiance(Vec3::new(1.0, -3.0, 0.25)),
+            EmissionKind::Blackbody {
+                scale: 1000.0,
+                offset: 0.0,
+                cutoff: 0.0,
+                strength: 3.0,
+            },
+        ];
+        for kind in kinds {
+            let glow = Emission::new(
+                "glow".into(),
+                ramp.clone(),
+                transform,
+                kind.clone(),
+                Filter::Trilinear,
+            );
+            let bound = glow.largest_radiance_derivative();
+            let steepest = (0..64)
+                .map(|i| {
+                    let p = Vec3::new(0.5 + i as f32 * 0.11, 3.5, 3.5);
+                    glow.radiance_derivative(p).1.abs().max_element()
+                })
+                .fold(0.0, f32::max);
+            assert!(
+                steepest > 0.0 && f64::from(steepest) <= bound * (1.0 + 1e-6),
+                "{kind:?}"
+            );
+            if let EmissionKind::Radiance(_) = kind {
+                assert_eq!(bound, 3.0);
+            }
+        }
     }
 
     #[test]
