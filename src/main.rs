@@ -50,7 +50,18 @@ enum Command {
 
 fn main() -> ExitCode {
     restore_sigpipe();
-    let command = Cli::parse().command;
+    let command = match Cli::try_parse() {
+        Ok(cli) => cli.command,
+        Err(e) => {
+            // Under mpirun every rank reads the same command line (or is asked for --help):
+            // one says so.
+            if volgrad::cluster::launcher_rank() == 0 {
+                // Printing fails only with stderr gone, when there is no one to tell.
+                let _ = e.print();
+            }
+            return ExitCode::from(u8::try_from(e.exit_code()).unwrap_or(2));
+        }
+    };
     // Under mpirun or srun, every rank runs this; `render`, `grad` and `optimize` share the work.
     let (cluster, _session) = match Cluster::from_launcher() {
         Ok(c) => c,

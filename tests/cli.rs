@@ -450,6 +450,11 @@ fn bad_inputs_give_clear_errors_and_a_nonzero_exit() {
         &["medium.density_scale", "too large"],
     );
     medium("albedo = nan", &["medium.albedo", "NaN"]);
+    // f32 would make it 0: an empty medium, without a word.
+    medium(
+        "density_scale = 1e-46",
+        &["medium.density_scale = 1e-46", "32-bit float's range"],
+    );
     let light = |body: &str, needles: &[&str]| {
         let light = format!("[[light]]\ntype = \"{body}\n");
         let p = write_scene("light.toml", &format!("vdb = {tiny:?}"), &light);

@@ -1,100 +1,16 @@
 //! volgrad across MPI ranks (`mpirun -n N`): the same bits at 1, 2 and 3 ranks for `optimize`,
-//! `render` and `grad`; a run resumed at 2 ranks from a checkpoint written at 3; and faults that
-//! one rank meets end every rank with one message. Needs OpenMPI's `mpirun` (scripts/setup.sh).
+//! `render` and `grad`; a run resumed at 2 ranks from a checkpoint written at 3; SIGUSR1 stopping
+//! every rank. Faults are in `cluster_faults.rs`. Needs OpenMPI's `mpirun` (scripts/setup.sh).
 
 mod common;
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::process::{Command, Output, Stdio};
 use std::time::{Duration, Instant};
 
+use common::mpi::{ranks, repo, run_file, LIMIT};
 use common::{ok, stderr};
 use volgrad::io::vdb::{read_grid, GridSelector};
-
-fn repo(path: &str) -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join(path)
-}
-
-/// The quick example on one thread per rank: 8 views of 32², two held out.
-fn run_file(extra: &str) -> String {
-    format!(
-        r#"
-scene = "{scene}"
-truth = "{truth}"
-target_spp = 64
-eval_spp = 64
-eval_every = 4
-checkpoint_every = 4
-
-[views.orbit]
-count = 8
-elevation_deg = [-30, 70]
-distance = 12
-fov_deg = 40
-width = 32
-height = 32
-
-[holdouts.orbit]
-count = 2
-elevation_deg = [0, 40]
-distance = 12
-fov_deg = 40
-width = 32
-height = 32
-azimuth_offset_deg = 60
-
-[unknown]
-bounds = "truth"
-start = 0.0
-
-[optimizer]
-spp = 4
-{extra}
-"#,
-        scene = repo("scenes/inverse/quick-scene.toml").display(),
-        truth = repo("scenes/analytic/sphere.vdb").display(),
-    )
-}
-
-/// `volgrad args` in `dir` as `ranks` MPI ranks of one thread each (1: a plain process, no
-/// mpirun), killed after `limit`: a hang is a failure, not a stuck test.
-fn ranks(dir: &Path, ranks: usize, args: &[&str], limit: Duration) -> Output {
-    let exe = env!("CARGO_BIN_EXE_volgrad");
-    let mut command = if ranks == 1 {
-        Command::new(exe)
-    } else {
-        let mut c = Command::new("mpirun");
-        c.args(["--oversubscribe", "-n", &ranks.to_string(), exe])
-            // OpenMPI refuses root without these; CI runs as root.
-            .env("OMPI_ALLOW_RUN_AS_ROOT", "1")
-            .env("OMPI_ALLOW_RUN_AS_ROOT_CONFIRM", "1");
-        c
-    };
-    command.current_dir(dir).args(args);
-    if !args.contains(&"--threads") {
-        command.args(["--threads", "1"]);
-    }
-    wait(command, limit)
-}
-
-fn wait(mut command: Command, limit: Duration) -> Output {
-    let mut child = command
-        .stdout(Stdio::piped())
-        .stderr(Stdio::piped())
-        .spawn()
-        .expect("mpirun is installed (scripts/setup.sh installs OpenMPI)");
-    let started = Instant::now();
-    while child.try_wait().unwrap().is_none() {
-        if started.elapsed() > limit {
-            child.kill().unwrap();
-            panic!("still running after {limit:?}: a rank waits for one that has gone");
-        }
-        std::thread::sleep(Duration::from_millis(50));
-    }
-    child.wait_with_output().unwrap()
-}
-
-const LIMIT: Duration = Duration::from_secs(120);
 
 /// Every active voxel's value (index and bits), in the file's order.
 fn voxels(path: &Path) -> Vec<([i32; 3], u32)> {
@@ -258,91 +174,6 @@ fn a_run_resumed_at_another_rank_count_continues_bit_for_bit() {
     );
 }
 
-/// Rank 1 is given a run file whose target image does not exist (MPMD: `mpirun -n 1 A : -n 1 B`):
-/// both ranks end within seconds, non-zero, with the one error printed once.
-#[test]
-fn a_file_one_rank_cannot_read_ends_every_rank_with_one_error() {
-    let dir = tempfile::tempdir().unwrap();
-    let d = dir.path();
-    let good = run_file("iterations = 2");
-    std::fs::write(d.join("good.toml"), &good).unwrap();
-    let image = "[[view]]\nposition = [0, 0, 12]\ntarget = [0, 0, 0]\nfov_deg = 40\nwidth = 32\nheight = 32\nimage = \"missing.exr\"\n";
-    // The [[view]] table goes before [views.orbit], whose keys would otherwise take it in.
-    let bad = good.replacen("[views.orbit]", &format!("{image}\n[views.orbit]"), 1);
-    std::fs::write(d.join("bad.toml"), bad).unwrap();
-    let exe = env!("CARGO_BIN_EXE_volgrad");
-    let mut command = Command::new("mpirun");
-    command
-        .current_dir(d)
-        .env("OMPI_ALLOW_RUN_AS_ROOT", "1")
-        .env("OMPI_ALLOW_RUN_AS_ROOT_CONFIRM", "1")
-        .args([
-            "--oversubscribe",
-            "-n",
-            "1",
-            exe,
-            "optimize",
-            "good.toml",
-            "--out",
-            "o",
-            "-q",
-            "--threads",
-            "1",
-        ])
-        .args([
-            ":",
-            "-n",
-            "1",
-            exe,
-            "optimize",
-            "bad.toml",
-            "--out",
-            "o",
-            "-q",
-            "--threads",
-            "1",
-        ]);
-    let started = Instant::now();
-    let out = wait(command, Duration::from_secs(60));
-    let err = stderr(&out);
-    assert!(!out.status.success(), "{err}");
-    assert!(
-        started.elapsed() < Duration::from_secs(30),
-        "took {:?}",
-        started.elapsed()
-    );
-    assert_eq!(err.matches("error: ").count(), 1, "one message: {err}");
-    assert!(err.contains("missing.exr"), "{err}");
-    assert!(!err.contains("panicked"), "{err}");
-}
-
-/// A run file or a flag every rank refuses: one message, every rank non-zero.
-#[test]
-fn a_bad_run_file_is_reported_once() {
-    let dir = tempfile::tempdir().unwrap();
-    let d = dir.path();
-    std::fs::write(
-        d.join("run.toml"),
-        run_file("batch = 3\nbatch_pixels = 100"),
-    )
-    .unwrap();
-    // A bad run file, and flags every rank refuses before it reads anything.
-    for (args, needle) in [
-        (vec!["optimize", "run.toml", "-q"], "batch_pixels"),
-        (
-            vec!["optimize", "run.toml", "--threads", "100000"],
-            "--threads",
-        ),
-        (vec!["grad", "unread.toml", "--fd", "ones", "-q"], "--fd"),
-    ] {
-        let out = ranks(d, 3, &args, Duration::from_secs(60));
-        let err = stderr(&out);
-        assert!(!out.status.success(), "{err}");
-        assert_eq!(err.matches("error").count(), 1, "one message: {err}");
-        assert!(err.contains(needle), "{err}");
-    }
-}
-
 /// `grad` on three voxels 30,000 voxels apart along the diagonal: a box whose block bitmap would
 /// not fit, so the ranks gather the touched blocks' keys instead. 1 and 3 ranks: the same voxels.
 #[test]
@@ -487,51 +318,6 @@ fn pixel_batches_do_not_depend_on_the_number_of_ranks() {
     assert!(finals[0] == finals[1], "3 ranks against 1");
 }
 
-/// Rank 0 cannot write (`--out` names a file, not a folder): every rank ends, non-zero, with the
-/// one message; no rank waits for the others.
-#[test]
-fn a_write_rank_0_cannot_make_ends_every_rank_with_one_error() {
-    let dir = tempfile::tempdir().unwrap();
-    let d = dir.path();
-    std::fs::write(d.join("run.toml"), run_file("batch = 3\niterations = 3")).unwrap();
-    std::fs::write(d.join("taken"), "a file where the output folder should go").unwrap();
-    let args = ["optimize", "run.toml", "--out", "taken", "--force", "-q"];
-    let out = ranks(d, 2, &args, Duration::from_secs(60));
-    let err = stderr(&out);
-    assert!(!out.status.success(), "{err}");
-    assert_eq!(err.matches("error: ").count(), 1, "one message: {err}");
-    assert!(err.contains("output directory"), "{err}");
-    assert!(!err.contains("error (rank"), "{err}");
-}
-
-/// Several processes that a launcher started but that cannot talk to each other (`srun
-/// --mpi=none`, or PMI's variables left in the environment without a launcher) would each run
-/// the whole job on the same outputs: each refuses with one error, before touching anything.
-#[test]
-fn processes_that_cannot_reach_each_other_refuse_to_run_as_copies() {
-    let dir = tempfile::tempdir().unwrap();
-    for env in [
-        &[("SLURM_STEP_NUM_TASKS", "3"), ("SLURM_PROCID", "1")][..],
-        &[("PMI_SIZE", "2"), ("PMI_RANK", "0")][..],
-    ] {
-        let mut command = Command::new(env!("CARGO_BIN_EXE_volgrad"));
-        command
-            .current_dir(dir.path())
-            .args(["make-grid", "box", "-o", "box.vdb"])
-            .envs(env.iter().copied());
-        let out = wait(command, LIMIT);
-        common::assert_clean_error(&out, &["the launcher started", "MPI sees only this one"]);
-        assert!(!dir.path().join("box.vdb").exists(), "{env:?}");
-    }
-    // One task of one is a plain run.
-    let mut command = Command::new(env!("CARGO_BIN_EXE_volgrad"));
-    command
-        .current_dir(dir.path())
-        .args(["make-grid", "box", "-o", "box.vdb"])
-        .env("SLURM_STEP_NUM_TASKS", "1");
-    ok(wait(command, LIMIT));
-}
-
 /// `render --stats` and `grad --stats` count every rank's work: each pixel is traced as one
 /// process traces it, so the paths and lookups per path are those of one process, whatever the
 /// number of ranks (rank 0's counters over every rank's paths gave 3.08 → 1.55 → 1.12).
@@ -575,24 +361,4 @@ fn stats_count_every_rank() {
         assert_eq!(seen[n].0, seen[0].0, "render at {} ranks", n + 1);
         assert_eq!(seen[n].1, seen[0].1, "grad at {} ranks", n + 1);
     }
-}
-
-/// Commands that do not share work across ranks are refused under mpirun, once, on every rank:
-/// each rank would otherwise do the whole work on the same files and print its own errors.
-#[test]
-fn one_process_commands_are_refused_once_under_mpirun() {
-    let dir = tempfile::tempdir().unwrap();
-    let mut command = Command::new("mpirun");
-    command
-        .args(["--oversubscribe", "-n", "2", env!("CARGO_BIN_EXE_volgrad")])
-        .args(["make-grid", "box", "-o", "box.vdb"])
-        .env("OMPI_ALLOW_RUN_AS_ROOT", "1")
-        .env("OMPI_ALLOW_RUN_AS_ROOT_CONFIRM", "1")
-        .current_dir(dir.path());
-    let out = wait(command, LIMIT);
-    let err = stderr(&out);
-    assert!(!dir.path().join("box.vdb").exists());
-    assert!(!out.status.success(), "{err}");
-    assert_eq!(err.matches("error").count(), 1, "one message: {err}");
-    assert!(err.contains("only render, grad and optimize"), "{err}");
 }

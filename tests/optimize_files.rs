@@ -202,6 +202,10 @@ fn bad_run_files_name_the_key() {
         (good.replace("lr = 0.1", "lr = 0"), vec!["optimizer.lr"]),
         (good.replace("lr = 0.1", "lr = -2"), vec!["optimizer.lr"]),
         (
+            good.replace("lr = 0.1", "lr = 1e-300"),
+            vec!["optimizer.lr = 1e-300", "32-bit float's range"],
+        ),
+        (
             good.replace("batch = 3", "batch = 3\nsmooth_gradient = 2"),
             vec!["smooth_gradient"],
         ),

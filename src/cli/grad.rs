@@ -9,7 +9,9 @@ use clap::ValueEnum;
 use glam::IVec3;
 
 use super::values::{self, FdDirection, IndexBox};
-use super::{report_non_finite, set_threads, AdjointArgs, Domain, FdArgs, FD_REPEATS, FD_SPP};
+use super::{
+    check_same_job, report_non_finite, set_threads, AdjointArgs, Domain, FdArgs, FD_REPEATS, FD_SPP,
+};
 use volgrad::cluster::images::render_shared;
 use volgrad::cluster::passes::{adjoint_shared, gradient_shared};
 use volgrad::cluster::Cluster;
@@ -248,7 +250,8 @@ fn check_flags(args: &Args, ranks: usize, vdb_out: &Path) -> Result<()> {
         bail!("--target-spp is the samples of the --target-scene render: give --target-scene, or leave it out");
     }
     if ranks > 1 && (fd || args.image_of.is_some()) {
-        bail!("grad --estimator fd and --image-of run as one process: start them without mpirun");
+        let what = if fd { "--estimator fd" } else { "--image-of" };
+        bail!("grad {what} runs as one process: start it without mpirun");
     }
     Ok(())
 }
@@ -276,6 +279,14 @@ pub fn run(args: &Args, cluster: &Cluster) -> Result<()> {
         let source = load_target(args)?;
         Ok((scene, source))
     }))?;
+    check_same_job(cluster, || {
+        let target = match &source {
+            TargetSource::None => "none".to_string(),
+            TargetSource::Image(image) => image_fingerprint(image),
+            TargetSource::Scene(other) => fingerprint::scene(other),
+        };
+        vec![fingerprint::scene(&scene), target]
+    })?;
     let target = target_image(args, source, &scene, cluster);
     if let Some(t) = &target {
         cluster.agree(check_target(t, &scene))?;
@@ -292,8 +303,10 @@ pub fn run(args: &Args, cluster: &Cluster) -> Result<()> {
         Method::Estimator(e) => e,
         Method::FiniteDifferences => return finite_differences(args, &scene, target.as_ref()),
     };
-    let mut options = args.adjoint.options(&scene, estimator)?;
-    let (parameter_name, transform, channels) = parameter_grid(&scene, args.adjoint.parameter)?;
+    let (mut options, (parameter_name, transform, channels)) = cluster.agree(
+        (args.adjoint.options(&scene, estimator))
+            .and_then(|o| Ok((o, parameter_grid(&scene, args.adjoint.parameter)?))),
+    )?;
     options.progress &= cluster.is_root();
     let adjoint = adjoint_shared(cluster, &scene, args.loss, target.as_ref(), &options)?;
     if let (Some(loss), true) = (adjoint.loss, cluster.is_root()) {

@@ -20,11 +20,13 @@ mod parse_tests;
 use anyhow::{bail, Context, Result};
 use clap::{Args, ValueEnum};
 
+use volgrad::cluster::Cluster;
 use volgrad::gradient::adjoint::{AdjointOptions, Estimator, Suffix, DEFAULT_SUFFIX_PATHS};
 use volgrad::gradient::fd::{self, FdOptions};
 use volgrad::gradient::loss::Loss;
 use volgrad::gradient::passes::{GradOptions, Measured, Parameter};
 use volgrad::gradient::pixel_samples::PixelSamples;
+use volgrad::io::fingerprint::Fingerprint;
 use volgrad::render::image::RenderStats;
 use volgrad::render::scene::Scene;
 use volgrad::render::scene_check;
@@ -184,6 +186,24 @@ impl FdArgs {
             max_depth,
         })
     }
+}
+
+/// Refuses a job whose ranks were given other work than rank 0 (`Cluster::check_same_inputs`):
+/// the fingerprint of this volgrad's version, the command line after the program's name, and
+/// `inputs()`, the fingerprints of what the ranks read (computed only when there are ranks).
+pub fn check_same_job(cluster: &Cluster, inputs: impl FnOnce() -> Vec<String>) -> Result<()> {
+    if cluster.size() == 1 {
+        return Ok(());
+    }
+    let mut f = Fingerprint::default();
+    f.text(env!("CARGO_PKG_VERSION"));
+    for arg in std::env::args_os().skip(1) {
+        f.text(&arg.to_string_lossy());
+    }
+    for input in inputs() {
+        f.text(&input);
+    }
+    cluster.check_same_inputs(f.value())
 }
 
 /// `--threads T`: a global pool of T workers (default: all cores).

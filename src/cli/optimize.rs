@@ -9,14 +9,16 @@ use std::time::Duration;
 use anyhow::{bail, Context, Result};
 use clap::ValueEnum;
 
-use super::{set_threads, values};
+use super::{check_same_job, set_threads, values};
 use volgrad::cluster::{AgreedError, Cluster};
 use volgrad::gradient::adjoint::Estimator;
+use volgrad::io::fingerprint::Fingerprint;
 use volgrad::optimize::checkpoint;
 use volgrad::optimize::problem::Problem;
 use volgrad::optimize::reconstruct::{reconstruct, RunOptions};
 use volgrad::optimize::schedule::Stop;
 use volgrad::optimize::study;
+use volgrad::render::fingerprint;
 
 #[derive(clap::Args)]
 pub struct Args {
@@ -86,20 +88,30 @@ fn stop_on_sigusr1() {
     }
 }
 
-pub fn run(args: &Args, cluster: &Cluster) -> Result<()> {
-    // Every rank is given the same flag: one error, printed once.
-    cluster.agree(set_threads(args.threads))?;
+/// The flags' own checks (each rank is given the same flags: `run` agrees on them).
+fn check_flags(args: &Args) -> Result<()> {
     if args.budget == Some(Duration::ZERO) {
         bail!("--budget must be above 0");
     }
     if args.iterations == Some(0) && (args.estimators.is_some() || args.resume.is_some()) {
         bail!("--iterations 0 (evaluate the start, write it as final.vdb) is for a fresh single run, not --estimators or --resume");
     }
-    if let Some(estimators) = &args.estimators {
-        if estimators.is_empty() {
-            bail!("--estimators needs at least one estimator");
-        }
+    if args.estimators.as_ref().is_some_and(Vec::is_empty) {
+        bail!("--estimators needs at least one estimator");
     }
+    Ok(())
+}
+
+pub fn run(args: &Args, cluster: &Cluster) -> Result<()> {
+    // Installed first: a cluster run is stopped with SIGUSR1 while it loads too (it stops after
+    // its first iteration), where the signal's default action would end every rank unannounced.
+    stop_on_sigusr1();
+    // Every rank is given the same flags: one error, printed once.
+    cluster.agree(set_threads(args.threads).and_then(|_| check_flags(args)))?;
+    check_same_job(cluster, || {
+        let run = std::fs::read(&args.run).unwrap_or_default();
+        vec![String::from_utf8_lossy(&run).into_owned()]
+    })?;
     let resume = cluster.agree(args.resume.as_deref().map(checkpoint::latest).transpose())?;
     let out = match (&args.out, &args.resume) {
         (Some(out), _) => out.clone(),
@@ -138,9 +150,18 @@ pub fn run(args: &Args, cluster: &Cluster) -> Result<()> {
         args.target_cache.as_deref(),
         cluster,
     ))?;
+    // The scene's, the targets' and the truth's content: a grid or an image that differs between
+    // machines (a truth that differs has already mixed the targets its ranks rendered).
+    check_same_job(cluster, || {
+        let mut f = Fingerprint::default();
+        f.text(&problem.fingerprint);
+        if let Some(truth) = &problem.truth {
+            fingerprint::bricks(&mut f, truth);
+        }
+        vec![f.hex()]
+    })?;
     ctrlc::set_handler(|| INTERRUPTED.store(true, Ordering::SeqCst))
         .context("cannot install the Ctrl-C handler")?;
-    stop_on_sigusr1();
     let options = RunOptions {
         estimator: args.estimator,
         stop,

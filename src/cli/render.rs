@@ -4,11 +4,12 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Result};
 
-use super::{bytes, report_non_finite, set_threads, SamplingArgs};
+use super::{bytes, check_same_job, report_non_finite, set_threads, SamplingArgs};
 use volgrad::cluster::images::render_shared;
 use volgrad::cluster::Cluster;
 use volgrad::io::images;
 use volgrad::io::output::refuse_overwrite;
+use volgrad::render::fingerprint;
 use volgrad::render::image::{RenderOptions, RenderStats};
 use volgrad::render::scene::Scene;
 use volgrad::volume::brickmap::BRICK_VOXELS;
@@ -63,17 +64,19 @@ fn load_scene(
 /// Under mpirun every rank renders its share of the pixels; rank 0 writes the image.
 pub fn run(args: &Args, cluster: &Cluster) -> Result<()> {
     let sampling = &args.sampling;
-    // Every rank is given the same flag: one error, printed once.
-    cluster.agree(set_threads(sampling.threads))?;
     let exr = args.output.clone().unwrap_or_else(|| {
         PathBuf::from(args.scene.file_stem().unwrap_or_default()).with_extension("exr")
     });
-    if exr.extension().and_then(|e| e.to_str()) != Some("exr") {
-        bail!(
-            "--output must end in .exr (got '{}'); the PNG is written beside it",
-            exr.display()
-        );
-    }
+    // Every rank is given the same flags: one error, printed once.
+    cluster.agree(set_threads(sampling.threads).and_then(|_| {
+        if exr.extension().and_then(|e| e.to_str()) != Some("exr") {
+            bail!(
+                "--output must end in .exr (got '{}'); the PNG is written beside it",
+                exr.display()
+            );
+        }
+        Ok(())
+    }))?;
     let png = exr.with_extension("png");
     let root = cluster.is_root();
     cluster.agree(if root {
@@ -84,8 +87,9 @@ pub fn run(args: &Args, cluster: &Cluster) -> Result<()> {
     let loading = std::time::Instant::now();
     let scene = cluster.agree(load_scene(&args.scene, args.majorant, args.majorant_cell))?;
     let load_seconds = loading.elapsed().as_secs_f64();
+    check_same_job(cluster, || vec![fingerprint::scene(&scene)])?;
     let options = RenderOptions {
-        spp: sampling.spp(&scene)?,
+        spp: cluster.agree(sampling.spp(&scene))?,
         seed: sampling.seed(&scene),
         max_depth: sampling.max_depth(&scene),
         progress: !sampling.quiet && root,

@@ -37,6 +37,21 @@ fn launched_as_rank() -> bool {
         .any(|name| std::env::var_os(name).is_some())
 }
 
+/// This process's rank as the launcher's variables say, before MPI is initialised (0 when not
+/// launched as a rank): for what every rank would print alike before the job exists, such as an
+/// error in the command line.
+pub fn launcher_rank() -> usize {
+    [
+        "OMPI_COMM_WORLD_RANK",
+        "PMIX_RANK",
+        "PMI_RANK",
+        "SLURM_PROCID",
+    ]
+    .iter()
+    .find_map(|name| std::env::var(name).ok()?.trim().parse().ok())
+    .unwrap_or(0)
+}
+
 /// How many processes the launcher says it started, by the variables it sets for each: MPI's
 /// (OpenMPI, PMI) and Slurm's for a job step (`srun`, with or without MPI).
 fn declared_size() -> Option<(String, usize)> {
@@ -211,6 +226,24 @@ impl Cluster {
         };
         let message = self.gather_all(&mine);
         Err(AgreedError(String::from_utf8_lossy(&message).into_owned()).into())
+    }
+
+    /// Refuses a job whose ranks were not given the same work: each rank's `fingerprint` of its
+    /// arguments and inputs, against rank 0's. Ranks started with other flags (an MPMD launch) or
+    /// reading other files (copies out of date on one machine) would add their shares into one
+    /// wrong result, or stop a collective with mismatched sizes.
+    pub fn check_same_inputs(&self, fingerprint: u64) -> Result<()> {
+        if self.size == 1 {
+            return Ok(());
+        }
+        let all = self.gather_all(&[fingerprint]);
+        match all.iter().position(|&f| f != all[0]) {
+            Some(rank) => Err(AgreedError(format!(
+                "rank {rank} was started with other arguments, or reads other files, than rank 0: every rank must run the same command on the same inputs (files copied alike to every machine)"
+            ))
+            .into()),
+            None => Ok(()),
+        }
     }
 
     /// `write()` on rank 0; `Ok` on the others (whose result comes from `agree`).

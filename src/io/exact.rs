@@ -1,9 +1,12 @@
-//! Fixed-length arrays in files (a position's `[x, y, z]`), refused when they hold more values
-//! than their length: serde's arrays stop reading at their length and let the rest go unread, so
-//! `[0, 0, 12, 1]` would be taken for `[0, 0, 12]`.
+//! Values in files read exactly as written, or refused.
 //!
-//! `#[serde(deserialize_with = "exact::array")]` on an `[T; N]` field, `exact::optional_array`
-//! on an `Option<[T; N]>`.
+//! Fixed-length arrays (a position's `[x, y, z]`) are refused when they hold more values than
+//! their length: serde's arrays stop reading at their length and let the rest go unread, so
+//! `[0, 0, 12, 1]` would be taken for `[0, 0, 12]`. `#[serde(deserialize_with = "exact::array")]`
+//! on an `[T; N]` field, `exact::optional_array` on an `Option<[T; N]>`.
+//!
+//! Numbers beyond f32's range (`within_f32`): serde reads a TOML float into an f32 field by a cast,
+//! so `density_scale = 1e-46` would be an empty medium and `fov_deg = 1e300` a check's "got inf".
 
 use serde::de::{Deserialize, Deserializer, Error};
 
@@ -25,6 +28,37 @@ where
     Option::<Vec<T>>::deserialize(d)?.map(exactly).transpose()
 }
 
+/// Refuses a float of the TOML `text` (already parsed once, so it is valid TOML) that is not 0
+/// but would be 0 or infinite as an f32, naming its key: volgrad computes in f32, and a key read as
+/// f64 holds values far inside that range anyway (positions within ±1e15).
+pub fn within_f32(text: &str) -> anyhow::Result<()> {
+    fn walk(value: &toml::Value, key: &str) -> anyhow::Result<()> {
+        match value {
+            toml::Value::Float(x) => {
+                let narrowed = *x as f32;
+                if x.is_finite() && (narrowed.is_infinite() || (narrowed == 0.0) != (*x == 0.0)) {
+                    anyhow::bail!("{key} = {x:e} is beyond a 32-bit float's range (about 1e-45 to 3e38 in magnitude), which volgrad computes in");
+                }
+                Ok(())
+            }
+            toml::Value::Array(items) => (items.iter().enumerate())
+                .try_for_each(|(i, item)| walk(item, &format!("{key}[{i}]"))),
+            toml::Value::Table(table) => table.iter().try_for_each(|(k, v)| {
+                walk(
+                    v,
+                    &if key.is_empty() {
+                        k.clone()
+                    } else {
+                        format!("{key}.{k}")
+                    },
+                )
+            }),
+            _ => Ok(()),
+        }
+    }
+    walk(&toml::Value::Table(toml::from_str(text)?), "")
+}
+
 fn exactly<E: Error, T, const N: usize>(values: Vec<T>) -> Result<[T; N], E> {
     let got = values.len();
     values
@@ -40,6 +74,25 @@ mod tests {
         position: [f32; 3],
         #[serde(default, deserialize_with = "super::optional_array")]
         offset: Option<[f64; 3]>,
+    }
+
+    #[test]
+    fn numbers_beyond_f32_are_refused_by_key() {
+        assert!(super::within_f32("a = 0.0\nb = -1e-30\nc = [3e38, 1]\nd = nan\ne = inf").is_ok());
+        for (bad, key) in [
+            (
+                "[medium]\ndensity_scale = 1e-46",
+                "medium.density_scale = 1e-46",
+            ),
+            ("x = [1, -1e300]", "x[1] = -1e300"),
+            (
+                "[[light]]\nradiance = [1e39, 0, 0]",
+                "light[0].radiance[0] = 1e39",
+            ),
+        ] {
+            let err = super::within_f32(bad).unwrap_err().to_string();
+            assert!(err.contains(key) && err.contains("32-bit"), "{bad}: {err}");
+        }
     }
 
     #[test]

@@ -47,6 +47,10 @@ impl Fingerprint {
         self
     }
 
+    pub fn value(&self) -> u64 {
+        self.0
+    }
+
     /// 16 hex digits, as stored in metadata.
     pub fn hex(&self) -> String {
         format!("{:016x}", self.0)

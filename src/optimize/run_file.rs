@@ -205,7 +205,7 @@ impl RunFile {
                 false => anyhow::anyhow!("{}: {}", path.display(), e.to_string().trim_end()),
             }
         })?;
-        file.validate()
+        (crate::io::exact::within_f32(&text).and_then(|_| file.validate()))
             .with_context(|| format!("invalid run file '{}'", path.display()))?;
         Ok(file)
     }

@@ -56,7 +56,7 @@ pub fn lights(f: &mut Fingerprint, lights: &Lights) {
 }
 
 /// A brick map's values, active masks and tiles.
-fn bricks(f: &mut Fingerprint, map: &BrickMap) {
+pub fn bricks(f: &mut Fingerprint, map: &BrickMap) {
     for leaf in map.leaves() {
         f.f32s(&leaf.origin.as_vec3().to_array()).f32s(&leaf.values);
         for word in leaf.active {

@@ -31,8 +31,14 @@ pub fn thread_count(key: &str, threads: usize) -> Result<()> {
         bail!("{key} must be at least 1");
     }
     if threads > MAX_THREADS {
+        // The cores this process may run on (under mpirun, those bound to its rank).
         let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
-        bail!("{key} is at most {MAX_THREADS} (got {threads}; this machine has {cores} cores)");
+        let cores = if cores == 1 {
+            "1 core".into()
+        } else {
+            format!("{cores} cores")
+        };
+        bail!("{key} is at most {MAX_THREADS} (got {threads}; this process may use {cores})");
     }
     Ok(())
 }
@@ -321,7 +327,8 @@ pub fn radiance_pixels(what: &str, pixels: &[Vec3]) -> Result<()> {
     if let Some((i, p)) = (pixels.iter().enumerate())
         .find(|(_, p)| !(p.is_finite() && p.abs().max_element() <= MAX_LIGHT))
     {
-        bail!("{what}: pixel {i} is {p}; radiance is finite and at most {MAX_LIGHT:e} in every channel");
+        // Debug prints a float's shortest form (1e35, not 36 digits).
+        bail!("{what}: pixel {i} is {:?}; radiance is finite and at most {MAX_LIGHT:e} in every channel", p.to_array());
     }
     let brightest = pixels.iter().fold(0.0f32, |m, p| m.max(p.max_element()));
     let floor = -RINGING * brightest;

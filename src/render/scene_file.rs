@@ -295,7 +295,7 @@ impl Default for RenderFile {
 
 impl SceneFile {
     pub fn parse(text: &str, origin: &Path) -> Result<Self> {
-        toml::from_str(text).map_err(|e| {
+        let file = toml::from_str(text).map_err(|e| {
             // A run file names its scene; a scene file is what it names.
             let table = toml::from_str::<toml::Table>(text).ok();
             if table.is_some_and(|t| t.contains_key("scene") && !t.contains_key("medium")) {
@@ -306,7 +306,9 @@ impl SceneFile {
             } else {
                 anyhow::anyhow!("{}: {}", origin.display(), e.to_string().trim_end())
             }
-        })
+        })?;
+        crate::io::exact::within_f32(text).with_context(|| origin.display().to_string())?;
+        Ok(file)
     }
 
     pub fn read(path: &Path) -> Result<Self> {

@@ -1,6 +1,7 @@
 //! Scenes built in memory for the renderer's tests.
 #![allow(dead_code)]
 
+pub mod mpi;
 mod process;
 #[allow(unused_imports)] // not every test file runs the binary
 pub use process::*;
