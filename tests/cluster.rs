@@ -5,10 +5,10 @@
 mod common;
 
 use std::path::Path;
-use std::process::{Command, Output, Stdio};
+use std::process::{Output, Stdio};
 use std::time::{Duration, Instant};
 
-use common::mpi::{ranks, repo, run_file, LIMIT};
+use common::mpi::{mpirun, ranks, repo, run_file, LIMIT};
 use common::{ok, stderr};
 use volgrad::io::vdb::{read_grid, GridSelector};
 
@@ -238,20 +238,8 @@ fn sigusr1_to_mpirun_stops_every_rank_with_a_checkpoint() {
     )
     .unwrap();
     let exe = env!("CARGO_BIN_EXE_volgrad");
-    let mut child = Command::new("mpirun")
-        .current_dir(d)
-        .env("OMPI_ALLOW_RUN_AS_ROOT", "1")
-        .env("OMPI_ALLOW_RUN_AS_ROOT_CONFIRM", "1")
-        .args([
-            "--oversubscribe",
-            "-n",
-            "2",
-            exe,
-            "optimize",
-            "run.toml",
-            "--out",
-            "o",
-        ])
+    let mut child = mpirun(d)
+        .args(["-n", "2", exe, "optimize", "run.toml", "--out", "o"])
         .args(["-q", "--threads", "1"])
         .stdout(Stdio::piped())
         .stderr(Stdio::piped())

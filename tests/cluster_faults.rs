@@ -7,7 +7,7 @@ mod common;
 use std::process::Command;
 use std::time::{Duration, Instant};
 
-use common::mpi::{ranks, run_file, wait, LIMIT};
+use common::mpi::{mpirun, ranks, run_file, wait, LIMIT};
 use common::{ok, stderr};
 
 /// The same command on every rank, but rank 1's folder lacks the target image rank 0's has (files
@@ -46,15 +46,8 @@ fn a_file_one_rank_cannot_read_ends_every_rank_with_one_error() {
             "1",
         ]
     };
-    let mut command = Command::new("mpirun");
-    command
-        .current_dir(d)
-        .env("OMPI_ALLOW_RUN_AS_ROOT", "1")
-        .env("OMPI_ALLOW_RUN_AS_ROOT_CONFIRM", "1")
-        .arg("--oversubscribe")
-        .args(app("a"))
-        .arg(":")
-        .args(app("b"));
+    let mut command = mpirun(d);
+    command.args(app("a")).arg(":").args(app("b"));
     let started = Instant::now();
     let out = wait(command, Duration::from_secs(60));
     let err = stderr(&out);
@@ -146,13 +139,10 @@ fn processes_that_cannot_reach_each_other_refuse_to_run_as_copies() {
 #[test]
 fn one_process_commands_are_refused_once_under_mpirun() {
     let dir = tempfile::tempdir().unwrap();
-    let mut command = Command::new("mpirun");
+    let mut command = mpirun(dir.path());
     command
-        .args(["--oversubscribe", "-n", "2", env!("CARGO_BIN_EXE_volgrad")])
-        .args(["make-grid", "box", "-o", "box.vdb"])
-        .env("OMPI_ALLOW_RUN_AS_ROOT", "1")
-        .env("OMPI_ALLOW_RUN_AS_ROOT_CONFIRM", "1")
-        .current_dir(dir.path());
+        .args(["-n", "2", env!("CARGO_BIN_EXE_volgrad")])
+        .args(["make-grid", "box", "-o", "box.vdb"]);
     let out = wait(command, LIMIT);
     let err = stderr(&out);
     assert!(!dir.path().join("box.vdb").exists());
@@ -232,15 +222,8 @@ fn ranks_given_different_work_are_refused() {
         (app("a", "2"), app("a", "3")),
         (app("a", "2"), app("b", "2")),
     ] {
-        let mut command = Command::new("mpirun");
-        command
-            .current_dir(d)
-            .env("OMPI_ALLOW_RUN_AS_ROOT", "1")
-            .env("OMPI_ALLOW_RUN_AS_ROOT_CONFIRM", "1")
-            .arg("--oversubscribe")
-            .args(&first)
-            .arg(":")
-            .args(&second);
+        let mut command = mpirun(d);
+        command.args(&first).arg(":").args(&second);
         let out = wait(command, LIMIT);
         let err = stderr(&out);
         assert!(!out.status.success(), "{err}");

@@ -50,21 +50,33 @@ spp = 4
     )
 }
 
+/// `mpirun --oversubscribe` in `dir`, the ranks' programs still to be given (`-n N program args`,
+/// and `: -n N …` for more).
+pub fn mpirun(dir: &Path) -> Command {
+    let mut command = Command::new("mpirun");
+    command
+        .current_dir(dir)
+        // OpenMPI refuses root without these; CI runs as root.
+        .env("OMPI_ALLOW_RUN_AS_ROOT", "1")
+        .env("OMPI_ALLOW_RUN_AS_ROOT_CONFIRM", "1")
+        .arg("--oversubscribe");
+    command
+}
+
 /// `volgrad args` in `dir` as `ranks` MPI ranks of one thread each (1: a plain process, no
 /// mpirun), killed after `limit`: a hang is a failure, not a stuck test.
 pub fn ranks(dir: &Path, ranks: usize, args: &[&str], limit: Duration) -> Output {
     let exe = env!("CARGO_BIN_EXE_volgrad");
     let mut command = if ranks == 1 {
-        Command::new(exe)
+        let mut c = Command::new(exe);
+        c.current_dir(dir);
+        c
     } else {
-        let mut c = Command::new("mpirun");
-        c.args(["--oversubscribe", "-n", &ranks.to_string(), exe])
-            // OpenMPI refuses root without these; CI runs as root.
-            .env("OMPI_ALLOW_RUN_AS_ROOT", "1")
-            .env("OMPI_ALLOW_RUN_AS_ROOT_CONFIRM", "1");
+        let mut c = mpirun(dir);
+        c.args(["-n", &ranks.to_string(), exe]);
         c
     };
-    command.current_dir(dir).args(args);
+    command.args(args);
     if !args.contains(&"--threads") {
         command.args(["--threads", "1"]);
     }
