@@ -9,6 +9,7 @@
 #include <OpenImageIO/imageio.h>
 
 #include <algorithm>
+#include <cerrno>
 #include <cstdint>
 #include <filesystem>
 #include <string>
@@ -118,10 +119,16 @@ void write_image(rust::Str path_str, const ImageData& image, rust::Str pixel_typ
         std::error_code ignored;
         fs::remove(tmp, ignored);
     };
+    errno = 0;
     if (!out->open(tmp.string(), spec)) {
+        // What the file system said of the temporary beside `path` (OIIO's message names the
+        // temporary, with the system's words in its own form); OIIO's when it said nothing.
+        const int err_no = errno;
         const std::string err = oiio_error(out->geterror());
         cleanup();
-        fail(what + ": " + err);
+        const std::string folder = p.parent_path().empty() ? "." : p.parent_path().string();
+        fail(what + ": cannot create a file in " + quoted(folder) + ": " +
+             (err_no != 0 ? errno_text(err_no) : err));
     }
     const OIIO::TypeDesc stored = out->spec().format;  // what the format actually stores
     if (!out->write_image(OIIO::TypeDesc::FLOAT, image.pixels.data())) {

@@ -191,6 +191,17 @@ fn image_errors_name_the_file() {
 
     let e = err_text(ffi::write_image("/nonexistent-dir/a.exr", &img, "half"));
     assert!(e.contains("does not exist"), "{e}");
+
+    // A folder that takes no new file (/proc, even for root): the system's reason, and the
+    // folder, not the hidden temporary the image is written to first.
+    for (name, format) in [("/proc/a.exr", "half"), ("/proc/a.png", "uint8")] {
+        let e = err_text(ffi::write_image(name, &img, format));
+        assert!(
+            e.contains("cannot create a file in '/proc': no such file or directory")
+                && !e.contains(".tmp"),
+            "{e}"
+        );
+    }
 }
 
 /// PNGs as other programs write them (the `image` crate here): 8- and 16-bit values are decoded
