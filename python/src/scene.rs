@@ -495,7 +495,13 @@ fn scene_json(py: Python<'_>, value: &Bound<'_, PyAny>, what: &str) -> PyResult<
             ))
         }
     })?;
-    json.extract()
+    let json: String = json.extract()?;
+    // Python's floats are f64: a light of 1e-300 would be dark without a word.
+    let value: serde_json::Value =
+        serde_json::from_str(&json).map_err(|e| PyValueError::new_err(format!("{what}: {e}")))?;
+    volgrad::io::json::within_f32(&value, "")
+        .map_err(|e| PyValueError::new_err(format!("{what}: {e}")))?;
+    Ok(json)
 }
 
 /// A JSON reader's message without "at line 1 column N": the JSON is ours, not the user's.

@@ -264,6 +264,9 @@ def bad_calls():
     yield lambda: volgrad.Camera((0, 0, 1), (0, 0, 0), fov_deg=1e-50), ValueError, r"fov_deg must be .*got 1e-50"
     yield lambda: volgrad.Camera((0, 0, 1), (0, 0, 0), cx=1e39), ValueError, "cx must be"
     yield lambda: volgrad.Camera.orbit(1, 1e40), ValueError, "distance must be"
+    # Inside the light dicts and emission_kind too: a sun of 1e-300 would be dark.
+    yield lambda: small_scene(lights=[{"type": "constant", "radiance": [1.0, 1e-300, 1.0]}]), ValueError, r"albedo and the lights: light\[0\].radiance\[1\] = 1e-300 is beyond"
+    yield lambda: small_scene(emission=ball(), emission_kind={"radiance": 1e39}), ValueError, "emission_kind: radiance = 1e39 is beyond"
 
 
 def test_numpy_values_stand_for_numbers_in_the_parts():

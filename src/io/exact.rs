@@ -28,19 +28,22 @@ where
     Option::<Vec<T>>::deserialize(d)?.map(exactly).transpose()
 }
 
+/// Refuses `x`, the value of `key`, if it is not 0 but would be 0 or infinite as an f32.
+pub fn float_within_f32(key: &str, x: f64) -> anyhow::Result<()> {
+    let narrowed = x as f32;
+    if x.is_finite() && (narrowed.is_infinite() || (narrowed == 0.0) != (x == 0.0)) {
+        anyhow::bail!("{key} = {x:e} is beyond a 32-bit float's range (about 1e-45 to 3e38 in magnitude), which volgrad computes in");
+    }
+    Ok(())
+}
+
 /// Refuses a float of the TOML `text` (already parsed once, so it is valid TOML) that is not 0
 /// but would be 0 or infinite as an f32, naming its key: volgrad computes in f32, and a key read as
 /// f64 holds values far inside that range anyway (positions within ±1e15).
 pub fn within_f32(text: &str) -> anyhow::Result<()> {
     fn walk(value: &toml::Value, key: &str) -> anyhow::Result<()> {
         match value {
-            toml::Value::Float(x) => {
-                let narrowed = *x as f32;
-                if x.is_finite() && (narrowed.is_infinite() || (narrowed == 0.0) != (*x == 0.0)) {
-                    anyhow::bail!("{key} = {x:e} is beyond a 32-bit float's range (about 1e-45 to 3e38 in magnitude), which volgrad computes in");
-                }
-                Ok(())
-            }
+            toml::Value::Float(x) => float_within_f32(key, *x),
             toml::Value::Array(items) => (items.iter().enumerate())
                 .try_for_each(|(i, item)| walk(item, &format!("{key}[{i}]"))),
             toml::Value::Table(table) => table.iter().try_for_each(|(k, v)| {

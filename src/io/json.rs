@@ -1,6 +1,7 @@
-//! JSON input read strictly: a key given twice in one object is an error naming it. serde_json
-//! keeps the last of two (`"fl_x": 500, …, "fl_x": 800` would be a camera of 800 pixels with
-//! nothing said), and a file written by hand or merged by a script is where that happens.
+//! JSON input read strictly: a key given twice in one object is an error naming it (serde_json
+//! keeps the last of two: `"fl_x": 500, …, "fl_x": 800` would be a camera of 800 pixels with
+//! nothing said, and a file written by hand or merged by a script is where that happens), and so
+//! is a number that f32 would make 0 or infinite.
 
 use std::fmt;
 
@@ -16,6 +17,26 @@ pub fn parse(text: &str) -> serde_json::Result<Value> {
     .deserialize(&mut deserializer)?;
     deserializer.end()?;
     Ok(value)
+}
+
+/// Refuses a number of `value` that f32 would make 0 or infinite (`exact::float_within_f32`),
+/// naming its path below `path` (as `light[0].radiance[1]`).
+pub fn within_f32(value: &Value, path: &str) -> anyhow::Result<()> {
+    let child = |key: &str| match path {
+        "" => key.to_string(),
+        parent => format!("{parent}.{key}"),
+    };
+    match value {
+        Value::Number(n) => n
+            .as_f64()
+            .map_or(Ok(()), |x| crate::io::exact::float_within_f32(path, x)),
+        Value::Array(items) => (items.iter().enumerate())
+            .try_for_each(|(i, item)| within_f32(item, &format!("{path}[{i}]"))),
+        Value::Object(object) => object
+            .iter()
+            .try_for_each(|(k, v)| within_f32(v, &child(k))),
+        _ => Ok(()),
+    }
 }
 
 /// A value at `path` (empty at the top), its objects checked for repeated keys.
@@ -114,5 +135,14 @@ mod tests {
             "{error}"
         );
         assert!(parse("{} {}").is_err(), "trailing characters");
+    }
+
+    #[test]
+    fn numbers_beyond_f32_are_named_by_their_path() {
+        let ok = serde_json::json!({"a": [0.0, 3e38, -1e-30, 7], "b": {"c": "x"}});
+        within_f32(&ok, "").unwrap();
+        let bad = serde_json::json!({"light": [{"radiance": [1.0, 1e-300]}]});
+        let error = within_f32(&bad, "").unwrap_err().to_string();
+        assert!(error.contains("light[0].radiance[1] = 1e-300"), "{error}");
     }
 }
