@@ -108,10 +108,14 @@ pub fn run(args: &Args, cluster: &Cluster) -> Result<()> {
     stop_on_sigusr1();
     // Every rank is given the same flags: one error, printed once.
     cluster.agree(set_threads(args.threads).and_then(|_| check_flags(args)))?;
-    check_same_job(cluster, || {
-        let run = std::fs::read(&args.run).unwrap_or_default();
-        vec![String::from_utf8_lossy(&run).into_owned()]
-    })?;
+    if cluster.size() > 1 {
+        // A run file missing on one machine is named as such, not as a difference.
+        let run = cluster.agree(
+            (std::fs::read(&args.run))
+                .with_context(|| format!("cannot read run file '{}'", args.run.display())),
+        )?;
+        check_same_job(cluster, || vec![String::from_utf8_lossy(&run).into_owned()])?;
+    }
     let resume = cluster.agree(args.resume.as_deref().map(checkpoint::latest).transpose())?;
     let out = match (&args.out, &args.resume) {
         (Some(out), _) => out.clone(),
