@@ -279,13 +279,15 @@ pub fn run(args: &Args, cluster: &Cluster) -> Result<()> {
         let source = load_target(args)?;
         Ok((scene, source))
     }))?;
+    // What the gradient file records, and what the ranks compare: hashed once.
+    let scene_fingerprint = fingerprint::scene(&scene);
     check_same_job(cluster, || {
         let target = match &source {
             TargetSource::None => "none".to_string(),
             TargetSource::Image(image) => image_fingerprint(image),
             TargetSource::Scene(other) => fingerprint::scene(other),
         };
-        vec![fingerprint::scene(&scene), target]
+        vec![scene_fingerprint.clone(), target]
     })?;
     let target = target_image(args, source, &scene, cluster);
     if let Some(t) = &target {
@@ -335,7 +337,7 @@ pub fn run(args: &Args, cluster: &Cluster) -> Result<()> {
             seed: options.seed.to_string(),
             loss: args.loss.to_string(),
             scene: args.scene.display().to_string(),
-            scene_fingerprint: fingerprint::scene(&scene),
+            scene_fingerprint,
             target_fingerprint: match (&target, args.loss.needs_target()) {
                 (Some(t), true) => image_fingerprint(t),
                 _ => "none".into(),
