@@ -13,6 +13,11 @@ _F64 = npt.NDArray[np.float64]
 def read_grid(path: _Path, name: Optional[str] = None) -> Tuple[_F32, _F64]:
     """The active box of a float grid: (values (nx, ny, nz), 4×4 index_to_world of the array)."""
 
+def read_picture(
+    path: _Path, color_space: Optional[str] = None
+) -> Tuple[_F32, Optional[_F32]]:
+    """A picture as linear radiance (H, W, 3), premultiplied by alpha, and alpha (H, W) or None."""
+
 def write_grid(
     path: _Path,
     array: _F32,
