@@ -207,10 +207,12 @@ pub fn load_reference(path: &Path, scene: &Scene) -> Result<Reference> {
 
 /// Optical depth that the ⟨g, 1⟩ finite difference adds across the domain's longest side. A step
 /// in grid units would not do: ε added to every voxel of the cloud's box (mostly empty space) at
-/// the per-voxel step 0.15 added τ ≈ 15 and the stencil read 0.30 for a derivative of 0.43. At
-/// τ = 2 the one-sided stencil (reaching 3ε) still read 6 % high on the tests' lumpy block:
-/// −0.0606 ± 0.0005 at 8,192 spp against −0.0585 ± 0.0021 at τ = 1 and joint's −0.0570 ± 0.0007.
-pub const ONES_OPTICAL_STEP: f64 = 1.0;
+/// the per-voxel step 0.15 added τ ≈ 15 and the stencil read 0.30 for a derivative of 0.43. The
+/// one-sided stencil reaches 3ε, and its error grows as ε³: at τ = 2 it read 6 % high on the
+/// tests' lumpy block (−0.0606 ± 0.0005 at 8,192 spp against joint's −0.0570 ± 0.0007), and at
+/// τ = 1 8 % low on `scenes/single-voxel.toml` (0.2379 ± 0.0014 against 0.2580 ± 0.0001), which
+/// made `compare` refuse a right reference there. At 0.3 that bias is a few tenths of a percent.
+pub const ONES_OPTICAL_STEP: f64 = 0.3;
 
 /// The fd step for ⟨g, 1⟩ over the whole domain (see `ONES_OPTICAL_STEP`).
 pub fn ones_eps(scene: &Scene) -> f32 {
