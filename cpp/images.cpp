@@ -28,10 +28,13 @@ OIIO::TypeDesc pixel_type_desc(const std::string& t) {
     fail("unknown pixel type '" + t + "' (expected half, float or uint8)");
 }
 
-std::string oiio_error(const std::string& specific) {
+// OpenImageIO's message for a failure, or `silent` where it gives none (some readers fail on a
+// truncated file without a word).
+std::string oiio_error(const std::string& specific,
+                       const std::string& silent = "unknown OpenImageIO error") {
     std::string e = specific.empty() ? OIIO::geterror() : specific;
     while (!e.empty() && (e.back() == '\n' || e.back() == ' ')) e.pop_back();
-    return e.empty() ? "unknown OpenImageIO error" : e;
+    return e.empty() ? silent : e;
 }
 
 }  // namespace
@@ -72,7 +75,8 @@ ImageData read_image(rust::Str path_str) {
     for (const std::string& name : spec.channelnames) img.channel_names.push_back(rust::String(name));
     std::vector<float> data(size_t(spec.width) * size_t(spec.height) * size_t(spec.nchannels));
     if (!in->read_image(0, 0, 0, spec.nchannels, OIIO::TypeDesc::FLOAT, data.data())) {
-        fail("cannot read image " + quoted(path) + ": " + oiio_error(in->geterror()));
+        const std::string silent = "its pixels could not be read (is it truncated or corrupt?)";
+        fail("cannot read image " + quoted(path) + ": " + oiio_error(in->geterror(), silent));
     }
     in->close();
     resize_f32s(img.pixels, data.size());  // filled through data(): see resize_f32s

@@ -156,6 +156,17 @@ fn image_errors_name_the_file() {
         "{e}"
     );
 
+    // A header that promises pixels the file does not hold: OpenImageIO's PPM reader fails
+    // without a message of its own.
+    let truncated = dir.path().join("truncated.ppm");
+    std::fs::write(&truncated, b"P6\n2 2\n255\n").unwrap();
+    let e = err_text(ffi::read_image(path_str(&truncated)));
+    assert!(
+        e.starts_with(&format!("cannot read image '{}'", path_str(&truncated)))
+            && e.contains("truncated or corrupt"),
+        "{e}"
+    );
+
     let img = test_image(2, 2, 3, true);
     let unknown = dir.path().join("x.unknownext");
     let e = err_text(ffi::write_image(path_str(&unknown), &img, "float"));
