@@ -54,11 +54,11 @@ pub fn check_path(path: &std::path::Path, argument: &str) -> pyo3::PyResult<()> 
 /// beyond f32's range would become 0 or infinity without a word (a `density_scale` of 1e-46, an
 /// empty medium), so it is refused by name, as is a NaN or an infinity.
 pub fn narrow(argument: &str, value: f64) -> PyResult<f32> {
-    let narrowed = value as f32;
-    if !narrowed.is_finite() || (narrowed == 0.0) != (value == 0.0) {
+    // The library's range rule (the one scene and run files are held to), with Python's wording.
+    if !value.is_finite() || volgrad::io::exact::float_within_f32(argument, value).is_err() {
         return Err(PyValueError::new_err(format!(
             "{argument} must be a finite number within a 32-bit float's range, about 1e-45 to 3e38 in magnitude (got {value:e})"
         )));
     }
-    Ok(narrowed)
+    Ok(value as f32)
 }

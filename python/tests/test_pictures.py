@@ -1,6 +1,9 @@
 """read_picture: pictures from elsewhere decoded to linear radiance and alpha, as `optimize` reads
 a view set's pictures."""
 
+import subprocess
+import sys
+
 import numpy as np
 import pytest
 
@@ -61,7 +64,15 @@ def test_a_picture_without_alpha_and_unreadable_files(cli, tmp_path):
 
 
 def test_the_pytorch_and_jax_modules_after_a_plain_import():
-    assert callable(volgrad.torch.render)
-    assert callable(volgrad.jax.renderer)
+    # In a fresh interpreter: here another test may have imported them already, which would make
+    # them the package's attributes whatever `volgrad.__getattr__` does.
+    script = """
+import sys, volgrad
+assert "torch" not in sys.modules and "jax" not in sys.modules, "import volgrad imported them"
+assert callable(volgrad.torch.render)
+assert callable(volgrad.jax.renderer)
+"""
+    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr
     with pytest.raises(AttributeError, match="no attribute 'tourch'"):
         volgrad.tourch
