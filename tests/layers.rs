@@ -1,5 +1,5 @@
-//! The library's layers, as `src/lib.rs` states them: volume < io < render < gradient < compare <
-//! optimize, with the binary's `cli` on top. A file may use its own layer and the layers below it, never one
+//! The library's layers, as `src/lib.rs` states them: volume < io < render < capture < gradient <
+//! cluster < compare < optimize, with the binary's `cli` on top. A file may use its own layer and the layers below it, never one
 //! above: this test reads every source file and fails on a `crate::<layer>` (or `volgrad::<layer>`
 //! from the binary) path that points upward, grouped imports (`use crate::{io::vdb, render::scene}`)
 //! included. Inside the `volume` and `render` layers the modules read bottom-up too: the modules
@@ -8,8 +8,8 @@
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
-const LAYERS: [&str; 7] = [
-    "volume", "io", "render", "gradient", "compare", "optimize", "cli",
+const LAYERS: [&str; 9] = [
+    "volume", "io", "render", "capture", "gradient", "cluster", "compare", "optimize", "cli",
 ];
 
 /// Layers whose modules must not import each other in a circle.

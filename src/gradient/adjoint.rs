@@ -4,8 +4,8 @@
 //! Notation (DESIGN.md, supplement eqs. 45–58): segment j leaves x_{j−1} along ω with throughput
 //! β_{j−1}; ℓ = min(t, t_max) is how far it got (clipped to where it is inside the medium's box);
 //! R_j = ĥ(x_j) is what the path carries back from x_j on ((1 − α)·Le + α·(NEE + deeper) at a
-//! collision, the MIS-weighted environment radiance on escape: the supplement's h with the
-//! emission term, eq. 45). ∂σt(y)/∂θ_k = density_scale · (lookup weight of
+//! collision, the MIS-weighted environment radiance on escape: the supplement's h, eq. 45, with
+//! the emission term volgrad adds). ∂σt(y)/∂θ_k = density_scale · (lookup weight of
 //! voxel k at y).
 //!
 //! - joint:  β_{j−1} · ℓ · [ĥ(y) − ĥ(x_j)] · ∂σt(y),  y uniform on the segment (eq. 58);
@@ -168,9 +168,11 @@ impl Scratch {
 /// throughput β_{j−1} that reaches it.
 ///
 /// - escape: the MIS-weighted environment radiance;
-/// - a collision that scattered: R_j = α·(NEE_j + w_j·R_{j+1}), w_j the Russian-roulette factor
-///   (1/q, or 0 where the path ended, which is also where R_{j+1} would be missing);
-/// - a collision that did not scatter (past the maximum depth, or absorbed with albedo 0): 0.
+/// - a collision that scattered: R_j = (1 − α)·Le_j + α·(NEE_j + w_j·R_{j+1}), w_j the
+///   Russian-roulette factor (1/q, or 0 where the path ended, which is also where R_{j+1} would
+///   be missing), Le_j the medium's emission there (zero where it does not emit);
+/// - a collision that did not scatter (past the maximum depth, or absorbed with albedo 0): the
+///   emission term (1 − α)·Le_j alone.
 ///
 /// This is `trace`'s sum read backwards: with β_0 = 1, R_1 is the path's radiance.
 pub fn carried_radiance(segments: &[Segment], carried: &mut Vec<Vec3>) {
