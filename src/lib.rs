@@ -3,7 +3,8 @@
 //! Layers, each using only those before it: `volume` (bricks, majorants, tracking) < `io` (files
 //! and the terminal) < `render` (scenes and the path tracer) < `capture` (pictures and cameras
 //! from elsewhere) < `gradient` (path replay, passes, finite differences) < `cluster` (the MPI
-//! processes of one job) < `compare` (equal-time studies) < `optimize` (inverse rendering). The binary's `cli` sits on top.
+//! processes of one job) < `compare` (equal-time studies) < `optimize` (inverse rendering). The
+//! binary's `cli` sits on top.
 
 // Bad input gets an error, never a panic: outside tests an unwrap must say why it cannot fail
 // (`expect`). Tests (here and in tests/) may unwrap.

@@ -3,6 +3,8 @@
 //! (`render::pixel_set`), and the ranks add their results (`sparse_sum` for gradients, `images`
 //! for images, `passes` for whole gradient passes) so that every rank takes the same step.
 //! Started any other way, it is one process and every collective here returns its input.
+//! Uses `gradient` (its passes and grids), `render` and `io`; `optimize` and the commands run their
+//! passes through it.
 //!
 //! Faults: an error that one rank meets and the others do not (an unreadable file, a failing
 //! write) must not leave the others waiting in a collective. Every such point goes through

@@ -149,7 +149,7 @@ pub const ALPHA_WEIGHT: f32 = 1.0;
 /// per upsampling" gives: a budget-bound run's first level is noise-limited too. Measured in
 /// 10-minute runs (docs/reconstruct.md, "One rule per level"): the cloud's held-out PSNR rose from
 /// 33.9 to 34.6 dB and the worked example's by 0.13 dB; the quick ball, whose 12³ first level
-/// converges within its 150 steps, loses 0.3 dB and sets 0.
+/// converges within its 150 steps, loses 0.3 dB and sets 0, as does the smoke (1.6 dB lost).
 pub const FIRST_LEVEL_SMOOTHING: u32 = 1;
 /// Where the average of θ begins by default, as a fraction of the run. Measured against the last
 /// iterate of the same 10-minute run (docs/reconstruct.md, "The average of the last steps"): on
