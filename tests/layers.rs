@@ -1,9 +1,10 @@
 //! The library's layers, as `src/lib.rs` states them: volume < io < render < capture < gradient <
 //! cluster < compare < optimize, with the binary's `cli` on top. A file may use its own layer and
-//! the layers below it, never one above: this test reads every source file and fails on a `crate::<layer>` (or `volgrad::<layer>`
-//! from the binary) path that points upward, grouped imports (`use crate::{io::vdb, render::scene}`)
-//! included. Inside the `volume` and `render` layers the modules read bottom-up too: the modules
-//! each file names through `crate::<layer>::<module>` must form no cycle.
+//! the layers below it, never one above: this test reads every source file and fails on a
+//! `crate::<layer>` (or `volgrad::<layer>` from the binary) path that points upward, grouped
+//! imports (`use crate::{io::vdb, render::scene}`) included. Inside the `volume` and `render`
+//! layers the modules read bottom-up too: the modules each file names through
+//! `crate::<layer>::<module>` must form no cycle.
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
