@@ -269,6 +269,19 @@ def bad_calls():
     yield lambda: small_scene(emission=ball(), emission_kind={"radiance": 1e39}), ValueError, "emission_kind: radiance = 1e39 is beyond"
 
 
+def test_an_argument_of_another_python_type_is_named():
+    """PyO3 converts the arguments: a str where a number goes is its TypeError, whose message names
+    the type, and the note it adds (printed with the traceback) names the argument."""
+    for call, name in [
+        (lambda: volgrad.Camera.orbit(4, 5.0, width="a"), "width"),
+        (lambda: small_scene().render(spp="8"), "spp"),
+        (lambda: volgrad.Camera((0, 0, 1), 5), "target"),
+    ]:
+        with pytest.raises(TypeError) as raised:
+            call()
+        assert f"while processing '{name}'" in getattr(raised.value, "__notes__", []), raised.value
+
+
 def test_numpy_values_stand_for_numbers_in_the_parts():
     lights = [
         {"type": "constant", "radiance": np.array([0.4, 0.5, 0.6], np.float32)},

@@ -75,8 +75,10 @@ pub struct OptimizerFile {
     /// Filter the gradient with [1 2 1]/4 per axis (`smoothing`): `first_level_smoothing` passes
     /// at the first level, one more per upsampling done.
     pub smooth_gradient: bool,
-    /// Smoothing passes at the first level (`FIRST_LEVEL_SMOOTHING` by default).
-    pub first_level_smoothing: u32,
+    /// Smoothing passes at the first level; by default one where a step's paths are few for the
+    /// first level's voxels, none where they are many (`first_level_smoothing_for`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub first_level_smoothing: Option<u32>,
     /// From this fraction of the run on, the result is a mean of θ over the steps since (or
     /// since the last upsampling, if later), the later steps weighing more: `average`. 1: θ as
     /// the last step left it.
@@ -130,7 +132,7 @@ impl Default for OptimizerFile {
                 ),
             ],
             smooth_gradient: true,
-            first_level_smoothing: FIRST_LEVEL_SMOOTHING,
+            first_level_smoothing: None,
             average_from: AVERAGE_FROM,
             fit_scale: true,
             fit_brick_scales: true,
@@ -145,12 +147,13 @@ impl Default for OptimizerFile {
 /// channel.
 pub const ALPHA_WEIGHT: f32 = 1.0;
 
-/// Smoothing passes at the first level by default. One, not the zero that the rule "one pass
-/// per upsampling" gives: a budget-bound run's first level is noise-limited too. Measured in
-/// 10-minute runs (docs/reconstruct.md, "One rule per level"): the cloud's held-out PSNR rose from
-/// 33.9 to 34.6 dB and the worked example's by 0.13 dB; the quick ball, whose 12³ first level
-/// converges within its 150 steps, loses 0.3 dB and sets 0, as does the smoke (1.6 dB lost).
-pub const FIRST_LEVEL_SMOOTHING: u32 = 1;
+/// Below this many gradient paths per step per first-level voxel, a density's first level gets a
+/// smoothing pass of its own by default (`first_level_smoothing_for`). Measured, not derived: in
+/// the runs of docs/reconstruct.md ("One rule per level") the pass raised the held-out PSNR of the
+/// worked example (3.8 paths per voxel, +0.13 dB) and of the cloud (10.0, +0.47 dB) and lowered it
+/// for the quick ball (19.0, −0.23 dB over six seeds) and the smoke (47.8, −1.6 dB); 14 is the
+/// geometric mean of the two neighbours across the change.
+pub const SMOOTHING_PATHS_PER_VOXEL: f64 = 14.0;
 /// Where the average of θ begins by default, as a fraction of the run. Measured against the last
 /// iterate of the same 10-minute run (docs/reconstruct.md, "The average of the last steps"): on
 /// the worked example the mean from 0.6 on scored +0.11 dB held-out and +0.20 dB relit, from 0.75
@@ -174,6 +177,19 @@ pub const MAX_SPP: u32 = 1 << 20;
 /// at all, and far beyond it the loss's squared gradients overflow f32 (at 10²² a run empties its
 /// grid without a word).
 pub const MAX_ALPHA_WEIGHT: f32 = 1e6;
+
+/// The first level's smoothing passes by default. For a density, one where a step's `paths` are
+/// fewer than `SMOOTHING_PATHS_PER_VOXEL` per first-level voxel, so that each voxel's gradient is
+/// mostly Monte Carlo noise, which the pass averages over its neighbours; none where they are
+/// more: there the gradient already says what the level can resolve, and the pass, whose response
+/// cos²(ω/2) per axis vanishes at the level's finest detail, only holds the level back from it.
+/// For an emission grid (`extinction` false) none: on both flames, at 8 and 41 paths per voxel,
+/// the pass left the held-out PSNR where it was or lowered it and raised the volume error by a
+/// third or more, the blur spreading light into voxels the flame leaves dark (docs/reconstruct.md,
+/// "One rule per level").
+pub fn first_level_smoothing_for(paths: f64, first_level_voxels: u64, extinction: bool) -> u32 {
+    u32::from(extinction && paths < SMOOTHING_PATHS_PER_VOXEL * first_level_voxels as f64)
+}
 
 #[derive(Debug, Clone, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
@@ -247,11 +263,11 @@ impl OptimizerFile {
                 self.brick_scale_lr
             );
         }
-        if self.first_level_smoothing > MAX_FIRST_LEVEL_SMOOTHING {
-            bail!(
-                "optimizer.first_level_smoothing must be at most {MAX_FIRST_LEVEL_SMOOTHING} (got {})",
-                self.first_level_smoothing
-            );
+        if let Some(n) = self
+            .first_level_smoothing
+            .filter(|&n| n > MAX_FIRST_LEVEL_SMOOTHING)
+        {
+            bail!("optimizer.first_level_smoothing must be at most {MAX_FIRST_LEVEL_SMOOTHING} (got {n})");
         }
         if !(0.0..=1.0).contains(&self.average_from) {
             bail!(
@@ -326,12 +342,19 @@ impl OptimizerFile {
         Ok(())
     }
 
-    /// Fills in what the scene decides: the learning rate (from `step_optical_depth`), the batch
-    /// and `primal_spp` (2 × spp). The batch, unless given: 8 whole views (or every view, when
-    /// there are fewer) if they hold at most `BATCH_PIXELS`, else `BATCH_PIXELS` pixels drawn
-    /// across the views, so that an iteration costs the same on 64² views and on 800² ones.
-    /// `view_pixels` are the training views' sizes.
-    pub fn resolve(&mut self, units: &SceneUnits, view_pixels: &[u64]) {
+    /// Fills in what the scene decides: the learning rate (from `step_optical_depth`), the batch,
+    /// `primal_spp` (2 × spp) and the first level's smoothing. The batch, unless given: 8 whole
+    /// views (or every view, when there are fewer) if they hold at most `BATCH_PIXELS`, else
+    /// `BATCH_PIXELS` pixels drawn across the views, so that an iteration costs the same on 64²
+    /// views and on 800² ones. `view_pixels` are the training views' sizes, `first_level_voxels`
+    /// the unknown's voxels at its first level; `extinction`: the unknown is the density.
+    pub fn resolve(
+        &mut self,
+        units: &SceneUnits,
+        view_pixels: &[u64],
+        first_level_voxels: u64,
+        extinction: bool,
+    ) {
         // settings.toml gives the learning rate as `lr` alone: with both, it would not load.
         self.lr = Some(self.learning_rate(units));
         self.step_optical_depth = None;
@@ -347,6 +370,24 @@ impl OptimizerFile {
             }
         }
         self.primal_spp = Some(self.primal_spp.unwrap_or(2 * self.spp));
+        let paths = self.paths_per_step(view_pixels);
+        self.first_level_smoothing =
+            Some(self.first_level_smoothing.unwrap_or_else(|| {
+                first_level_smoothing_for(paths, first_level_voxels, extinction)
+            }));
+    }
+
+    /// The gradient pass's paths in one step once the batch is resolved: its pixels (a batch of
+    /// views takes their mean size) times `spp`.
+    pub fn paths_per_step(&self, view_pixels: &[u64]) -> f64 {
+        let pixels = match (self.batch_pixels, self.batch) {
+            (Some(pixels), _) => f64::from(pixels),
+            (None, batch) => {
+                let mean = view_pixels.iter().sum::<u64>() as f64 / view_pixels.len().max(1) as f64;
+                f64::from(batch.unwrap_or(1)) * mean
+            }
+        };
+        pixels * f64::from(self.spp)
     }
 
     /// Fills in `alpha_weight` once the views are known: `with_alpha` of the `views` training
@@ -427,7 +468,7 @@ mod tests {
                 batch,
                 ..OptimizerFile::default()
             };
-            o.resolve(&units, views);
+            o.resolve(&units, views, 1, true);
             (o.batch, o.batch_pixels)
         };
         assert_eq!(resolved(&[64 * 64; 20], None), (Some(8), None));
@@ -439,6 +480,31 @@ mod tests {
         mixed[3] = 256 * 256;
         assert_eq!(resolved(&mixed, None), (None, Some(BATCH_PIXELS)));
         assert_eq!(resolved(&[96 * 96; 24], Some(8)), (Some(8), None));
+    }
+
+    /// The first level's smoothing by default: one pass for a density whose step has fewer than
+    /// `SMOOTHING_PATHS_PER_VOXEL` paths per first-level voxel (8 views of 64² at 8 spp, or
+    /// 32,768 pixels of larger views, are 262,144 paths: 14 per voxel at 18,724.6 voxels), none
+    /// above it or for an emission grid; a value the file gives is kept.
+    #[test]
+    fn the_first_level_smoothing_follows_the_paths_per_voxel() {
+        let units = SceneUnits::new(0.1, 500.0, 0.04);
+        let resolved = |views: &[u64], voxels, extinction, given| {
+            let mut o = OptimizerFile {
+                first_level_smoothing: given,
+                ..OptimizerFile::default()
+            };
+            o.resolve(&units, views, voxels, extinction);
+            o.first_level_smoothing
+        };
+        for views in [&[64 * 64; 16][..], &[96 * 96; 24][..]] {
+            assert_eq!(resolved(views, 26_208, true, None), Some(1));
+            assert_eq!(resolved(views, 18_725, true, None), Some(1));
+            assert_eq!(resolved(views, 18_724, true, None), Some(0));
+            assert_eq!(resolved(views, 5_488, true, None), Some(0));
+            assert_eq!(resolved(views, 26_208, false, None), Some(0));
+            assert_eq!(resolved(views, 5_488, true, Some(2)), Some(2));
+        }
     }
 
     /// Alpha is fitted by default only when every training view has an alpha target and the

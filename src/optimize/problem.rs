@@ -13,6 +13,7 @@ use crate::io::fingerprint::Fingerprint;
 use crate::io::vdb::{self, GridSelector, LevelSet};
 use crate::optimize::adam::Adam;
 use crate::optimize::hull::{self, Hull};
+use crate::optimize::optimizer_file;
 use crate::optimize::parameters::{Parameters, MAX_VOXELS};
 use crate::optimize::prior::Prior;
 use crate::optimize::resample::Moments;
@@ -213,7 +214,12 @@ impl Problem {
             .iter()
             .map(|v| u64::from(v.camera.width) * u64::from(v.camera.height))
             .collect();
-        file.optimizer.resolve(&units, &view_pixels);
+        file.optimizer.resolve(
+            &units,
+            &view_pixels,
+            domain.voxel_count_at(0),
+            unknown == UnknownGrid::Density,
+        );
         let with_alpha = views.iter().filter(|v| v.alpha.is_some()).count();
         (file.optimizer).resolve_alpha(with_alpha, views.len(), unknown == UnknownGrid::Density)?;
         let start_file = file.unknown.start.clone().unwrap_or(StartFile::Constant(
@@ -244,6 +250,11 @@ impl Problem {
                 domain.voxel_count_at(0)
             );
         }
+        notes += &format!(
+            "gradient paths per step per first-level voxel: {:.1} (first_level_smoothing is 1 by default for a density below {}, else 0)\n",
+            file.optimizer.paths_per_step(&view_pixels) / domain.voxel_count_at(0) as f64,
+            optimizer_file::SMOOTHING_PATHS_PER_VOXEL
+        );
         let fingerprint = fingerprint(&file, &scene, views.iter().chain(&holdouts));
         let grid_name = match (unknown, &scene.medium.emission) {
             (UnknownGrid::Emission, Some(emission)) => emission.name.clone(),
@@ -463,7 +474,10 @@ impl Settings {
             suffix_paths: o.suffix_paths,
             max_depth,
             priors: o.priors(units)?,
-            first_level_smoothing: o.smooth_gradient.then_some(o.first_level_smoothing),
+            first_level_smoothing: match o.smooth_gradient {
+                true => Some(o.first_level_smoothing.context("resolved")?),
+                false => None,
+            },
             average_from: o.average_from,
             fit_exposure: o.fit_exposure,
             alpha_weight: o.alpha_weight.unwrap_or(0.0),
