@@ -532,3 +532,36 @@ fn a_run_logged_to_a_file_says_its_progress_and_force_replaces_an_earlier_run() 
         ]
     );
 }
+
+/// The first level's smoothing default counts the first level's voxels, not the final level's: a
+/// 16³ box with one upsampling has 8³ = 512 voxels at its first level, and a step of 3 views of
+/// 24² sends 1,728 × spp gradient paths. At 8 spp that is 27 paths per first-level voxel (no pass)
+/// but 3.4 per final voxel (which would give one); at 2 spp, 6.75 (one pass).
+#[test]
+fn the_first_level_smoothing_default_follows_the_first_levels_voxels() {
+    let run = |spp: u32| {
+        run_file("0.0", &format!("spp = {spp}"))
+            .replace("first_level_smoothing = 0\n", "")
+            .replace(
+                "bounds = \"truth\"",
+                "bounds = { min = [-6, -6, -6], max = [6, 6, 6] }\nvoxel_size = 0.75\nlevels = [0.5]",
+            )
+    };
+    let dir = fixture(&run(8));
+    let d = dir.path();
+    std::fs::write(d.join("few.toml"), run(2)).unwrap();
+    for (spp, file, passes) in [(8, "run.toml", 0), (2, "few.toml", 1)] {
+        let out = format!("out-{spp}");
+        ok(volgrad_in(
+            d,
+            &["optimize", file, "--iterations", "0", "--out", &out, "-q"],
+        ));
+        let text = std::fs::read_to_string(d.join(&out).join("settings.toml")).unwrap();
+        let settings: toml::Value = toml::from_str(&text).unwrap();
+        assert_eq!(
+            settings["optimizer"]["first_level_smoothing"].as_integer(),
+            Some(passes),
+            "spp = {spp}:\n{text}"
+        );
+    }
+}

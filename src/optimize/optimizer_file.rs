@@ -182,7 +182,7 @@ pub const MAX_ALPHA_WEIGHT: f32 = 1e6;
 /// fewer than `SMOOTHING_PATHS_PER_VOXEL` per first-level voxel, so that each voxel's gradient is
 /// mostly Monte Carlo noise, which the pass averages over its neighbours; none where they are
 /// more: there the gradient already says what the level can resolve, and the pass, whose response
-/// cos²(ω/2) per axis vanishes at the level's finest detail, only holds the level back from it.
+/// cos²(ω/2) per axis is near 0 at the level's finest detail, only holds the level back from it.
 /// For an emission grid (`extinction` false) none: on both flames, at 8 and 41 paths per voxel,
 /// the pass left the held-out PSNR where it was or lowered it and raised the volume error by a
 /// third or more, the blur spreading light into voxels the flame leaves dark (docs/reconstruct.md,

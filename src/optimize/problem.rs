@@ -251,7 +251,7 @@ impl Problem {
             );
         }
         notes += &format!(
-            "gradient paths per step per first-level voxel: {:.1} (first_level_smoothing is 1 by default for a density below {}, else 0)\n",
+            "gradient paths per step per first-level voxel: {:.1} (by default first_level_smoothing is 1 for a density below {}, else 0)\n",
             file.optimizer.paths_per_step(&view_pixels) / domain.voxel_count_at(0) as f64,
             optimizer_file::SMOOTHING_PATHS_PER_VOXEL
         );

@@ -8,17 +8,17 @@
 //! the binomial kernel [1 2 1]/4 per axis, once per upsampling done, averages each voxel's gradient
 //! over about the start level's voxel again (one pass leaves the noise at 0.23×, two at 0.14×, a
 //! parent's 1/√8 and 1/√64 would be 0.35× and 0.125×) while a smooth gradient passes unchanged.
-//! A large first level's gradient is mostly noise too (a batch of 32,768 pixels at 8 spp against
-//! 10⁴–10⁵ voxels): a density's first level with fewer than 14 paths a step per voxel gets a pass
-//! of its own by default (`optimizer_file::first_level_smoothing_for`), and every level one more
-//! per upsampling.
+//! A large first level's gradient is mostly noise too: a density's first level with fewer than
+//! `optimizer_file::SMOOTHING_PATHS_PER_VOXEL` gradient paths a step per voxel (32,768 pixels at
+//! 8 spp over more than about 19,000 voxels) gets a pass of its own by default
+//! (`optimizer_file::first_level_smoothing_for`), and every level one more per upsampling.
 //!
 //! The step is θ ← θ − lr·P·g with P = Bⁿ (n passes), a symmetric filter whose frequency response
 //! cos²(ω/2) per axis is ≥ 0, so −P·g is still a descent direction and the fixed points are the
 //! stationary points of the loss; what P changes is the path there: coarse structure first, fine
-//! detail as the gradient keeps asking for it. The finest detail slowly: B's response at the
-//! level's highest frequency is near 0, which is why a first level whose gradient is not mostly
-//! noise does better without its own pass.
+//! detail as the gradient keeps asking for it. The finest detail comes slowly: B's response
+//! cos²(ω/2) is near 0 at the level's highest frequency, which is why a first level whose gradient
+//! is not mostly noise does better without a pass of its own.
 
 use glam::IVec3;
 use rayon::prelude::*;

@@ -69,8 +69,9 @@ start = {start}
 lr = 0.1
 lr_decay = 0.1
 batch = 3
-# A 24³ ball that converges within its steps, like scenes/inverse/quick.toml: its first level is not
-# noise-limited, and a smoothing pass there only blurs it.
+# A ball that converges within its steps: its first level is not noise-limited, and a smoothing
+# pass there only blurs it. (Spelled out, not derived: the default would follow each test's spp,
+# and tests edit the line.)
 first_level_smoothing = 0
 {optimizer}
 "#
