@@ -28,12 +28,34 @@ OIIO::TypeDesc pixel_type_desc(const std::string& t) {
     fail("unknown pixel type '" + t + "' (expected half, float or uint8)");
 }
 
-// OpenImageIO's message for a failure, or `silent` where it gives none (some readers fail on a
-// truncated file without a word).
+// OpenImageIO's message for a failure, on one line, or `silent` where it gives none (some readers
+// fail on a truncated file without a word). A reader may stack several lines, each layer restating
+// the last ("Read error: hit end of file", "PNG read error: IDAT: Read error: hit end of file",
+// "PNG library error"): a line another line already contains is left out, the rest joined by "; ".
 std::string oiio_error(const std::string& specific,
                        const std::string& silent = "unknown OpenImageIO error") {
-    std::string e = specific.empty() ? OIIO::geterror() : specific;
-    while (!e.empty() && (e.back() == '\n' || e.back() == ' ')) e.pop_back();
+    const std::string all = specific.empty() ? OIIO::geterror() : specific;
+    std::vector<std::string> lines;
+    size_t start = 0;
+    while (start <= all.size()) {
+        size_t end = all.find('\n', start);
+        if (end == std::string::npos) end = all.size();
+        std::string line = all.substr(start, end - start);
+        while (!line.empty() && (line.back() == ' ' || line.back() == '\r')) line.pop_back();
+        if (!line.empty()) lines.push_back(line);
+        start = end + 1;
+    }
+    std::string e;
+    for (size_t i = 0; i < lines.size(); ++i) {
+        bool restated = false;
+        for (size_t j = 0; j < lines.size(); ++j) {
+            restated |= j != i && lines[j].find(lines[i]) != std::string::npos &&
+                        (lines[j] != lines[i] || j < i);
+        }
+        if (restated) continue;
+        if (!e.empty()) e += "; ";
+        e += lines[i];
+    }
     return e.empty() ? silent : e;
 }
 

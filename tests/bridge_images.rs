@@ -167,6 +167,29 @@ fn image_errors_name_the_file() {
         "{e}"
     );
 
+    // A PNG cut short, or with a damaged byte in its pixels: libpng's reader stacks a line per
+    // layer ("Read error: hit end of file", "PNG read error: IDAT: …", "PNG library error"); the
+    // error is one line that says what went wrong once.
+    let whole = dir.path().join("whole.png");
+    ffi::write_image(path_str(&whole), &test_image(64, 64, 4, true), "uint8").unwrap();
+    let bytes = std::fs::read(&whole).unwrap();
+    let cut = dir.path().join("cut.png");
+    std::fs::write(&cut, &bytes[..bytes.len() / 2]).unwrap();
+    let mut flipped = bytes.clone();
+    flipped[bytes.len() / 2] ^= 0xff;
+    let damaged = dir.path().join("damaged.png");
+    std::fs::write(&damaged, &flipped).unwrap();
+    for (path, says) in [(&cut, "end of file"), (&damaged, "PNG read error")] {
+        let e = err_text(ffi::read_image(path_str(path)));
+        assert!(
+            e.starts_with(&format!("cannot read image '{}'", path_str(path)))
+                && e.contains(says)
+                && !e.contains('\n')
+                && e.matches(says).count() == 1,
+            "{e}"
+        );
+    }
+
     let img = test_image(2, 2, 3, true);
     let unknown = dir.path().join("x.unknownext");
     let e = err_text(ffi::write_image(path_str(&unknown), &img, "float"));
