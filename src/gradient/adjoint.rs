@@ -131,9 +131,10 @@ pub fn splat_lookup(filter: Filter, p: Vec3, value: Vec3, sink: &mut impl Gradie
     }
 }
 
-/// Suffix paths per camera path (`Suffix::PerPath`): on the cloud, two instead of one cut joint's
-/// per-voxel variance by about 40 % for its variance × time 0.71–0.90× (three runs); three or four
-/// gain no more than they cost (`VOLGRAD_BENCH_SUFFIX_PATHS=K cargo bench --bench gradients`,
+/// Suffix paths per camera path (`Suffix::PerPath`): two instead of one cut joint's per-voxel
+/// variance by about 40 % on the cloud and 27 % on the smoke, for a variance × time of 0.69–0.90×
+/// on the cloud (four runs) and 0.77× on the smoke (one); three or four gain no more than they
+/// cost (`VOLGRAD_BENCH_SUFFIX_PATHS=K cargo bench --bench gradients`,
 /// docs/results-rendering.md).
 pub const DEFAULT_SUFFIX_PATHS: u32 = 2;
 
