@@ -47,6 +47,7 @@ std::string oiio_error(const std::string& specific,
     }
     std::string e;
     for (size_t i = 0; i < lines.size(); ++i) {
+        // Restated: inside a longer line, or the same as an earlier one (the first copy is kept).
         bool restated = false;
         for (size_t j = 0; j < lines.size(); ++j) {
             restated |= j != i && lines[j].find(lines[i]) != std::string::npos &&
