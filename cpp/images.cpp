@@ -79,31 +79,65 @@ ImageData read_image(rust::Str path_str) {
              std::to_string(spec.width) + "x" + std::to_string(spec.height) + "x" +
              std::to_string(spec.depth) + " with " + std::to_string(spec.nchannels) + " channels");
     }
-    // The largest image the renderer makes (scene_check::MAX_PIXELS): a header may declare
-    // far more than the file holds, and the buffer would be allocated before any pixel is read.
-    const uint64_t max_pixels = uint64_t(1) << 28;
-    if (uint64_t(spec.width) * uint64_t(spec.height) > max_pixels || spec.nchannels > 64) {
-        fail("cannot read image " + quoted(path) + ": it declares " + std::to_string(spec.width) +
-             "x" + std::to_string(spec.height) + " pixels of " + std::to_string(spec.nchannels) +
-             " channels, more than volgrad reads (2^28 pixels, 64 channels)");
+    // The image is the display window; the file stores its data window, which OpenEXR lets
+    // differ (a bounding box smaller than the frame, overscan beyond it) and which is placed on
+    // the display window below, the pixels it leaves out black and transparent (OpenEXR's rule).
+    const int64_t width = spec.full_width > 0 ? spec.full_width : spec.width;
+    const int64_t height = spec.full_height > 0 ? spec.full_height : spec.height;
+    // The largest image the renderer makes (scene_check::MAX_PIXELS), and at most 4 GiB of
+    // values: a header may declare far more than the file holds, and the buffers are allocated
+    // before any pixel is read.
+    const uint64_t max_pixels = uint64_t(1) << 28, max_values = uint64_t(1) << 30;
+    const uint64_t pixels = uint64_t(width) * uint64_t(height);
+    const uint64_t stored = uint64_t(spec.width) * uint64_t(spec.height);
+    const uint64_t channels = uint64_t(spec.nchannels);
+    const bool whole = spec.x == spec.full_x && spec.y == spec.full_y &&
+                       int64_t(spec.width) == width && int64_t(spec.height) == height;
+    if (pixels > max_pixels || stored > max_pixels ||
+        (pixels + (whole ? 0 : stored)) * channels > max_values) {
+        fail("cannot read image " + quoted(path) + ": it declares " + std::to_string(width) +
+             "x" + std::to_string(height) + " pixels of " + std::to_string(spec.nchannels) +
+             " channels (" + std::to_string(spec.width) + "x" + std::to_string(spec.height) +
+             " stored), more than volgrad reads (2^28 pixels, 2^30 values)");
     }
     ImageData img;
-    img.width = uint32_t(spec.width);
-    img.height = uint32_t(spec.height);
+    img.width = uint32_t(width);
+    img.height = uint32_t(height);
     img.channels = uint32_t(spec.nchannels);
     img.color_space = std::string(spec.get_string_attribute("oiio:ColorSpace"));
     img.stored_type = std::string(spec.format.c_str());
     img.alpha_channel = spec.alpha_channel;
     img.alpha_unassociated = spec.get_int_attribute("oiio:UnassociatedAlpha") != 0;
     for (const std::string& name : spec.channelnames) img.channel_names.push_back(rust::String(name));
-    std::vector<float> data(size_t(spec.width) * size_t(spec.height) * size_t(spec.nchannels));
-    if (!in->read_image(0, 0, 0, spec.nchannels, OIIO::TypeDesc::FLOAT, data.data())) {
+    // OpenEXR's primaries and white point (x, y of red, green, blue, white), when it states them.
+    if (const OIIO::ParamValue* p = spec.find_attribute("chromaticities")) {
+        if (p->type() == OIIO::TypeDesc(OIIO::TypeDesc::FLOAT, 8)) {
+            const float* xy = static_cast<const float*>(p->data());
+            for (int i = 0; i < 8; ++i) img.chromaticities.push_back(xy[i]);
+        }
+    }
+    resize_f32s(img.pixels, size_t(width) * size_t(height) * size_t(channels));
+    std::vector<float> window;
+    if (!whole) window.resize(size_t(stored) * size_t(channels));
+    float* into = whole ? img.pixels.data() : window.data();
+    if (!in->read_image(0, 0, 0, spec.nchannels, OIIO::TypeDesc::FLOAT, into)) {
         const std::string silent = "its pixels could not be read (is it truncated or corrupt?)";
         fail("cannot read image " + quoted(path) + ": " + oiio_error(in->geterror(), silent));
     }
     in->close();
-    resize_f32s(img.pixels, data.size());  // filled through data(): see resize_f32s
-    std::copy(data.begin(), data.end(), img.pixels.data());
+    if (!whole) {
+        // Row y of the data window is row y + spec.y − full_y of the image (x alike).
+        for (int64_t row = 0; row < spec.height; ++row) {
+            const int64_t y = row + spec.y - spec.full_y;
+            const int64_t x0 = std::max<int64_t>(0, spec.full_x - spec.x);
+            const int64_t x1 = std::min<int64_t>(spec.width, width + spec.full_x - spec.x);
+            if (y < 0 || y >= height || x0 >= x1) continue;
+            const float* from = window.data() + size_t(row * spec.width + x0) * channels;
+            float* to = img.pixels.data() +
+                        size_t(y * width + x0 + spec.x - spec.full_x) * channels;
+            std::copy(from, from + size_t(x1 - x0) * channels, to);
+        }
+    }
     return img;
 }
 

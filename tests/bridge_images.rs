@@ -33,6 +33,7 @@ fn test_image(width: u32, height: u32, channels: u32, unit: bool) -> ImageData {
         alpha_channel: -1,
         alpha_unassociated: false,
         channel_names: Vec::new(),
+        chromaticities: Vec::new(),
     }
 }
 
@@ -278,4 +279,190 @@ fn pngs_are_decoded_from_srgb_with_their_alpha() {
     let c = picture.color.pixels[0];
     assert!((c - Vec3::new(srgb_decode(32768.0 / 65535.0), 0.0, 1.0)).length() < 1e-5);
     assert_eq!(read_rgb(&rgb16).unwrap().pixels[0], c);
+}
+
+/// Writes an RGBA EXR (the pure-Rust `exr` crate) whose data window is `size` pixels at
+/// `position` on a display window of `display` pixels at the origin: pixel (x, y) of the data
+/// window holds (x + 10·y, 1, 2, 0.5).
+fn exr_with_windows(
+    path: &Path,
+    display: (usize, usize),
+    position: (i32, i32),
+    size: (usize, usize),
+) {
+    use exr::prelude::*;
+    let mut attributes = LayerAttributes::named("");
+    attributes.layer_position = Vec2(position.0, position.1);
+    let layer = Layer::new(
+        size,
+        attributes,
+        Encoding::UNCOMPRESSED,
+        SpecificChannels::rgba(|p: Vec2<usize>| {
+            ((p.x() + 10 * p.y()) as f32, 1.0f32, 2.0f32, 0.5f32)
+        }),
+    );
+    let mut image = Image::from_layer(layer);
+    image.attributes.display_window = IntegerBounds::new(Vec2(0, 0), display);
+    image.write().to_file(path).unwrap();
+}
+
+/// The RGBA of pixel (x, y) of an image read through the bridge, by the channels' names.
+fn rgba_at(image: &ImageData, x: usize, y: usize) -> [f32; 4] {
+    let c = image.channels as usize;
+    let at = |name: &str| image.channel_names.iter().position(|n| n == name).unwrap();
+    let base = (y * image.width as usize + x) * c;
+    ["R", "G", "B", "A"].map(|n| image.pixels[base + at(n)])
+}
+
+/// An EXR's data window is placed on its display window, which is the image: a bounding box
+/// smaller than the frame leaves black, transparent pixels around it (OpenEXR's rule), and
+/// overscan beyond the frame is cut off. (They were read as the data window alone: an image of
+/// the wrong size, or shifted.)
+#[test]
+fn an_exr_data_window_is_placed_on_its_display_window() {
+    let dir = tempfile::tempdir().unwrap();
+    let boxed = dir.path().join("bounding-box.exr");
+    exr_with_windows(&boxed, (8, 6), (2, 1), (4, 3));
+    let image = ffi::read_image(path_str(&boxed)).unwrap();
+    assert_eq!((image.width, image.height), (8, 6));
+    for y in 0..6 {
+        for x in 0..8 {
+            let inside = (2..6).contains(&x) && (1..4).contains(&y);
+            let expected = if inside {
+                [(x - 2 + 10 * (y - 1)) as f32, 1.0, 2.0, 0.5]
+            } else {
+                [0.0; 4]
+            };
+            assert_eq!(rgba_at(&image, x, y), expected, "pixel ({x}, {y})");
+        }
+    }
+    let overscan = dir.path().join("overscan.exr");
+    exr_with_windows(&overscan, (4, 3), (-1, -1), (6, 5));
+    let image = ffi::read_image(path_str(&overscan)).unwrap();
+    assert_eq!((image.width, image.height), (4, 3));
+    for y in 0..3 {
+        for x in 0..4 {
+            let expected = [(x + 1 + 10 * (y + 1)) as f32, 1.0, 2.0, 0.5];
+            assert_eq!(rgba_at(&image, x, y), expected, "pixel ({x}, {y})");
+        }
+    }
+}
+
+/// An EXR that states other primaries than Rec.709's (ACEScg's, here) is refused by name rather
+/// than read as if its values were volgrad's RGB, unless the caller says how to take them; one
+/// that states Rec.709's is read.
+#[test]
+fn an_exr_with_other_primaries_is_refused_unless_overridden() {
+    use exr::prelude::*;
+    use volgrad::io::images::{read_picture, ColorSpace};
+    let write = |path: &Path, primaries: [(f32, f32); 4]| {
+        let layer = Layer::new(
+            (3, 2),
+            LayerAttributes::named(""),
+            Encoding::UNCOMPRESSED,
+            SpecificChannels::rgba(|_: Vec2<usize>| (0.25f32, 0.5f32, 0.75f32, 1.0f32)),
+        );
+        let mut image = Image::from_layer(layer);
+        let [r, g, b, w] = primaries.map(|(x, y)| Vec2(x, y));
+        image.attributes.chromaticities = Some(exr::meta::attribute::Chromaticities {
+            red: r,
+            green: g,
+            blue: b,
+            white: w,
+        });
+        image.write().to_file(path).unwrap();
+    };
+    let dir = tempfile::tempdir().unwrap();
+    let acescg = dir.path().join("acescg.exr");
+    write(
+        &acescg,
+        [
+            (0.713, 0.293),
+            (0.165, 0.830),
+            (0.128, 0.044),
+            (0.32168, 0.33767),
+        ],
+    );
+    assert_eq!(
+        ffi::read_image(path_str(&acescg))
+            .unwrap()
+            .chromaticities
+            .len(),
+        8
+    );
+    let e = match read_picture(&acescg, None) {
+        Ok(_) => panic!("a picture in ACEScg's primaries was read as Rec.709"),
+        Err(e) => format!("{e:#}"),
+    };
+    assert!(
+        e.contains("acescg.exr") && e.contains("primaries") && e.contains("color_space"),
+        "{e}"
+    );
+    let taken = read_picture(&acescg, Some(ColorSpace::Linear)).unwrap();
+    assert_eq!(taken.color.pixels[0], Vec3::new(0.25, 0.5, 0.75));
+    let rec709 = dir.path().join("rec709.exr");
+    write(
+        &rec709,
+        [(0.64, 0.33), (0.30, 0.60), (0.15, 0.06), (0.3127, 0.3290)],
+    );
+    assert_eq!(
+        read_picture(&rec709, None).unwrap().color.pixels[0],
+        Vec3::new(0.25, 0.5, 0.75)
+    );
+}
+
+/// An EXR header (a few kilobytes on disk) declaring 8192² pixels of 64 half channels, 2^32
+/// values, is refused with its size named before a buffer is asked for: each of the pixel count
+/// and the channel count is within its own limit, and the buffer would have been 16 GiB.
+#[test]
+fn an_exr_header_declaring_too_many_values_is_refused() {
+    let attribute = |name: &str, kind: &str, value: &[u8]| {
+        let mut a = Vec::new();
+        a.extend_from_slice(name.as_bytes());
+        a.push(0);
+        a.extend_from_slice(kind.as_bytes());
+        a.push(0);
+        a.extend_from_slice(&(value.len() as i32).to_le_bytes());
+        a.extend_from_slice(value);
+        a
+    };
+    let mut channels = Vec::new();
+    for c in 0..64 {
+        channels.extend_from_slice(format!("c{c:02}\0").as_bytes());
+        channels.extend_from_slice(&1i32.to_le_bytes()); // HALF
+        channels.extend_from_slice(&[0, 0, 0, 0]); // pLinear, reserved
+        channels.extend_from_slice(&1i32.to_le_bytes());
+        channels.extend_from_slice(&1i32.to_le_bytes());
+    }
+    channels.push(0);
+    let side = 8192i32;
+    let window: Vec<u8> = [0, 0, side - 1, side - 1]
+        .iter()
+        .flat_map(|v: &i32| v.to_le_bytes())
+        .collect();
+    let mut exr = vec![0x76, 0x2f, 0x31, 0x01, 2, 0, 0, 0];
+    exr.extend(attribute("channels", "chlist", &channels));
+    exr.extend(attribute("compression", "compression", &[0]));
+    exr.extend(attribute("dataWindow", "box2i", &window));
+    exr.extend(attribute("displayWindow", "box2i", &window));
+    exr.extend(attribute("lineOrder", "lineOrder", &[0]));
+    exr.extend(attribute("pixelAspectRatio", "float", &1f32.to_le_bytes()));
+    exr.extend(attribute("screenWindowCenter", "v2f", &[0; 8]));
+    exr.extend(attribute("screenWindowWidth", "float", &1f32.to_le_bytes()));
+    exr.push(0);
+    exr.extend(std::iter::repeat_n(0u8, 8 * side as usize)); // the line offset table
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("bomb.exr");
+    std::fs::write(&path, exr).unwrap();
+    let e = match ffi::read_image(path_str(&path)) {
+        Ok(_) => panic!("a header declaring 2^32 values was read"),
+        Err(e) => e.what().to_string(),
+    };
+    assert!(
+        e.contains("bomb.exr")
+            && e.contains("8192x8192")
+            && e.contains("64 channels")
+            && e.contains("2^30 values"),
+        "{e}"
+    );
 }

@@ -272,6 +272,35 @@ fn pictures_alone_need_no_grid_and_give_their_own_box() {
     );
 }
 
+/// A held-out picture that a training view also uses, however its path is written or whichever
+/// camera source names it, is refused: the held-out score would be of the training pictures.
+#[test]
+fn a_training_picture_is_refused_as_a_held_out_one() {
+    let dir = fixture(&run_file("0.2", ""));
+    let d = dir.path();
+    write_pictures(d, 1.0, "iterations = 1");
+    let run = std::fs::read_to_string(d.join("images.toml")).unwrap();
+    let listed = run.replace("image = \"holdout.exr\"", "image = \"./sub/../view0.exr\"");
+    std::fs::create_dir(d.join("sub")).unwrap();
+    std::fs::write(d.join("listed.toml"), listed).unwrap();
+    assert_clean_error(
+        &volgrad_in(d, &["optimize", "listed.toml", "--out", "a", "-q"]),
+        &["view0.exr", "no training view uses"],
+    );
+    let holdout = &run[run.find("[[holdout]]").unwrap()..run.find("[unknown]").unwrap()];
+    let same_file = run.replace(holdout, "[holdouts]\ntransforms = \"transforms.json\"\n\n");
+    std::fs::write(d.join("same.toml"), same_file).unwrap();
+    assert_clean_error(
+        &volgrad_in(d, &["optimize", "same.toml", "--out", "b", "-q"]),
+        &[
+            "views.transforms camera 0",
+            "holdouts.transforms camera 0",
+            "view0.exr",
+            "no training view uses",
+        ],
+    );
+}
+
 /// A capture 30 % brighter than the scene's lights say (an exposure nobody wrote down): with
 /// `fit_exposure` the run finds the factor (the sky behind the ball pins it) and the held-out
 /// view fits far better than without, where no density can brighten the sky.

@@ -33,6 +33,19 @@ struct Sensor {
     intrinsics: Intrinsics,
 }
 
+/// Where a model's pictures are unless a run file says: the `images` folder beside the model's
+/// `sparse` folder, as COLMAP lays a project out — `P/sparse/0` → `P/images`, and `P/dense/sparse`
+/// (where `image_undistorter` writes the undistorted model) → `P/dense/images`, its undistorted
+/// pictures. A model in a folder of another name looks beside itself.
+pub fn default_images(model: &Path) -> PathBuf {
+    let parent = model.parent().unwrap_or(Path::new("."));
+    if parent.file_name().is_some_and(|name| name == "sparse") {
+        parent.parent().unwrap_or(Path::new(".")).join("images")
+    } else {
+        parent.join("images")
+    }
+}
+
 /// The views of the COLMAP text model in `model` (a folder with `cameras.txt` and `images.txt`),
 /// their images in the folder `images`.
 pub fn read(model: &Path, images: &Path) -> Result<Vec<CapturedView>> {

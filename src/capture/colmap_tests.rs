@@ -175,3 +175,18 @@ fn what_is_not_a_pinhole_or_not_colmap_is_refused_naming_the_line() {
     let err = format!("{:#}", read(dir.path(), dir.path()).err().unwrap());
     assert!(err.contains("cameras.txt"), "{err}");
 }
+
+/// Without `images`, a model's pictures are beside its `sparse` folder: the project's originals
+/// for `P/sparse/0`, the undistorted ones `image_undistorter` writes beside `P/dense/sparse`.
+#[test]
+fn the_default_images_folder_follows_colmaps_layout() {
+    assert_eq!(
+        default_images(Path::new("P/sparse/0")),
+        Path::new("P/images")
+    );
+    assert_eq!(
+        default_images(Path::new("P/dense/sparse")),
+        Path::new("P/dense/images")
+    );
+    assert_eq!(default_images(Path::new("P/model")), Path::new("P/images"));
+}

@@ -2,10 +2,12 @@
 //! the NeRF / instant-ngp / nerfstudio convention. Every key is read or named below as ignored;
 //! any other key is an error, so that nothing a file says about its cameras is dropped unseen.
 //!
-//! - Intrinsics, at the top or per frame (a frame's own win): `fl_x`, `fl_y` (focal lengths in
-//!   pixels) or `camera_angle_x`, `camera_angle_y` (fields of view in radians; fx = w / 2·tan(x/2));
-//!   `cx`, `cy` (principal point in pixels from the top-left corner, default the image centre);
-//!   `w`, `h` (the image size; without them the size of the frame's image). Without `fl_y` or
+//! - Intrinsics, at the top or per frame (a frame's own win, each quantity as a unit: a frame's
+//!   `fl_x` replaces the top's `camera_angle_x` too, its `w`, `h` the top's pair): `fl_x`, `fl_y`
+//!   (focal lengths in pixels) or `camera_angle_x`, `camera_angle_y` (fields of view in radians;
+//!   fx = w / 2·tan(x/2)); `cx`, `cy` (principal point in pixels from the top-left corner, default
+//!   the image centre); `w`, `h` (the image size, both or neither, whole numbers however written;
+//!   without them the size of the frame's image). Without `fl_y` or
 //!   `camera_angle_y` pixels are square (fy = fx). A focal length and an angle given together
 //!   must agree.
 //! - Distortion (`k1`–`k4`, `p1`, `p2`) must be zero: volgrad's cameras are pinholes, so images
@@ -48,8 +50,10 @@ struct Lens {
     fl_y: Option<f64>,
     cx: Option<f64>,
     cy: Option<f64>,
-    w: Option<u32>,
-    h: Option<u32>,
+    /// Whole numbers, though some writers give them as decimals (instant-ngp's `colmap2nerf.py`
+    /// writes `"w": 1920.0`).
+    w: Option<f64>,
+    h: Option<f64>,
     k1: Option<f64>,
     k2: Option<f64>,
     k3: Option<f64>,
@@ -59,23 +63,61 @@ struct Lens {
 }
 
 impl Lens {
-    /// `self` where it says something, else `top`.
+    /// `self` where it says something, else `top`. What fixes one quantity is taken as a unit from
+    /// one level: a frame's `fl_x` replaces the top level's `camera_angle_x` too (rather than
+    /// meeting it in the check that the two agree), and a frame's `w`, `h` replace the top's pair.
     fn or(self, top: Lens) -> Lens {
+        let x = if self.fl_x.is_some() || self.camera_angle_x.is_some() {
+            self
+        } else {
+            top
+        };
+        let y = if self.fl_y.is_some() || self.camera_angle_y.is_some() {
+            self
+        } else {
+            top
+        };
+        let size = if self.w.is_some() || self.h.is_some() {
+            self
+        } else {
+            top
+        };
         Lens {
-            camera_angle_x: self.camera_angle_x.or(top.camera_angle_x),
-            camera_angle_y: self.camera_angle_y.or(top.camera_angle_y),
-            fl_x: self.fl_x.or(top.fl_x),
-            fl_y: self.fl_y.or(top.fl_y),
+            camera_angle_x: x.camera_angle_x,
+            fl_x: x.fl_x,
+            camera_angle_y: y.camera_angle_y,
+            fl_y: y.fl_y,
+            w: size.w,
+            h: size.h,
             cx: self.cx.or(top.cx),
             cy: self.cy.or(top.cy),
-            w: self.w.or(top.w),
-            h: self.h.or(top.h),
             k1: self.k1.or(top.k1),
             k2: self.k2.or(top.k2),
             k3: self.k3.or(top.k3),
             k4: self.k4.or(top.k4),
             p1: self.p1.or(top.p1),
             p2: self.p2.or(top.p2),
+        }
+    }
+
+    /// The image size `w`, `h` says, if it says one: both or neither, each a whole number of
+    /// pixels (the camera's checks bound it).
+    fn size(&self) -> Result<Option<(u32, u32)>> {
+        let whole = |key: &str, v: f64| {
+            if v.fract() == 0.0 && (0.0..=f64::from(u32::MAX)).contains(&v) {
+                Ok(v as u32)
+            } else {
+                bail!(
+                    "{key} = {} is not a whole number of pixels",
+                    super::quoted_number(v)
+                )
+            }
+        };
+        match (self.w, self.h) {
+            (Some(w), Some(h)) => Ok(Some((whole("w", w)?, whole("h", h)?))),
+            (None, None) => Ok(None),
+            (Some(_), None) => bail!("`w` without `h`: give both or neither"),
+            (None, Some(_)) => bail!("`h` without `w`: give both or neither"),
         }
     }
 }
@@ -224,13 +266,13 @@ impl TransformsFile {
             .as_deref()
             .map(|name| image_path(dir, name))
             .transpose()?;
-        let (width, height) = match (lens.w, lens.h, &image) {
-            (Some(w), Some(h), _) => (w, h),
-            (_, _, Some(image)) => {
+        let (width, height) = match (lens.size()?, &image) {
+            (Some(size), _) => size,
+            (None, Some(image)) => {
                 let pixels = crate::io::images::read_rgb(image)?;
                 (pixels.width, pixels.height)
             }
-            _ => bail!("no image and no `w`, `h`: the view's size is unknown"),
+            (None, None) => bail!("no image and no `w`, `h`: the view's size is unknown"),
         };
         let intrinsics = intrinsics(&lens, width, height)?;
         let (position, forward, up) = pose(&frame.transform_matrix)?;

@@ -219,3 +219,41 @@ fn an_image_without_an_extension_is_looked_for_as_exr_then_png() {
         "{error}"
     );
 }
+
+/// instant-ngp's `colmap2nerf.py` writes the size as decimals ("w": 20.0): a whole number is
+/// read whatever its notation; a fraction of a pixel, or a width without a height, is refused.
+#[test]
+fn sizes_are_whole_numbers_in_any_notation_and_come_in_pairs() {
+    let with =
+        |size: &str| format!(r#"{{ "camera_angle_x": 0.5, {size}, "frames": [{IDENTITY_AT_5}] }}"#);
+    let camera = read_json(&with(r#""w": 20.0, "h": 10.0"#)).unwrap()[0].camera;
+    assert_eq!((camera.width, camera.height), (20, 10));
+    for (size, says) in [
+        (r#""w": 20.5, "h": 10"#, "w = 20.5 is not a whole number"),
+        (r#""w": 20, "h": -10"#, "h = -10 is not a whole number"),
+        (r#""w": 20"#, "`w` without `h`"),
+        (r#""h": 10"#, "`h` without `w`"),
+    ] {
+        let e = error_of(&with(size));
+        assert!(e.contains(says), "{size}: {e}");
+    }
+}
+
+/// A frame's focal length replaces the top level's whichever way each gives it (a frame's
+/// `fl_x` against the top's `camera_angle_x` is not a disagreement), and a frame's size replaces
+/// the top's as a pair.
+#[test]
+fn a_frames_focal_length_and_size_replace_the_top_levels_as_units() {
+    let json = r#"{ "camera_angle_x": 0.5, "w": 20, "h": 10, "frames": [{ "fl_x": 40, "w": 30, "h": 15,
+            "transform_matrix": [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 5], [0, 0, 0, 1]] }] }"#;
+    let c = read_json(json).unwrap()[0].camera;
+    assert_eq!((c.width, c.height), (30, 15));
+    // One pixel right of the centre is 1/40 rad off-axis: fx = 40, not 20 / (2·tan 0.25).
+    let d = c.direction(16.0, 7.5);
+    assert!((d.x.atan2(-d.z) - (1.0f32 / 40.0).atan()).abs() < 1e-5);
+    // The other way round: a frame's angle replaces the top's focal length.
+    let json = r#"{ "fl_x": 40, "w": 20, "h": 10, "frames": [{ "camera_angle_x": 0.5,
+            "transform_matrix": [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 5], [0, 0, 0, 1]] }] }"#;
+    let edge = read_json(json).unwrap()[0].camera.direction(20.0, 5.0);
+    assert!((edge.x.atan2(-edge.z) - 0.25).abs() < 1e-5);
+}

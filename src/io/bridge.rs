@@ -97,6 +97,9 @@ pub mod ffi {
         pub alpha_unassociated: bool,
         /// Reading only: the channels' names ("R", "G", "B", "A", "Y", "Z", "diffuse.R", …).
         pub channel_names: Vec<String>,
+        /// Reading only: the primaries and white point the file states (OpenEXR's
+        /// `chromaticities`: x, y of red, green, blue and white), or none.
+        pub chromaticities: Vec<f32>,
     }
 
     extern "Rust" {

@@ -3,8 +3,9 @@
 //! in, alpha kept.
 //!
 //! Which decoding applies: the caller's override (a view set's `color_space`) when given;
-//! otherwise what the file declares (OpenImageIO's `oiio:ColorSpace`: sRGB, linear, or a gamma);
-//! otherwise sRGB for integer-valued files (8 or 16 bits: what cameras, browsers and Blender's PNG
+//! otherwise what the file declares (OpenImageIO's `oiio:ColorSpace`: sRGB, linear, or a gamma;
+//! other primaries, by name or by OpenEXR's `chromaticities`, and curves such as a log are refused
+//! rather than guessed); otherwise sRGB for integer-valued files (8 or 16 bits: what cameras, browsers and Blender's PNG
 //! output mean) and linear for float ones (EXR, HDR). An 8-bit PNG taken as linear would be fitted
 //! several times too bright: mid-grey 0.5 encodes radiance 0.21.
 //!
@@ -87,6 +88,7 @@ impl RgbImage {
             alpha_channel: -1,
             channel_names: Vec::new(),
             alpha_unassociated: false,
+            chromaticities: Vec::new(),
         }
     }
 }
@@ -183,33 +185,75 @@ pub fn srgb_decode(encoded: f32) -> f32 {
     }
 }
 
+/// Rec.709's (and sRGB's) primaries and D65 white, x and y of red, green, blue and white: the
+/// primaries volgrad's RGB (its lights, albedos and renders) is in.
+const REC709_CHROMATICITIES: [f32; 8] = [0.64, 0.33, 0.30, 0.60, 0.15, 0.06, 0.3127, 0.3290];
+
+/// Names a file may declare (OpenImageIO's `oiio:ColorSpace`, lower-cased) for sRGB's curve on
+/// Rec.709's primaries, and for linear values on them.
+const SRGB_NAMES: [&str; 5] = [
+    "srgb",
+    "srgb_texture",
+    "srgb texture",
+    "srgb_rec709_scene",
+    "srgb_rec709_display",
+];
+const LINEAR_NAMES: [&str; 6] = [
+    "linear",
+    "lin_srgb",
+    "lin_rec709",
+    "lin_rec709_scene",
+    "scene_linear",
+    "linear rec.709 (srgb)",
+];
+
 /// The decoding `override_space` or, without one, the file's declaration and storage ask for.
-fn decoding(declared: &str, stored_type: &str, override_space: Option<ColorSpace>) -> Decoding {
+/// A file that declares other primaries (`chromaticities`, or a space such as ACEScg or Display
+/// P3) or a curve volgrad does not decode (a log encoding) is refused rather than read as if it
+/// were sRGB or linear Rec.709; an override takes its values as they are, whatever it declares.
+fn decoding(
+    declared: &str,
+    stored_type: &str,
+    chromaticities: &[f32],
+    override_space: Option<ColorSpace>,
+) -> Result<Decoding> {
     match override_space {
-        Some(ColorSpace::Linear) => return Decoding::Linear,
-        Some(ColorSpace::Srgb) => return Decoding::Srgb,
+        Some(ColorSpace::Linear) => return Ok(Decoding::Linear),
+        Some(ColorSpace::Srgb) => return Ok(Decoding::Srgb),
         None => {}
     }
-    let declared = declared.to_ascii_lowercase();
-    if declared.contains("srgb") {
-        return Decoding::Srgb;
+    let convert = "convert the pictures to sRGB or linear Rec.709, or give their view set `color_space = \"linear\"` or `\"srgb\"` to take the values as they are";
+    if !chromaticities.is_empty() {
+        let rec709 = chromaticities.len() == 8
+            && (chromaticities.iter().zip(REC709_CHROMATICITIES))
+                .all(|(&a, b)| (a - b).abs() <= 0.005);
+        if !rec709 {
+            bail!("it declares primaries (chromaticities {chromaticities:?}) other than Rec.709's and sRGB's, which volgrad's colours are in: {convert}");
+        }
     }
-    if declared.contains("linear") || declared.starts_with("lin_") || declared.contains("acescg") {
-        return Decoding::Linear;
+    let name = declared.trim().to_ascii_lowercase();
+    if name.is_empty() {
+        let integer = stored_type.starts_with("uint") || stored_type.starts_with("int");
+        return Ok(if integer {
+            Decoding::Srgb
+        } else {
+            Decoding::Linear
+        });
     }
-    if let Some(g) = declared
+    if SRGB_NAMES.contains(&name.as_str()) {
+        return Ok(Decoding::Srgb);
+    }
+    if LINEAR_NAMES.contains(&name.as_str()) {
+        return Ok(Decoding::Linear);
+    }
+    if let Some(g) = name
         .strip_prefix("gamma")
         .and_then(|g| g.trim().parse::<f32>().ok())
         .filter(|g| g.is_finite() && *g > 0.0)
     {
-        return Decoding::Gamma(g);
+        return Ok(Decoding::Gamma(g));
     }
-    let integer = stored_type.starts_with("uint") || stored_type.starts_with("int");
-    if integer {
-        Decoding::Srgb
-    } else {
-        Decoding::Linear
-    }
+    bail!("it declares the colour space \"{declared}\", which volgrad does not decode (it reads sRGB, linear Rec.709 and GammaN): {convert}")
 }
 
 /// How far beyond [0, 1] a picture's alpha may stray before it is an error, not a filter's
@@ -223,7 +267,13 @@ pub fn read_picture(path: &Path, override_space: Option<ColorSpace>) -> Result<P
     if c == 0 {
         bail!("'{}' has no channels", path.display());
     }
-    let decoded = decoding(&data.color_space, &data.stored_type, override_space);
+    let decoded = decoding(
+        &data.color_space,
+        &data.stored_type,
+        &data.chromaticities,
+        override_space,
+    )
+    .with_context(|| format!("'{}'", path.display()))?;
     let alpha_at = usize::try_from(data.alpha_channel).ok().filter(|&a| a < c);
     let colour = colour_channels(&data.channel_names, c, alpha_at)
         .with_context(|| format!("'{}'", path.display()))?;
@@ -359,12 +409,13 @@ mod tests {
 
     #[test]
     fn the_declared_space_then_the_storage_decide_the_decoding() {
-        let d = |declared, stored, over| decoding(declared, stored, over);
+        let d = |declared, stored, over| decoding(declared, stored, &[], over).unwrap();
         assert_eq!(d("", "uint8", None), Decoding::Srgb);
         assert_eq!(d("", "uint16", None), Decoding::Srgb);
         assert_eq!(d("", "half", None), Decoding::Linear);
         assert_eq!(d("", "float", None), Decoding::Linear);
         assert_eq!(d("sRGB", "float", None), Decoding::Srgb);
+        assert_eq!(d("srgb_rec709_scene", "uint8", None), Decoding::Srgb);
         assert_eq!(d("Linear", "uint8", None), Decoding::Linear);
         assert_eq!(d("lin_rec709", "uint16", None), Decoding::Linear);
         assert_eq!(d("Gamma2.2", "uint8", None), Decoding::Gamma(2.2));
@@ -373,5 +424,37 @@ mod tests {
             Decoding::Linear
         );
         assert_eq!(d("Linear", "float", Some(ColorSpace::Srgb)), Decoding::Srgb);
+    }
+
+    #[test]
+    fn other_primaries_and_curves_are_refused_unless_overridden() {
+        let d = |declared, chromaticities: &[f32], over| {
+            decoding(declared, "half", chromaticities, over)
+        };
+        // Other primaries by name (ACEScg, Display P3), a log curve, a name nobody defined.
+        for declared in [
+            "ACEScg",
+            "lin_ap1",
+            "srgb_p3d65",
+            "KodakLog",
+            "Rec2020",
+            "whatever",
+        ] {
+            let e = d(declared, &[], None).unwrap_err().to_string();
+            assert!(e.contains(declared) && e.contains("color_space"), "{e}");
+            assert_eq!(
+                d(declared, &[], Some(ColorSpace::Linear)).unwrap(),
+                Decoding::Linear
+            );
+        }
+        // OpenEXR's chromaticities: Rec.709's are read, ACEScg's (AP1) refused.
+        let ap1 = [0.713, 0.293, 0.165, 0.830, 0.128, 0.044, 0.32168, 0.33767];
+        assert_eq!(
+            d("", &REC709_CHROMATICITIES, None).unwrap(),
+            Decoding::Linear
+        );
+        let e = d("", &ap1, None).unwrap_err().to_string();
+        assert!(e.contains("primaries"), "{e}");
+        assert_eq!(d("", &ap1, Some(ColorSpace::Srgb)).unwrap(), Decoding::Srgb);
     }
 }

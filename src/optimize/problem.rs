@@ -22,8 +22,8 @@ use crate::optimize::scene_units::{self, SceneUnits};
 use crate::optimize::settings_toml;
 use crate::optimize::target_cache::TargetCache;
 use crate::optimize::targets::{
-    captures, check_captures, image_power, read_views, view_specs, LightSets, ReadView,
-    TargetRenderer,
+    captures, check_captures, image_power, read_views, refuse_shared_pictures, view_specs,
+    LightSets, ReadView, TargetRenderer,
 };
 use crate::optimize::view_bounds::seen_by_all;
 use crate::optimize::view_files::target_pixels;
@@ -350,6 +350,7 @@ impl Inputs {
             &file.holdouts,
             world_box,
         )?;
+        refuse_shared_pictures(&training, &held_out)?;
         let pixels = training.iter().chain(&held_out).map(|v| {
             let c = &v.camera;
             u64::from(c.width) * u64::from(c.height)

@@ -3,6 +3,7 @@
 //! they decide (the levels follow the finest view's pixel footprint) is known before any target
 //! is rendered.
 
+use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context, Result};
@@ -122,6 +123,32 @@ pub fn view_specs(
     Ok(specs)
 }
 
+/// An error if a picture is two training views, or a training view and a held-out one (as one
+/// file, however its path is written): a held-out view the fit was trained on scores the fit
+/// against its own targets, and a picture listed twice weighs twice.
+pub fn refuse_shared_pictures(training: &[ViewSpec], held_out: &[ViewSpec]) -> Result<()> {
+    let mut seen: HashMap<PathBuf, &str> = HashMap::new();
+    for (spec, training) in
+        (training.iter().map(|s| (s, true))).chain(held_out.iter().map(|s| (s, false)))
+    {
+        let Some(image) = &spec.image else { continue };
+        let key = image.canonicalize().unwrap_or_else(|_| image.clone());
+        if let Some(first) = seen.insert(key, &spec.name) {
+            let held_out = if training {
+                ""
+            } else {
+                " (a held-out view must be a picture no training view uses)"
+            };
+            bail!(
+                "{first} and {} name the same picture '{}'{held_out}: list each picture once",
+                spec.name,
+                image.display()
+            );
+        }
+    }
+    Ok(())
+}
+
 /// `view_specs` of one set, named `set_name` in messages.
 fn set_specs(
     run_path: &Path,
@@ -167,7 +194,7 @@ fn set_specs(
         let model = RunFile::resolve(run_path, &colmap.model);
         let images = match &colmap.images {
             Some(images) => RunFile::resolve(run_path, images),
-            None => model.join("../../images"),
+            None => colmap::default_images(&model),
         };
         let views = colmap::read(&model, &images).with_context(|| format!("{set_name}.colmap"))?;
         captured.push(("colmap", views));
