@@ -249,6 +249,22 @@ pub fn float32_argument<'py, D: numpy::ndarray::Dimension>(
     use pyo3::types::{PyAnyMethods, PyTypeMethods};
     refuse_masked(value, name)?;
     value.extract().map_err(|_| {
+        // A float32 array with the wrong number of axes has the right type and the wrong shape.
+        let float32 = (value.getattr("dtype").and_then(|d| d.str())).is_ok_and(|d| d == "float32");
+        let axes = value
+            .getattr("ndim")
+            .and_then(|n| n.extract::<usize>())
+            .ok();
+        if let (true, Some(want), Some(axes)) = (float32, D::NDIM, axes) {
+            if want != axes {
+                let got = value
+                    .getattr("shape")
+                    .map_or_else(|_| "?".into(), |s| s.to_string());
+                return pyo3::exceptions::PyValueError::new_err(format!(
+                    "{name} must have {want} axes, {shape} (got shape {got})"
+                ));
+            }
+        }
         let got = match (value.getattr("dtype"), value.getattr("shape")) {
             (Ok(dtype), Ok(shape)) => format!("an array of {dtype} with shape {shape}"),
             _ => value

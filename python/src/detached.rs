@@ -8,7 +8,7 @@
 //! an image with pixels skipped. The last call to drain clears it.
 
 use std::sync::atomic::{AtomicUsize, Ordering};
-use std::sync::mpsc;
+use std::sync::{mpsc, Arc, Mutex};
 use std::time::Duration;
 
 use pyo3::exceptions::{PyKeyboardInterrupt, PyRuntimeError};
@@ -23,7 +23,33 @@ const SIGNAL_POLL: Duration = Duration::from_millis(50);
 /// The calls under way, of every Python thread.
 static RUNNING: AtomicUsize = AtomicUsize::new(0);
 
-/// Runs `work` without the GIL, on `threads` worker threads (rayon's global pool for `None`).
+/// The pool of calls that name no thread count: rayon's default size, one per process. Not
+/// rayon's global pool: a process forked from one that had started it (`multiprocessing`'s
+/// default on Linux, a `DataLoader`'s workers) inherits its bookkeeping but none of its threads,
+/// and work handed to it would wait forever (rayon-rs/rayon#708). A forked child builds its own,
+/// and the parent's, whose threads are not in the child, is left alone rather than shut down.
+fn this_process_pool() -> PyResult<Arc<rayon::ThreadPool>> {
+    static POOL: Mutex<Option<(u32, Arc<rayon::ThreadPool>)>> = Mutex::new(None);
+    let mut pool = POOL.lock().unwrap_or_else(|poisoned| poisoned.into_inner());
+    let pid = std::process::id();
+    match pool.take() {
+        Some((owner, existing)) if owner == pid => {
+            *pool = Some((owner, existing.clone()));
+            return Ok(existing);
+        }
+        Some(parents) => std::mem::forget(parents),
+        None => {}
+    }
+    let built =
+        Arc::new(rayon::ThreadPoolBuilder::new().build().map_err(|e| {
+            PyRuntimeError::new_err(format!("cannot start volgrad's threads: {e}"))
+        })?);
+    *pool = Some((pid, built.clone()));
+    Ok(built)
+}
+
+/// Runs `work` without the GIL, on `threads` worker threads (for `None`, the process's pool of
+/// rayon's default size).
 pub fn run<T: Send>(
     py: Python<'_>,
     threads: Option<usize>,
@@ -33,13 +59,13 @@ pub fn run<T: Send>(
         thread_count("threads", n).or_raise()?;
     }
     let pool = match threads {
-        Some(n) => Some(
+        Some(n) => Arc::new(
             rayon::ThreadPoolBuilder::new()
                 .num_threads(n)
                 .build()
                 .map_err(|e| PyRuntimeError::new_err(format!("cannot start {n} threads: {e}")))?,
         ),
-        None => None,
+        None => this_process_pool()?,
     };
     RUNNING.fetch_add(1, Ordering::SeqCst);
     let generation = interrupt::generation();
@@ -47,10 +73,7 @@ pub fn run<T: Send>(
         std::thread::scope(|scope| {
             let (sender, receiver) = mpsc::channel();
             let worker = scope.spawn(move || {
-                let result = match &pool {
-                    Some(pool) => pool.install(work),
-                    None => work(),
-                };
+                let result = pool.install(work);
                 // The receiver outlives the scope's threads: sending cannot fail.
                 let _ = sender.send(result);
             });

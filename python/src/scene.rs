@@ -175,44 +175,49 @@ impl Scene {
         if let Some(camera) = camera {
             scene.camera = camera.camera;
         }
-        let values = density.as_array();
-        let place = VoxelBox::of_array({
-            let (nx, ny, nz) = values.dim();
-            [nx, ny, nz]
-        });
-        let grid =
-            media::density_grid(&values, IVec3::ZERO, density_scale, "density").or_raise()?;
-        scene.medium = media::medium_over(&scene, grid, transform, place);
-        if let Some(albedo) = albedo_array {
-            scene.medium.albedo =
-                media::albedo_grid(&albedo.as_array(), place, transform, scene.medium.filter)
-                    .or_raise()?;
-        }
         if emission.is_none() && emission_kind.is_some() {
             return Err(PyValueError::new_err(
                 "emission_kind says what an emission array's values mean: give the array as emission=",
             ));
         }
-        if let Some(values) = emission {
-            let values = arrays::float32_argument::<numpy::Ix3>(
-                values,
-                "emission",
-                "shaped like the density",
-            )?;
-            let kind = emission_file(py, emission_kind)?
-                .emission_kind()
-                .or_raise()?;
-            scene.medium.emission = Some(
-                media::emission_grid(
-                    &values.as_array(),
+        let emission = match emission {
+            Some(values) => Some((
+                arrays::float32_argument::<numpy::Ix3>(
+                    values,
+                    "emission",
+                    "shaped like the density",
+                )?,
+                emission_file(py, emission_kind)?
+                    .emission_kind()
+                    .or_raise()?,
+            )),
+            None => None,
+        };
+        let values = density.as_array();
+        let place = VoxelBox::of_array({
+            let (nx, ny, nz) = values.dim();
+            [nx, ny, nz]
+        });
+        let albedo_values = albedo_array.as_ref().map(|a| a.as_array());
+        let emission_values = emission.as_ref().map(|(v, kind)| (v.as_array(), kind));
+        // The grids are built in parallel: without the GIL, on the process's pool.
+        scene.medium = detached::run(py, None, || {
+            let grid = media::density_grid(&values, IVec3::ZERO, density_scale, "density")?;
+            let mut medium = media::medium_over(&scene, grid, transform, place);
+            if let Some(albedo) = &albedo_values {
+                medium.albedo = media::albedo_grid(albedo, place, transform, medium.filter)?;
+            }
+            if let Some((values, kind)) = &emission_values {
+                medium.emission = Some(media::emission_grid(
+                    values,
                     place,
                     transform,
-                    kind,
-                    scene.medium.filter,
-                )
-                .or_raise()?,
-            );
-        }
+                    (*kind).clone(),
+                    medium.filter,
+                )?);
+            }
+            Ok(medium)
+        })?;
         scene.grid_name = "density".into();
         let boxes = Boxes {
             density: place,

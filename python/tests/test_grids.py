@@ -62,7 +62,7 @@ def test_an_existing_file_is_kept_unless_asked(tmp_path):
     "array, matrix, error, message",
     [
         (ball().astype(np.float64), voxel_map(), TypeError, "array must be a float32"),
-        (ball()[0], voxel_map(), TypeError, "array must be a float32 numpy array of shape"),
+        (ball()[0], voxel_map(), ValueError, r"array must have 3 axes, of shape \(nx, ny, nz\) \(got shape \(16, 16\)\)"),
         (np.full((4, 4, 4), np.nan, np.float32), voxel_map(), ValueError, "NaN"),
         (ball(), np.eye(3), ValueError, "4×4"),
         (ball(), np.zeros((4, 4)), ValueError, "last row"),

@@ -79,8 +79,36 @@ def test_arguments_of_another_type_are_refused_while_tracing():
         render(jnp.asarray(density[:4]), 1)
     with pytest.raises(ValueError, match="albedo is a constant"):
         volgrad.jax.renderer(scene, parameter="albedo")
-    with pytest.raises(ValueError, match="seed must be ≥ 0"):
+    with pytest.raises(ValueError, match=r"seed must be a whole number in \[0, 2\*\*64\)"):
         render(jnp.asarray(density), -1)
     mixed = [scene.camera, volgrad.Camera((4, 0.5, 0), (0, 0, 0), width=8, height=8)]
     with pytest.raises(ValueError, match="share a size"):
         volgrad.jax.renderer(scene, mixed)
+
+
+def test_renderers_of_one_scene_take_turns():
+    """Two renderers of one scene called at once (here from two threads; XLA may also run the
+    callbacks of one jitted function at once): a Scene takes one call at a time, and the
+    callbacks take turns rather than fail with "busy"."""
+    import threading
+
+    scene = small_scene()
+    small = volgrad.Camera((0.3, 0.5, 4.0), (0, 0, 0), fov_deg=40, width=8, height=8)
+    wide, narrow = volgrad.jax.renderer(scene, spp=64), volgrad.jax.renderer(scene, small, spp=64)
+    density = jnp.asarray(scene.density[0])
+    errors = []
+
+    def calls(render, seed):
+        try:
+            for _ in range(4):
+                render(density, seed).block_until_ready()
+        except Exception as e:  # noqa: BLE001 - reported below
+            errors.append(e)
+
+    threads = [threading.Thread(target=calls, args=(r, s)) for r, s in ((wide, 3), (narrow, 4))]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert not errors, errors
+    np.testing.assert_array_equal(np.asarray(narrow(density, 4)), scene.render(small, spp=64, seed=4))

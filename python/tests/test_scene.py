@@ -205,6 +205,7 @@ def bad_calls():
     yield lambda: scene.render(cameras=[]), ValueError, "cameras: the list is empty"
     yield lambda: scene.render(density=density.astype(np.float64)), TypeError, "density must be a float32"
     yield lambda: scene.render(density=density[:4]), ValueError, "density has shape"
+    yield lambda: scene.render(density=density[None]), ValueError, r"density must have 3 axes, .* \(got shape \(1, "
     yield lambda: scene.render(density=-density), ValueError, "density: .* negative"
     yield lambda: scene.render(density=density * np.nan), ValueError, "density: .* NaN"
     yield lambda: scene.grad(adjoint[:3]), ValueError, "adjoint has shape"
@@ -428,3 +429,36 @@ def test_ctrl_c_interrupts_a_render_within_a_second():
     elapsed = time.monotonic() - sent
     assert code == 3 and child.stdout.read().strip() == "interrupted interrupted"
     assert elapsed < 1.0, elapsed
+
+
+def test_a_forked_child_renders():
+    """A child forked after the parent rendered (multiprocessing's default on Linux, a
+    DataLoader's workers) renders the same image instead of waiting forever on the parent's
+    thread pool, whose threads it does not have. In a fresh interpreter: this one has other
+    libraries' threads (JAX's), which a fork does not take either."""
+    script = textwrap.dedent(
+        f"""
+        import os, sys, time
+        import numpy as np
+        import volgrad
+        scene = volgrad.Scene.load({str(SPHERE)!r})
+        # Large enough to be cut into several tasks: one alone would run on the calling thread.
+        camera = volgrad.Camera((0, 2, 12), (0, 0, 0), width=64, height=64)
+        image = scene.render([camera], spp=2, seed=1)
+        pid = os.fork()
+        if pid == 0:
+            same = np.array_equal(scene.render([camera], spp=2, seed=1), image)
+            os._exit(0 if same else 1)
+        deadline = time.monotonic() + 60
+        while time.monotonic() < deadline:
+            done, status = os.waitpid(pid, os.WNOHANG)
+            if done:
+                print("child", os.waitstatus_to_exitcode(status))
+                sys.exit(0)
+            time.sleep(0.05)
+        os.kill(pid, 9)
+        print("child hung")
+        """
+    )
+    result = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120)
+    assert result.stdout.strip() == "child 0", result.stdout + result.stderr

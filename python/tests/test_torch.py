@@ -85,6 +85,9 @@ def test_tensors_of_another_type_are_refused_by_name():
     for spp, grad_spp, name in [(2, 0, "grad_spp"), (2, 2.5, "grad_spp"), (2, "4", "grad_spp"), (0, None, "spp"), (-1, 2, "spp")]:
         with pytest.raises(ValueError, match=f"^{name} must be a whole number ≥ 1"):
             volgrad.torch.render(density, scene, spp=spp, grad_spp=grad_spp, seed=1)
+    for seed in (-1, 2**64, 1.5, True):
+        with pytest.raises(ValueError, match=r"^seed must be a whole number in \[0, 2\*\*64\)"):
+            volgrad.torch.render(density, scene, seed=seed)
 
 
 def test_the_example_reconstructs_the_ball():

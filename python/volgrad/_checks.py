@@ -14,3 +14,11 @@ def samples(spp: Optional[int], grad_spp: Optional[int]) -> Optional[int]:
         if value is not None and not (whole and value >= 1):
             raise ValueError(f"{name} must be a whole number ≥ 1 (got {value!r})")
     return spp if grad_spp is None else grad_spp
+
+
+def seed(value: Optional[int]) -> Optional[int]:
+    """A seed as volgrad takes it: None, or a whole number in [0, 2**64)."""
+    whole = isinstance(value, numbers.Integral) and not isinstance(value, bool)
+    if value is not None and not (whole and 0 <= value < 2**64):
+        raise ValueError(f"seed must be a whole number in [0, 2**64) (got {value!r})")
+    return value

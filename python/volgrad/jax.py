@@ -13,6 +13,7 @@ render's at the same seed, as in ``volgrad.torch``).
 from __future__ import annotations
 
 import numbers
+import threading
 from typing import Optional, Sequence, Union
 
 import jax
@@ -23,6 +24,9 @@ from volgrad import _checks
 from volgrad._volgrad import Camera, Scene
 
 __all__ = ["renderer"]
+
+# Every volgrad call already uses all its threads: callbacks run one after another.
+_ONE_AT_A_TIME = threading.Lock()
 
 
 def renderer(
@@ -83,7 +87,9 @@ def renderer(
 
     def call(function, shape, dtype, *args):
         def typed(*values):
-            return np.asarray(function(*values), dtype)
+            # XLA may run independent callbacks at once, and a Scene takes one call at a time.
+            with _ONE_AT_A_TIME:
+                return np.asarray(function(*values), dtype)
 
         out = jax.ShapeDtypeStruct(shape, dtype)
         return jax.pure_callback(typed, out, *args, vmap_method="sequential")
@@ -97,8 +103,8 @@ def renderer(
             raise ValueError(f"{grid} has shape {tuple(values.shape)}: the scene's is {values_shape}")
         if not jnp.issubdtype(jnp.result_type(seed), jnp.integer):
             raise TypeError(f"seed must be an integer (got {jnp.result_type(seed)})")
-        if isinstance(seed, numbers.Integral) and seed < 0:
-            raise ValueError(f"seed must be ≥ 0 (got {seed})")
+        if isinstance(seed, numbers.Integral):
+            _checks.seed(seed)
         return call(images, shape, values.dtype, values, seed)
 
     def forward(values, seed):

@@ -117,6 +117,7 @@ def render(
     if estimator not in _ESTIMATORS:
         raise ValueError(f'estimator must be "joint", "drt" or "naive" (got "{estimator}")')
     grad_spp = _checks.samples(spp, grad_spp)
+    _checks.seed(seed)
     if seed is None:
         seed = int(torch.randint(0, 2**63 - 1, ()))
     return _Render.apply(
