@@ -1,7 +1,7 @@
 //! Files that are not what they claim to be, end to end through the `volgrad` binary: an output
-//! path that is a folder, an input that is a FIFO, an image without colour, a finite-difference
-//! step beyond its values, a target scene seen from elsewhere. Each refused before any work, or
-//! (the last) given the meaning the manual states.
+//! path that is a folder or in a missing one, an input that is a FIFO, an image without colour,
+//! a finite-difference step beyond its values, a target scene seen from elsewhere. Each refused
+//! before any work, or (the last) given the meaning the manual states.
 
 use std::path::{Path, PathBuf};
 
@@ -46,6 +46,21 @@ fn an_output_that_is_a_folder_is_refused_before_anything_is_written() {
     let o = volgrad(&["grad", path(&scene), "-o", path(&vdb), "--spp", "1", "-q"]);
     assert_clean_error(&o, &["g.png", "it is a folder"]);
     assert!(!vdb.exists());
+}
+
+/// An output in a folder that does not exist is refused before the scene is even read (its VDB
+/// is missing here, and the error is the folder's): it was refused after the whole render.
+#[test]
+fn an_output_in_a_missing_folder_is_refused_before_any_work() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = scene_in(dir.path(), "s.toml", 12.0, 2.0);
+    std::fs::remove_file(dir.path().join("sphere.vdb")).unwrap();
+    let exr = dir.path().join("missing/q.exr");
+    let o = volgrad(&["render", path(&scene), "-o", path(&exr), "-q"]);
+    assert_clean_error(&o, &["q.exr", "missing", "does not exist"]);
+    let vdb = dir.path().join("missing/g.vdb");
+    let o = volgrad(&["grad", path(&scene), "-o", path(&vdb), "--spp", "1", "-q"]);
+    assert_clean_error(&o, &["g.vdb", "missing", "does not exist"]);
 }
 
 #[test]
@@ -158,4 +173,48 @@ fn a_target_scene_is_seen_through_the_scenes_own_camera() {
     let (a, b) = (grad_with(&here, "a.vdb"), grad_with(&elsewhere, "b.vdb"));
     assert!(a.contains("⟨g, 1⟩"), "{a}");
     assert_eq!(a, b);
+}
+
+/// Every file volgrad writes goes through `io::output::write_whole` (a temporary name, then a
+/// rename), so that a process killed mid-write leaves the old file or none, never half of one:
+/// no code outside it writes a file in place (tests excepted). `progress.png`, rewritten at
+/// every checkpoint, and the studies' tables were written in place.
+#[test]
+fn no_output_is_written_in_place() {
+    fn sources(dir: &Path, found: &mut Vec<PathBuf>) {
+        for entry in std::fs::read_dir(dir).unwrap() {
+            let path = entry.unwrap().path();
+            if path.is_dir() {
+                sources(&path, found);
+            } else if path.extension().is_some_and(|e| e == "rs") {
+                found.push(path);
+            }
+        }
+    }
+    let src = Path::new(env!("CARGO_MANIFEST_DIR")).join("src");
+    let mut files = Vec::new();
+    sources(&src, &mut files);
+    assert!(files.len() > 50, "{} sources", files.len());
+    let mut in_place = Vec::new();
+    for file in files {
+        let name = file.to_string_lossy();
+        if name.ends_with("_tests.rs") || name.ends_with("io/output.rs") {
+            continue;
+        }
+        let text = std::fs::read_to_string(&file).unwrap();
+        let code = text.split("#[cfg(test)]").next().unwrap();
+        for (n, line) in code.lines().enumerate() {
+            if ["fs::write(", "File::create("]
+                .iter()
+                .any(|w| line.contains(w))
+            {
+                in_place.push(format!("{}:{}: {}", name, n + 1, line.trim()));
+            }
+        }
+    }
+    assert!(
+        in_place.is_empty(),
+        "written in place:\n{}",
+        in_place.join("\n")
+    );
 }

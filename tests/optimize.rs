@@ -278,6 +278,13 @@ fn a_resumed_run_equals_the_uninterrupted_one_bit_for_bit() {
             .collect()
     };
     assert_eq!(losses("whole"), losses("resumed"));
+    // The checkpoint saved its own evaluation's time with the log: the resumed log counts it.
+    let seconds = |it: usize| -> f64 {
+        log(&d.join("resumed"))[it]["evaluation_seconds"]
+            .parse()
+            .unwrap()
+    };
+    assert!(seconds(4) > seconds(0), "{} {}", seconds(4), seconds(0));
     assert_eq!(a.grid_class, "fog volume");
     let meta = |name: &str| {
         a.metadata
@@ -368,7 +375,8 @@ fn final_bits(path: &Path) -> Vec<(glam::IVec3, Vec<u32>)> {
 /// A `--budget` run places its levels and learning rate by wall time, so it is not reproducible
 /// by itself; its log records the fraction each iteration used, and `--schedule-from` replays
 /// them. The replay starts from the run's `settings.toml` (every key resolved, absolute paths),
-/// from another folder: the same grid, bit for bit.
+/// from another folder, as its closing note says (with the run's estimator, which is not a key):
+/// the same grid, bit for bit.
 #[test]
 fn a_budget_run_is_replayed_bit_for_bit_from_its_settings_and_log() {
     let run = run_file(
@@ -381,7 +389,15 @@ fn a_budget_run_is_replayed_bit_for_bit_from_its_settings_and_log() {
     ok(volgrad_in(
         d,
         &[
-            "optimize", "run.toml", "--out", "timed", "--budget", "1500ms", "-q",
+            "optimize",
+            "run.toml",
+            "--out",
+            "timed",
+            "--budget",
+            "1500ms",
+            "--estimator",
+            "drt",
+            "-q",
         ],
     ));
     let rows = log(&d.join("timed"));
@@ -392,6 +408,12 @@ fn a_budget_run_is_replayed_bit_for_bit_from_its_settings_and_log() {
     );
     std::fs::create_dir(d.join("elsewhere")).unwrap();
     let settings = d.join("timed/settings.toml");
+    let text = std::fs::read_to_string(&settings).unwrap();
+    let note = "--estimator drt --schedule-from OUT/log.csv";
+    assert!(
+        text.contains("# Run with --estimator drt --budget 1500ms.") && text.contains(note),
+        "{text}"
+    );
     ok(volgrad_in(
         &d.join("elsewhere"),
         &[
@@ -399,6 +421,8 @@ fn a_budget_run_is_replayed_bit_for_bit_from_its_settings_and_log() {
             settings.to_str().unwrap(),
             "--schedule-from",
             "../timed/log.csv",
+            "--estimator",
+            "drt",
             "--out",
             "replay",
             "--threads",

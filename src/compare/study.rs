@@ -12,7 +12,7 @@ use crate::gradient::adjoint::Estimator;
 use crate::gradient::fd::FdOptions;
 use crate::gradient::gradcheck::{checks_table, Z_LIMIT};
 use crate::gradient::loss::Loss;
-use crate::io::output::prepare_out_dir;
+use crate::io::output::{prepare_out_dir, write_bytes_whole};
 use crate::render::scene::Scene;
 
 pub struct EqualTimeOptions {
@@ -118,8 +118,8 @@ pub fn equal_time(scene: &Scene, name: &str, out: &Path, o: &EqualTimeOptions) -
         c::write_chart(out, "render-error", &chart)?;
         rows.extend(render_rows);
     }
-    std::fs::write(out.join("runs.csv"), c::csv(&rows))?;
-    std::fs::write(out.join("summary.md"), &summary)?;
+    write_bytes_whole(&out.join("runs.csv"), c::csv(&rows))?;
+    write_bytes_whole(&out.join("summary.md"), &summary)?;
     Ok(summary)
 }
 
@@ -226,8 +226,8 @@ pub fn stability_suite(
     let scenes = c::stability_scenes();
     let rows = c::stability(&scenes, estimators, options)?;
     let markdown = c::stability_markdown(&scenes, &rows, options);
-    std::fs::write(&files[0], &markdown)?;
-    std::fs::write(&files[1], c::stability_csv(&rows))?;
+    write_bytes_whole(&files[0], &markdown)?;
+    write_bytes_whole(&files[1], c::stability_csv(&rows))?;
     eprintln!("wrote {} and {}", files[0].display(), files[1].display());
     Ok(StabilityReport {
         markdown,

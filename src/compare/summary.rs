@@ -5,7 +5,7 @@
 use std::fmt::Write as _;
 use std::path::Path;
 
-use anyhow::{Context, Result};
+use anyhow::Result;
 
 use crate::compare::Row;
 use crate::io::chart::{Chart, Scale, Series};
@@ -294,11 +294,10 @@ pub fn summary(
 
 /// Writes a chart as `<stem>.png` and `<stem>.svg` in `dir`; says so if the PNG has no labels.
 pub fn write_chart(dir: &Path, stem: &str, chart: &Chart) -> Result<()> {
-    std::fs::write(
-        dir.join(format!("{stem}.svg")),
+    crate::io::output::write_bytes_whole(
+        &dir.join(format!("{stem}.svg")),
         crate::io::chart::to_svg(chart)?,
-    )
-    .with_context(|| format!("writing {stem}.svg in '{}'", dir.display()))?;
+    )?;
     if !crate::io::chart::write_png(chart, &dir.join(format!("{stem}.png")))? {
         eprintln!(
             "warning: no TTF font found (install fonts-dejavu-core or set VOLGRAD_FONT): {stem}.png has no labels; {stem}.svg has them"

@@ -7,8 +7,6 @@
 //! text (no `caption`, no `series_labels`: both size their boxes from font metrics), so the SVG
 //! needs no font at all and, without one, the PNG is still drawn, only without its labels.
 
-use std::fs::File;
-use std::io::BufWriter;
 use std::path::{Path, PathBuf};
 use std::sync::OnceLock;
 
@@ -336,14 +334,16 @@ pub fn write_stack_png(charts: &[&Chart], path: &Path) -> Result<bool> {
     .map_err(|e| anyhow!("drawing the PNG chart: {e}"))?;
     // Encoded here rather than by plotters' `bitmap_encoder`, which would bring in a second
     // `image` and `png` (and a JPEG decoder) for this one file.
-    let file = File::create(path).with_context(|| format!("cannot create '{}'", path.display()))?;
-    let mut encoder = png::Encoder::new(BufWriter::new(file), WIDTH, height);
+    let mut encoded = Vec::new();
+    let mut encoder = png::Encoder::new(&mut encoded, WIDTH, height);
     encoder.set_color(png::ColorType::Rgb);
     encoder.set_depth(png::BitDepth::Eight);
     encoder
         .write_header()
         .and_then(|mut w| w.write_image_data(&rgb))
-        .with_context(|| format!("writing '{}'", path.display()))?;
+        .with_context(|| format!("encoding '{}'", path.display()))?;
+    // Whole or not at all: progress.png is rewritten at every checkpoint.
+    crate::io::output::write_bytes_whole(path, encoded)?;
     Ok(labelled)
 }
 

@@ -32,7 +32,7 @@ use crate::render::lights::Lights;
 use crate::render::scene::{Scene, SceneNeeds};
 use crate::render::scene_check::{MAX_EXTINCTION, MAX_LIGHT};
 use crate::volume::brickmap::BrickMap;
-use crate::volume::transform::IndexTransform;
+use crate::volume::transform::{IndexTransform, MIN_VOXEL_SIZE};
 
 pub use crate::optimize::targets::View;
 pub use crate::optimize::unknown::Domain;
@@ -182,8 +182,8 @@ impl Problem {
             alpha: file.optimizer.alpha_weight.is_some_and(|w| w > 0.0),
             rendered_alpha: 0,
         };
-        let views = targets.complete(training, &light_sets, &captures)?;
-        let mut holdouts = targets.complete(held_out, &light_sets, &captures)?;
+        let views = targets.complete(training, &light_sets, &captures, false)?;
+        let mut holdouts = targets.complete(held_out, &light_sets, &captures, true)?;
         if let Some(cache) = targets.cache.as_ref().filter(|_| progress) {
             eprintln!(
                 "{} of {} targets read from the target cache '{}'",
@@ -333,6 +333,12 @@ impl Inputs {
                 || scene_units::footprint(&cameras, ((min + max) / 2.0).as_vec3()),
                 f64::from,
             );
+            // Found, not given: it must be one settings.toml can hold and a grid can be written with.
+            if !(voxel >= f64::from(MIN_VOXEL_SIZE) && voxel <= f64::from(f32::MAX)) {
+                bail!(
+                    "unknown.bounds = \"views\" found a voxel of {voxel:e} (the finest view's pixel at the box's centre), which a grid cannot be written with (at least {MIN_VOXEL_SIZE:e}): give unknown.voxel_size, or the cameras in larger units"
+                );
+            }
             // The run goes on (and writes in settings.toml) with the box it found.
             file.unknown.bounds = BoundsFile::Box {
                 min: min.as_vec3().to_array(),

@@ -48,6 +48,7 @@ use crate::optimize::problem::Problem;
 use crate::optimize::resample::upsample;
 use crate::optimize::run_file::UnknownGrid;
 use crate::optimize::schedule::Stop;
+use crate::optimize::settings_toml;
 use crate::optimize::smoothing::smooth;
 use crate::render::scene::Scene;
 
@@ -162,7 +163,12 @@ impl<'a> Run<'a> {
                     options.out.display()
                 )
             })?;
-            write_bytes_whole(&options.out.join("settings.toml"), &problem.settings_toml)
+            let settings = settings_toml::with_command(
+                &problem.settings_toml,
+                options.estimator,
+                options.stop.as_ref(),
+            );
+            write_bytes_whole(&options.out.join("settings.toml"), settings)
         }))?;
         let mut run = Run {
             problem,
@@ -289,11 +295,16 @@ impl<'a> Run<'a> {
             let started = Instant::now();
             self.evaluation = self.evaluate();
             row.record(&self.evaluation);
-            if checkpoint_now {
-                cluster.agree(cluster.on_root(|| self.write_checkpoint(&row)))?;
-            }
+            // Counted before the checkpoint saves the log, so that a run resumed from it counts
+            // this evaluation too; the checkpoint's own writing is added after.
             self.position.evaluation_seconds += started.elapsed().as_secs_f64();
             row.evaluation_seconds = self.position.evaluation_seconds;
+            if checkpoint_now {
+                let writing = Instant::now();
+                cluster.agree(cluster.on_root(|| self.write_checkpoint(&row)))?;
+                self.position.evaluation_seconds += writing.elapsed().as_secs_f64();
+                row.evaluation_seconds = self.position.evaluation_seconds;
+            }
         }
         let evaluated = row.psnr.is_some();
         self.log.push(row);
@@ -350,6 +361,7 @@ impl<'a> Run<'a> {
                 &out.join(format!("holdout-{:04}.png", self.position.iteration)),
                 &problem.holdouts,
                 &self.evaluation.renders,
+                &self.exposures(),
                 problem.scene.settings.exposure,
             )?;
         }

@@ -288,6 +288,9 @@ impl UnknownFile {
                 }
             }
         }
+        if let Some(v) = self.start_voxel_size.filter(|v| !voxel_size_ok(*v)) {
+            bail!("unknown.start_voxel_size must be a number from {MIN_VOXEL_SIZE:e} up (got {v})");
+        }
         if let Some(StartFile::Constant(c)) = self.start {
             if !(c >= 0.0 && c.is_finite()) {
                 bail!("unknown.start must be a value ≥ 0 or a VDB file (got {c})");
@@ -314,7 +317,7 @@ impl UnknownFile {
             bail!(
                 "unknown.levels: {} upsamplings start at 1/{} of the final resolution per axis; at most {MAX_LEVELS}",
                 levels.len(),
-                1u32 << levels.len()
+                2f64.powi(levels.len() as i32)
             );
         }
         Ok(())

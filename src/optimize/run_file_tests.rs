@@ -114,6 +114,18 @@ fn bad_values_name_their_key() {
             ),
             (GOOD.replace("start = 0.1", "start = -1"), "unknown.start"),
             (
+                GOOD.replace("start = 0.1", "start = 0.1\nstart_voxel_size = nan"),
+                "unknown.start_voxel_size",
+            ),
+            (
+                GOOD.replace("levels = [0.5]", "levels = [0.01, 0.02, 0.03, 0.04, 0.05, 0.06, 0.07, 0.08, 0.09, 0.10, 0.11, 0.12, 0.13, 0.14, 0.15, 0.16, 0.17, 0.18, 0.19, 0.20, 0.21, 0.22, 0.23, 0.24, 0.25, 0.26, 0.27, 0.28, 0.29, 0.30, 0.31, 0.32, 0.33, 0.34, 0.35, 0.36, 0.37, 0.38, 0.39, 0.40]"),
+                "at most",
+            ),
+            (
+                GOOD.replace("width = 8\n        height = 8\n        [[holdout]]", "width = 2147483648\n        height = 2147483648\n        [[holdout]]"),
+                "pixels",
+            ),
+            (
                 GOOD.replace("start = 0.1", "start = 0.1\ncarve = true\ngrid = \"emission\""),
                 "unknown.carve",
             ),

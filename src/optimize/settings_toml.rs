@@ -5,7 +5,9 @@ use std::path::Path;
 
 use anyhow::{Context, Result};
 
+use crate::gradient::adjoint::Estimator;
 use crate::optimize::run_file::{RunFile, StartFile};
+use crate::optimize::schedule::Stop;
 use crate::render::scene_file::LightFile;
 
 /// The file with every key written out and every path absolute, as TOML that `optimize`
@@ -48,6 +50,25 @@ pub fn resolved(run_file: &RunFile, run_path: &Path, notes: &str) -> Result<Stri
         "# The run file '{}' as volgrad resolved it: every key, absolute paths.\n\n{text}\n{notes}",
         run_path.display()
     ))
+}
+
+/// `settings` with what it cannot hold as keys, the command line's choices that shaped the run
+/// (its estimator and when it stopped), as a closing note that says how to replay it: without
+/// `--estimator`, a replay of a DRT run would run joint.
+pub fn with_command(settings: &str, estimator: Estimator, stop: Option<&Stop>) -> String {
+    let stop = match stop {
+        Some(Stop::Iterations(n)) => format!(" --iterations {n}"),
+        Some(Stop::Budget(d)) if d.subsec_nanos() == 0 => format!(" --budget {}s", d.as_secs()),
+        Some(Stop::Budget(d)) => format!(" --budget {}ms", d.as_millis()),
+        Some(Stop::Replay(fractions)) => {
+            format!(" --schedule-from <a log of {} iterations>", fractions.len())
+        }
+        None => String::new(),
+    };
+    format!(
+        "{settings}# Run with --estimator {estimator}{stop}. To replay it, step for step: \
+         volgrad optimize OUT/settings.toml --estimator {estimator} --schedule-from OUT/log.csv\n"
+    )
 }
 
 /// An environment map's file named relative to the run file, made absolute.

@@ -7,7 +7,7 @@
 use std::fmt::Write as _;
 use std::path::Path;
 
-use anyhow::{Context, Result};
+use anyhow::Result;
 
 use crate::gradient::adjoint::Estimator;
 use crate::io::chart::{self, Chart, Scale, Series};
@@ -113,7 +113,7 @@ pub fn equal_time(
 fn write_outputs(problem: &Problem, runs: &[StudyRun], out: &Path) -> Result<()> {
     let write = |name: &str, text: String| {
         let path = out.join(name);
-        std::fs::write(&path, text).with_context(|| format!("writing '{}'", path.display()))
+        crate::io::output::write_bytes_whole(&path, text)
     };
     let mut csv = Table::new(
         [

@@ -365,11 +365,14 @@ pub struct TargetRenderer<'a> {
 impl TargetRenderer<'_> {
     /// The views of `read` with their targets (`relit` still false), their captures indexed in
     /// `captures` (0 for a name not there: `check_captures` refuses it where it matters).
+    /// Gives `read` its targets; held-out ones (`held_out`) must not be black everywhere, since
+    /// their score is a PSNR, relative to the target's brightest value.
     pub fn complete(
         &mut self,
         read: Vec<ReadView>,
         sets: &LightSets,
         captures: &[String],
+        held_out: bool,
     ) -> Result<Vec<View>> {
         read.into_iter()
             .map(|v| {
@@ -384,6 +387,12 @@ impl TargetRenderer<'_> {
                         (target, alpha.transpose()?)
                     }
                 };
+                if held_out && target.pixels.iter().all(|c| c.max_element() <= 0.0) {
+                    bail!(
+                        "{}: the held-out target is black everywhere, so its PSNR (relative to the target's brightest value) is undefined: light what it sees, or leave it out",
+                        v.name
+                    );
+                }
                 Ok(View {
                     camera: v.camera,
                     light_set: v.light_set,

@@ -181,14 +181,16 @@ pub fn view_sets<'de, D: serde::Deserializer<'de>>(d: D) -> Result<Vec<ViewSetFi
 pub fn check_sizes(sets: &[ViewTables]) -> Result<()> {
     let mut pixels = 0u64;
     for (_, name, listed, set) in sets {
-        let listed_pixels = listed
-            .iter()
-            .map(|v| u64::from(v.width) * u64::from(v.height));
-        pixels += listed_pixels.sum::<u64>();
+        // Saturating: sizes a user typed can make any product wrap, and all that matters is
+        // whether the total is past the limit.
+        for v in listed.iter() {
+            pixels = pixels.saturating_add(u64::from(v.width) * u64::from(v.height));
+        }
         let mut count = listed.len() as u64;
         for o in &set.orbit {
-            count += u64::from(o.count);
-            pixels += u64::from(o.count) * u64::from(o.width) * u64::from(o.height);
+            count = count.saturating_add(u64::from(o.count));
+            let orbit = u64::from(o.width) * u64::from(o.height);
+            pixels = pixels.saturating_add(orbit.saturating_mul(u64::from(o.count)));
         }
         if count > MAX_VIEWS {
             bail!(
