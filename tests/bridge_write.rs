@@ -183,3 +183,29 @@ fn vdb_print_reads_written_file() {
     assert!(text.contains("is_saved_as_half_float: true"), "{text}");
     assert!(text.contains("creator: volgrad"), "{text}");
 }
+
+/// `volgrad info` lists every grid of a file even when one cannot be read (here a grid holding a
+/// NaN, which render refuses): that grid's values line says why, and the grids after it are
+/// listed. It stopped at the unreadable grid with an error.
+#[test]
+fn info_goes_on_past_a_grid_it_cannot_read() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut broken = hand_built();
+    broken.name = "broken".into();
+    broken.leaves[0].values[3] = f32::NAN;
+    let mut good = hand_built();
+    good.name = "fine".into();
+    let path = dir.path().join("two.vdb");
+    ffi::write_float_grids(path_str(&path), &[broken, good], false).unwrap();
+    let o = std::process::Command::new(env!("CARGO_BIN_EXE_volgrad"))
+        .args(["info", path_str(&path)])
+        .output()
+        .unwrap();
+    let out = String::from_utf8_lossy(&o.stdout);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(out.contains("not readable") && out.contains("NaN"), "{out}");
+    assert!(
+        out.contains("[1] fine") && out.contains("values         0 .. "),
+        "{out}"
+    );
+}

@@ -251,6 +251,15 @@ fn a_name_several_grids_share_is_refused() {
     for i in 0..3 {
         assert!(read_grid(&p, &GridSelector::Index(i)).is_ok());
     }
+    // An albedo or colour grid by a shared name too (it took the first).
+    let Err(e) = volgrad::io::vdb::read_components(&p, "density") else {
+        panic!("read_components read one of three grids named density");
+    };
+    let e = e.to_string();
+    assert!(
+        e.contains("3 grids named 'density'") && !e.contains("grid_index"),
+        "{e}"
+    );
 }
 
 // ------------------------------------------------------------------------------------------------

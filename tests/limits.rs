@@ -296,6 +296,27 @@ fn flags_that_would_be_ignored_or_replaced_are_refused() {
         "-q",
     ];
     assert_clean_error(&volgrad_in(d, &check), &["--channel", "albedo"]);
+    // The global majorant has no cells to size.
+    let global = [
+        &render[..],
+        &["--force", "--majorant", "global", "--majorant-cell", "8"],
+    ]
+    .concat();
+    assert_clean_error(
+        &volgrad_in(d, &global),
+        &["--majorant-cell", "global", "ignored"],
+    );
+    let scene = std::fs::read_to_string(d.join("scene.toml")).unwrap();
+    let file = scene.replace(
+        "[render]\n",
+        "[render]\nmajorant = \"global\"\nmajorant_cell = 8\n",
+    );
+    std::fs::write(d.join("global.toml"), file).unwrap();
+    let global = ["render", "global.toml", "-o", "g.exr", "--spp", "1", "-q"];
+    assert_clean_error(
+        &volgrad_in(d, &global),
+        &["render.majorant_cell", "global", "ignored"],
+    );
     // A finite-difference step below what f32 resolves beside the grid's values differences
     // rounding: a meaningless value that passed or failed a check at random.
     let check = [
@@ -393,4 +414,42 @@ fn an_image_header_declaring_too_many_pixels_is_refused() {
         &grad_against(d, "bomb.png"),
         &["bomb.png", "100000x100000", "2^28"],
     );
+}
+
+/// `grad --target-scene` renders its target (256 spp by default, and here a billion) only once
+/// every flag has been checked: a parameter the scene has no grid for was refused after it.
+#[test]
+fn a_bad_flag_is_refused_before_the_target_is_rendered() {
+    let dir = fixture(&run_file("0.1", ""));
+    let args = [
+        "grad",
+        "scene.toml",
+        "--parameter",
+        "albedo",
+        "--loss",
+        "l2",
+        "--target-scene",
+        "scene.toml",
+        "--target-spp",
+        "1000000000",
+        "-o",
+        "g.vdb",
+        "-q",
+    ];
+    let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_volgrad"))
+        .args(args)
+        .current_dir(dir.path())
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let deadline = std::time::Instant::now() + std::time::Duration::from_secs(60);
+    while child.try_wait().unwrap().is_none() {
+        if std::time::Instant::now() > deadline {
+            child.kill().unwrap();
+            panic!("still rendering the target after 60 s: the flags were not checked first");
+        }
+        std::thread::sleep(std::time::Duration::from_millis(50));
+    }
+    assert_clean_error(&child.wait_with_output().unwrap(), &["albedo"]);
 }

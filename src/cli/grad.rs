@@ -24,7 +24,7 @@ use volgrad::gradient::passes::{derivative_image, GradOptions, GradientRun, Para
 use volgrad::io::fingerprint::image as image_fingerprint;
 use volgrad::io::gradient_files::{self, Provenance};
 use volgrad::io::images::{self, RgbImage};
-use volgrad::io::output::refuse_overwrite;
+use volgrad::io::output::{refuse_overwrite, refuse_unwritable_folder};
 use volgrad::io::progress;
 use volgrad::io::{colormap, vdb};
 use volgrad::render::fingerprint;
@@ -271,7 +271,9 @@ pub fn run(args: &Args, cluster: &Cluster) -> Result<()> {
     if args.estimator != Method::FiniteDifferences {
         let outputs = outputs(&vdb_out, args.image_of.is_some());
         cluster.agree(match cluster.is_root() {
-            true => (outputs.iter()).try_for_each(|path| refuse_overwrite(path, args.force)),
+            true => (outputs.iter()).try_for_each(|path| {
+                refuse_overwrite(path, args.force).and_then(|_| refuse_unwritable_folder(path))
+            }),
             false => Ok(()),
         })?;
     }
@@ -289,10 +291,7 @@ pub fn run(args: &Args, cluster: &Cluster) -> Result<()> {
         };
         vec![scene_fingerprint.clone(), target]
     })?;
-    let target = target_image(args, source, &scene, cluster);
-    if let Some(t) = &target {
-        cluster.agree(check_target(t, &scene))?;
-    }
+    // Every flag is checked before the target is rendered (minutes, with --target-scene).
     let image_box = match &args.image_of {
         Some(spec) => Some(resolve_box(
             values::index_box(spec, "--image-of")?,
@@ -303,12 +302,23 @@ pub fn run(args: &Args, cluster: &Cluster) -> Result<()> {
     };
     let estimator = match args.estimator {
         Method::Estimator(e) => e,
-        Method::FiniteDifferences => return finite_differences(args, &scene, target.as_ref()),
+        Method::FiniteDifferences => {
+            let plan = plan_finite_differences(args, &scene)?;
+            let target = target_image(args, source, &scene, cluster);
+            if let Some(t) = &target {
+                cluster.agree(check_target(t, &scene))?;
+            }
+            return finite_differences(args, &scene, target.as_ref(), plan);
+        }
     };
     let (mut options, (parameter_name, transform, channels)) = cluster.agree(
         (args.adjoint.options(&scene, estimator))
             .and_then(|o| Ok((o, parameter_grid(&scene, args.adjoint.parameter)?))),
     )?;
+    let target = target_image(args, source, &scene, cluster);
+    if let Some(t) = &target {
+        cluster.agree(check_target(t, &scene))?;
+    }
     options.progress &= cluster.is_root();
     let adjoint = adjoint_shared(cluster, &scene, args.loss, target.as_ref(), &options)?;
     if let (Some(loss), true) = (adjoint.loss, cluster.is_root()) {
@@ -501,7 +511,10 @@ fn fd_directions(
     })
 }
 
-fn finite_differences(args: &Args, scene: &Scene, target: Option<&RgbImage>) -> Result<()> {
+/// Finite differences' steps and directions, from the flags alone (no target needed).
+type FdPlan = (fd::FdOptions, Vec<(String, fd::Direction)>);
+
+fn plan_finite_differences(args: &Args, scene: &Scene) -> Result<FdPlan> {
     let spec = args
         .fd
         .as_deref()
@@ -512,6 +525,15 @@ fn finite_differences(args: &Args, scene: &Scene, target: Option<&RgbImage>) -> 
     let options = (args.fd_args).options(&scene.medium.grid, args.loss, seed, max_depth)?;
     let active_only = args.adjoint.domain == Domain::Active;
     let directions = fd_directions(spec, scene, active_only, seed, 3.0 * options.eps)?;
+    Ok((options, directions))
+}
+
+fn finite_differences(
+    args: &Args,
+    scene: &Scene,
+    target: Option<&RgbImage>,
+    (options, directions): FdPlan,
+) -> Result<()> {
     println!(
         "finite differences of {} ({} spp × {} repeats, common random numbers)",
         args.loss, options.spp, options.repeats

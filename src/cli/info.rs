@@ -87,8 +87,14 @@ pub fn run(args: &Args) -> Result<()> {
         } else {
             println!("  index bbox     (empty)");
         }
-        if g.value_type == "float" {
-            let grid = vdb::read_grid(file, &vdb::GridSelector::Index(i))?;
+        // A grid volgrad cannot read (a frustum map, a NaN) says why on its values line, and the
+        // listing goes on to the grids after it.
+        let read =
+            (g.value_type == "float").then(|| vdb::read_grid(file, &vdb::GridSelector::Index(i)));
+        if let Some(Err(e)) = &read {
+            println!("  values         not readable: {e:#}");
+        }
+        if let Some(Ok(grid)) = read {
             let refused = if grid.background == 0.0 || g.grid_class == "level set" {
                 ""
             } else {

@@ -8,7 +8,7 @@ use super::{bytes, check_same_job, report_non_finite, set_threads, SamplingArgs}
 use volgrad::cluster::images::render_shared;
 use volgrad::cluster::Cluster;
 use volgrad::io::images;
-use volgrad::io::output::refuse_overwrite;
+use volgrad::io::output::{refuse_overwrite, refuse_unwritable_folder};
 use volgrad::render::fingerprint;
 use volgrad::render::image::{RenderOptions, RenderStats};
 use volgrad::render::scene::Scene;
@@ -48,6 +48,11 @@ fn load_scene(
     majorant_cell: Option<u32>,
 ) -> Result<Scene> {
     let mut scene = Scene::load(path)?;
+    if majorant.unwrap_or(scene.settings.majorant) == MajorantMode::Global
+        && majorant_cell.is_some()
+    {
+        bail!("--majorant-cell sets the cells of the majorant grid: with the global majorant (one for the whole medium) it would be ignored");
+    }
     if majorant.is_some() || majorant_cell.is_some() {
         let cell = majorant_cell.unwrap_or(scene.settings.majorant_cell);
         if cell == 0 || cell > 1024 {
@@ -80,7 +85,9 @@ pub fn run(args: &Args, cluster: &Cluster) -> Result<()> {
     let png = exr.with_extension("png");
     let root = cluster.is_root();
     cluster.agree(if root {
-        refuse_overwrite(&exr, args.force).and_then(|_| refuse_overwrite(&png, args.force))
+        refuse_overwrite(&exr, args.force)
+            .and_then(|_| refuse_overwrite(&png, args.force))
+            .and_then(|_| refuse_unwritable_folder(&exr))
     } else {
         Ok(())
     })?;

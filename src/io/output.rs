@@ -21,6 +21,41 @@ pub fn refuse_overwrite(path: &Path, overwrite: bool) -> Result<()> {
     Ok(())
 }
 
+/// An error unless `path`'s folder exists and a file can be made in it: checked before the work
+/// that fills `path`, which would otherwise end, after a render of hours, at "the folder does not
+/// exist". (A probe file is made and removed: permission bits do not say what root, ACLs or a
+/// read-only mount allow.)
+pub fn refuse_unwritable_folder(path: &Path) -> Result<()> {
+    let folder = match path.parent() {
+        Some(p) if !p.as_os_str().is_empty() => p,
+        _ => Path::new("."),
+    };
+    if !folder.is_dir() {
+        bail!(
+            "cannot write '{}': the folder '{}' does not exist",
+            path.display(),
+            folder.display()
+        );
+    }
+    let probe = folder.join(format!(".volgrad-write-check-{}", std::process::id()));
+    match std::fs::OpenOptions::new()
+        .write(true)
+        .create_new(true)
+        .open(&probe)
+    {
+        Ok(_) => {
+            let _ = std::fs::remove_file(&probe);
+            Ok(())
+        }
+        Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => Ok(()),
+        Err(e) => bail!(
+            "cannot write '{}': the folder '{}' does not take new files ({e})",
+            path.display(),
+            folder.display()
+        ),
+    }
+}
+
 /// Creates `out` and refuses, before any work, to overwrite one of `files` without `overwrite`.
 pub fn prepare_out_dir(out: &Path, files: &[PathBuf], overwrite: bool) -> Result<()> {
     for f in files {

@@ -117,11 +117,11 @@ fn bridge_threads() -> u32 {
 
 /// A name that several grids of the file share picks none of them: which one was meant is the
 /// user's to say, by position (`volgrad info` numbers the grids).
-fn refuse_repeated_name(path: &Path, grids: &[String], name: &str) -> Result<()> {
+fn refuse_repeated_name(path: &Path, grids: &[String], name: &str, choose: &str) -> Result<()> {
     let at: Vec<usize> = (0..grids.len()).filter(|&i| grids[i] == name).collect();
     if at.len() > 1 {
         bail!(
-            "'{}' holds {} grids named '{name}' (positions {at:?} in `volgrad info`): choose the density by its position (medium.grid_index), or give the grids names of their own",
+            "'{}' holds {} grids named '{name}' (positions {at:?} in `volgrad info`): {choose}give the grids names of their own",
             path.display(),
             at.len()
         );
@@ -129,12 +129,15 @@ fn refuse_repeated_name(path: &Path, grids: &[String], name: &str) -> Result<()>
     Ok(())
 }
 
+/// How a density grid may be chosen when its name is shared.
+const BY_POSITION: &str = "choose the density by its position (medium.grid_index), or ";
+
 fn read_data(path: &Path, selector: &GridSelector, to_fog: bool) -> Result<FloatGridData> {
     let p = bridge_path(path)?;
     let threads = bridge_threads();
     match selector {
         GridSelector::Name(name) => {
-            refuse_repeated_name(path, &list_grid_names(path)?, name)?;
+            refuse_repeated_name(path, &list_grid_names(path)?, name, BY_POSITION)?;
             ffi::read_float_grid(p, name, -1, to_fog, threads)
         }
         GridSelector::Index(i) => match i32::try_from(*i) {
@@ -145,7 +148,7 @@ fn read_data(path: &Path, selector: &GridSelector, to_fog: bool) -> Result<Float
             let grids = list_grid_names(path)?;
             match grids.iter().position(|name| name == "density") {
                 Some(i) => {
-                    refuse_repeated_name(path, &grids, "density")?;
+                    refuse_repeated_name(path, &grids, "density", BY_POSITION)?;
                     ffi::read_float_grid(p, "", i as i32, to_fog, threads)
                 }
                 None if grids.is_empty() => bail!("'{}' holds no grids", path.display()),
@@ -165,8 +168,10 @@ fn read_data(path: &Path, selector: &GridSelector, to_fog: bool) -> Result<Float
 }
 
 /// Reads the grid named `name` as float components: one for a float grid, three (x, y, z) for a
-/// vec3 grid, each as it is stored (any background).
+/// vec3 grid, each as it is stored (any background). A name several grids share is refused, as
+/// for the density, rather than the first taken.
 pub fn read_components(path: &Path, name: &str) -> Result<Vec<Grid>> {
+    refuse_repeated_name(path, &list_grid_names(path)?, name, "")?;
     let threads = bridge_threads();
     let data =
         ffi::read_grid_components(bridge_path(path)?, name, -1, threads).map_err(bridge_error)?;

@@ -7,8 +7,11 @@ use anyhow::{bail, Result};
 use glam::{DVec3, Vec3};
 
 use crate::render::camera::{Camera, Intrinsics};
-use crate::render::scene_file::{AlbedoFile, CameraFile, EmissionFile, LightFile, SceneFile};
+use crate::render::scene_file::{
+    AlbedoFile, CameraFile, EmissionFile, LightFile, SceneFile, DEFAULT_MAJORANT_CELL,
+};
 use crate::volume::emission::EmissionKind;
+use crate::volume::majorant::MajorantMode;
 
 /// Largest |coordinate| of camera.position and camera.target. The renderer traces in f32: beyond
 /// this, squared distances (up to ~1e31) approach f32::MAX (3.4e38) once scaled into index space,
@@ -180,6 +183,9 @@ impl SceneFile {
                 "render.majorant_cell must be between 1 and 1024 voxels (got {})",
                 r.majorant_cell
             );
+        }
+        if r.majorant == MajorantMode::Global && r.majorant_cell != DEFAULT_MAJORANT_CELL {
+            bail!("render.majorant_cell sets the cells of the majorant grid: with majorant = \"global\" (one for the whole medium) it would be ignored; leave it out");
         }
         Ok(())
     }
