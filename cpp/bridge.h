@@ -7,7 +7,7 @@
 // Defined in cpp/vdb_read.cpp (list_grids, list_grid_names, read_float_grid[_through_openvdb],
 // read_grid_components), cpp/vdb_write.cpp (write_float_grids,
 // write_grids_with_colours)
-// and cpp/images.cpp (read_image, write_image).
+// and cpp/images.cpp (read_image_size, read_image, write_image).
 #pragma once
 
 #include "rust/cxx.h"
@@ -20,6 +20,7 @@ struct MetaEntry;
 struct GridSummary;
 struct FloatGridData;
 struct ImageData;
+struct ImageSize;
 
 rust::Vec<GridSummary> list_grids(rust::Str path);
 
@@ -38,6 +39,8 @@ void write_float_grids(rust::Str path, rust::Slice<const FloatGridData> grids, b
 
 void write_grids_with_colours(rust::Str path, rust::Slice<const FloatGridData> grids,
                               rust::Slice<const FloatGridData> colours, bool save_half);
+
+ImageSize read_image_size(rust::Str path);
 
 ImageData read_image(rust::Str path);
 

@@ -12,6 +12,7 @@
 #include <cerrno>
 #include <cstdint>
 #include <filesystem>
+#include <memory>
 #include <string>
 #include <system_error>
 #include <vector>
@@ -60,15 +61,10 @@ std::string oiio_error(const std::string& specific,
     return e.empty() ? silent : e;
 }
 
-}  // namespace
-
-// ------------------------------------------------------------------------------------------------
-// The bridge functions
-
-ImageData read_image(rust::Str path_str) {
-    const std::string path = to_std(path_str);
+// An image file opened for reading (colour as stored: no (un)premultiplication of alpha), its
+// header checked.
+std::unique_ptr<OIIO::ImageInput> open_image(const std::string& path) {
     check_readable(path);
-    // Return what the file stores: no (un)premultiplication of alpha.
     OIIO::ImageSpec config;
     config.attribute("oiio:UnassociatedAlpha", 1);
     auto in = OIIO::ImageInput::open(path, &config);
@@ -79,11 +75,46 @@ ImageData read_image(rust::Str path_str) {
              std::to_string(spec.width) + "x" + std::to_string(spec.height) + "x" +
              std::to_string(spec.depth) + " with " + std::to_string(spec.nchannels) + " channels");
     }
-    // The image is the display window; the file stores its data window, which OpenEXR lets
-    // differ (a bounding box smaller than the frame, overscan beyond it) and which is placed on
-    // the display window below, the pixels it leaves out black and transparent (OpenEXR's rule).
-    const int64_t width = spec.full_width > 0 ? spec.full_width : spec.width;
-    const int64_t height = spec.full_height > 0 ? spec.full_height : spec.height;
+    return in;
+}
+
+// The image a file holds: an EXR's display window, whose stored data window may differ (a
+// bounding box smaller than the frame, overscan beyond it) and is placed on it, the pixels it
+// leaves out black and transparent (OpenEXR's rule); any other format's stored pixels, whatever
+// offset it records (a PNG's oFFs says nothing of a frame).
+struct Layout {
+    int64_t width, height;
+    bool whole;  // the stored pixels are the image
+};
+
+Layout layout_of(const OIIO::ImageInput& in) {
+    const OIIO::ImageSpec& spec = in.spec();
+    if (std::string(in.format_name()) != "openexr" || spec.full_width <= 0 ||
+        spec.full_height <= 0) {
+        return {spec.width, spec.height, true};
+    }
+    const bool whole = spec.x == spec.full_x && spec.y == spec.full_y &&
+                       spec.width == spec.full_width && spec.height == spec.full_height;
+    return {spec.full_width, spec.full_height, whole};
+}
+
+}  // namespace
+
+// ------------------------------------------------------------------------------------------------
+// The bridge functions
+
+ImageSize read_image_size(rust::Str path_str) {
+    const std::string path = to_std(path_str);
+    const Layout layout = layout_of(*open_image(path));
+    return ImageSize{uint32_t(std::min<int64_t>(layout.width, UINT32_MAX)),
+                     uint32_t(std::min<int64_t>(layout.height, UINT32_MAX))};
+}
+
+ImageData read_image(rust::Str path_str) {
+    const std::string path = to_std(path_str);
+    auto in = open_image(path);
+    const OIIO::ImageSpec& spec = in->spec();
+    const auto [width, height, whole] = layout_of(*in);
     // The largest image the renderer makes (scene_check::MAX_PIXELS), and at most 4 GiB of
     // values: a header may declare far more than the file holds, and the buffers are allocated
     // before any pixel is read.
@@ -91,8 +122,6 @@ ImageData read_image(rust::Str path_str) {
     const uint64_t pixels = uint64_t(width) * uint64_t(height);
     const uint64_t stored = uint64_t(spec.width) * uint64_t(spec.height);
     const uint64_t channels = uint64_t(spec.nchannels);
-    const bool whole = spec.x == spec.full_x && spec.y == spec.full_y &&
-                       int64_t(spec.width) == width && int64_t(spec.height) == height;
     if (pixels > max_pixels || stored > max_pixels ||
         (pixels + (whole ? 0 : stored)) * channels > max_values) {
         fail("cannot read image " + quoted(path) + ": it declares " + std::to_string(width) +

@@ -348,6 +348,43 @@ fn an_exr_data_window_is_placed_on_its_display_window() {
     }
 }
 
+/// Only an EXR's data window is placed on a frame: a PNG's `oFFs` chunk (an offset ImageMagick
+/// writes after a crop) says nothing of one, and the PNG is its stored pixels, unmoved; its size
+/// from the header alone is the same.
+#[test]
+fn a_png_offset_does_not_move_its_pixels() {
+    fn crc32(bytes: &[u8]) -> u32 {
+        let mut crc = !0u32;
+        for &b in bytes {
+            crc ^= u32::from(b);
+            for _ in 0..8 {
+                crc = (crc >> 1) ^ (0xEDB8_8320 & (crc & 1).wrapping_neg());
+            }
+        }
+        !crc
+    }
+    let img = test_image(5, 3, 3, true);
+    let dir = tempfile::tempdir().unwrap();
+    let plain = dir.path().join("plain.png");
+    ffi::write_image(path_str(&plain), &img, "uint8").unwrap();
+    let bytes = std::fs::read(&plain).unwrap();
+    // oFFs: x and y (pixels, big-endian i32), unit 0 (pixels); right after IHDR (8 + 25 bytes).
+    let body = [&b"oFFs"[..], &5i32.to_be_bytes(), &7i32.to_be_bytes(), &[0]].concat();
+    let chunk = [&9u32.to_be_bytes()[..], &body, &crc32(&body).to_be_bytes()].concat();
+    let offset = dir.path().join("offset.png");
+    std::fs::write(&offset, [&bytes[..33], &chunk, &bytes[33..]].concat()).unwrap();
+    let (a, b) = (
+        ffi::read_image(path_str(&plain)).unwrap(),
+        ffi::read_image(path_str(&offset)).unwrap(),
+    );
+    assert_eq!((b.width, b.height), (5, 3));
+    assert_eq!(a.pixels, b.pixels);
+    let size = ffi::read_image_size(path_str(&offset)).unwrap();
+    assert_eq!((size.width, size.height), (5, 3));
+    let size = ffi::read_image_size(path_str(&dir.path().join("none.png")));
+    assert!(size.is_err());
+}
+
 /// An EXR that states other primaries than Rec.709's (ACEScg's, here) is refused by name rather
 /// than read as if its values were volgrad's RGB, unless the caller says how to take them; one
 /// that states Rec.709's is read.

@@ -285,6 +285,8 @@ fn a_resumed_run_equals_the_uninterrupted_one_bit_for_bit() {
             .unwrap()
     };
     assert!(seconds(4) > seconds(0), "{} {}", seconds(4), seconds(0));
+    let settings = std::fs::read_to_string(d.join("resumed/settings.toml")).unwrap();
+    assert!(settings.contains("--iterations 12."), "{settings}");
     assert_eq!(a.grid_class, "fog volume");
     let meta = |name: &str| {
         a.metadata

@@ -32,13 +32,11 @@ fn this_process_pool() -> PyResult<Arc<rayon::ThreadPool>> {
     static POOL: Mutex<Option<(u32, Arc<rayon::ThreadPool>)>> = Mutex::new(None);
     let mut pool = POOL.lock().unwrap_or_else(|poisoned| poisoned.into_inner());
     let pid = std::process::id();
-    match pool.take() {
-        Some((owner, existing)) if owner == pid => {
-            *pool = Some((owner, existing.clone()));
-            return Ok(existing);
+    if let Some((owner, existing)) = pool.as_ref() {
+        if *owner == pid {
+            return Ok(existing.clone());
         }
-        Some(parents) => std::mem::forget(parents),
-        None => {}
+        std::mem::forget(pool.take());
     }
     let built =
         Arc::new(rayon::ThreadPoolBuilder::new().build().map_err(|e| {

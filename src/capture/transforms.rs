@@ -104,11 +104,11 @@ impl Lens {
     /// pixels (the camera's checks bound it).
     fn size(&self) -> Result<Option<(u32, u32)>> {
         let whole = |key: &str, v: f64| {
-            if v.fract() == 0.0 && (0.0..=f64::from(u32::MAX)).contains(&v) {
+            if v.fract() == 0.0 && (1.0..=f64::from(u32::MAX)).contains(&v) {
                 Ok(v as u32)
             } else {
                 bail!(
-                    "{key} = {} is not a whole number of pixels",
+                    "{key} = {} is not a whole number of pixels ≥ 1",
                     super::quoted_number(v)
                 )
             }
@@ -268,10 +268,7 @@ impl TransformsFile {
             .transpose()?;
         let (width, height) = match (lens.size()?, &image) {
             (Some(size), _) => size,
-            (None, Some(image)) => {
-                let pixels = crate::io::images::read_rgb(image)?;
-                (pixels.width, pixels.height)
-            }
+            (None, Some(image)) => crate::io::images::image_size(image)?,
             (None, None) => bail!("no image and no `w`, `h`: the view's size is unknown"),
         };
         let intrinsics = intrinsics(&lens, width, height)?;

@@ -130,7 +130,10 @@ fn what_a_pinhole_cannot_be_is_refused_naming_the_key() {
         // serde_json would keep the second.
         (with(r#""w": 8,"#), "\"w\" is given twice"),
         (sized(r#""w": 65536, "h": 65536,"#), "too large"),
-        (sized(r#""w": 0, "h": 8,"#), "at least 1"),
+        (
+            sized(r#""w": 0, "h": 8,"#),
+            "w = 0 is not a whole number of pixels ≥ 1",
+        ),
         (
             r#"{ "camera_angle_x": 0.5, "w": 8, "h": 8, "frames": [] }"#.to_string(),
             "empty",
@@ -230,7 +233,10 @@ fn sizes_are_whole_numbers_in_any_notation_and_come_in_pairs() {
     assert_eq!((camera.width, camera.height), (20, 10));
     for (size, says) in [
         (r#""w": 20.5, "h": 10"#, "w = 20.5 is not a whole number"),
-        (r#""w": 20, "h": -10"#, "h = -10 is not a whole number"),
+        (
+            r#""w": 20, "h": -10"#,
+            "h = -10 is not a whole number of pixels ≥ 1",
+        ),
         (r#""w": 20"#, "`w` without `h`"),
         (r#""h": 10"#, "`h` without `w`"),
     ] {

@@ -174,15 +174,15 @@ fn load_target(args: &Args) -> Result<TargetSource> {
     Ok(source)
 }
 
-/// The target image: read, or rendered with every rank tracing its share of the pixels (one
-/// progress bar, rank 0's).
+/// The target image, checked against the scene: read, or rendered with every rank tracing its
+/// share of the pixels (one progress bar, rank 0's).
 fn target_image(
     args: &Args,
     source: TargetSource,
     scene: &Scene,
     cluster: &Cluster,
-) -> Option<RgbImage> {
-    match source {
+) -> Result<Option<RgbImage>> {
+    let target = match source {
         TargetSource::None => None,
         TargetSource::Image(image) => Some(image),
         TargetSource::Scene(mut other) => {
@@ -194,7 +194,11 @@ fn target_image(
             let options = target_options(&other, args.target_spp, seed, progress);
             Some(render_shared(cluster, &other, &options).0)
         }
+    };
+    if let Some(t) = &target {
+        cluster.agree(check_target(t, scene))?;
     }
+    Ok(target)
 }
 
 /// The flags that do not go together (the same on every rank).
@@ -304,10 +308,7 @@ pub fn run(args: &Args, cluster: &Cluster) -> Result<()> {
         Method::Estimator(e) => e,
         Method::FiniteDifferences => {
             let plan = plan_finite_differences(args, &scene)?;
-            let target = target_image(args, source, &scene, cluster);
-            if let Some(t) = &target {
-                cluster.agree(check_target(t, &scene))?;
-            }
+            let target = target_image(args, source, &scene, cluster)?;
             return finite_differences(args, &scene, target.as_ref(), plan);
         }
     };
@@ -315,10 +316,7 @@ pub fn run(args: &Args, cluster: &Cluster) -> Result<()> {
         (args.adjoint.options(&scene, estimator))
             .and_then(|o| Ok((o, parameter_grid(&scene, args.adjoint.parameter)?))),
     )?;
-    let target = target_image(args, source, &scene, cluster);
-    if let Some(t) = &target {
-        cluster.agree(check_target(t, &scene))?;
-    }
+    let target = target_image(args, source, &scene, cluster)?;
     options.progress &= cluster.is_root();
     let adjoint = adjoint_shared(cluster, &scene, args.loss, target.as_ref(), &options)?;
     if let (Some(loss), true) = (adjoint.loss, cluster.is_root()) {

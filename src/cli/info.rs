@@ -93,8 +93,7 @@ pub fn run(args: &Args) -> Result<()> {
             (g.value_type == "float").then(|| vdb::read_grid(file, &vdb::GridSelector::Index(i)));
         if let Some(Err(e)) = &read {
             println!("  values         not readable: {e:#}");
-        }
-        if let Some(Ok(grid)) = read {
+        } else if let Some(Ok(grid)) = read {
             let refused = if grid.background == 0.0 || g.grid_class == "level set" {
                 ""
             } else {

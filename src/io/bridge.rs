@@ -17,6 +17,12 @@ pub mod ffi {
         pub value: String,
     }
 
+    /// An image's size in pixels.
+    pub struct ImageSize {
+        pub width: u32,
+        pub height: u32,
+    }
+
     /// What `volgrad info` prints about one grid; the tree is not copied.
     #[derive(Debug, Clone)]
     pub struct GridSummary {
@@ -171,6 +177,9 @@ pub mod ffi {
             colours: &[FloatGridData],
             save_half: bool,
         ) -> Result<()>;
+
+        /// The size of the image `read_image` would read, from the file's header alone.
+        fn read_image_size(path: &str) -> Result<ImageSize>;
 
         /// Reads any image OpenImageIO can open, converted to f32 (no colour conversion; alpha
         /// unassociated as stored), with the colour space and storage the file declares.

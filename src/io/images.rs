@@ -222,7 +222,7 @@ fn decoding(
         Some(ColorSpace::Srgb) => return Ok(Decoding::Srgb),
         None => {}
     }
-    let convert = "convert the pictures to sRGB or linear Rec.709, or give their view set `color_space = \"linear\"` or `\"srgb\"` to take the values as they are";
+    let convert = "convert it to sRGB or linear Rec.709 (as a run file's target, its view set's `color_space = \"linear\"` or `\"srgb\"` takes its values as they are instead)";
     if !chromaticities.is_empty() {
         let rec709 = chromaticities.len() == 8
             && (chromaticities.iter().zip(REC709_CHROMATICITIES))
@@ -232,7 +232,9 @@ fn decoding(
         }
     }
     let name = declared.trim().to_ascii_lowercase();
-    if name.is_empty() {
+    // OpenImageIO 2.4 labels every PNM file (PPM, PGM, PFM) "Rec709" whatever it holds: a label
+    // that says nothing, read by the storage as an unlabelled file is.
+    if name.is_empty() || name == "rec709" {
         let integer = stored_type.starts_with("uint") || stored_type.starts_with("int");
         return Ok(if integer {
             Decoding::Srgb
@@ -259,6 +261,13 @@ fn decoding(
 /// How far beyond [0, 1] a picture's alpha may stray before it is an error, not a filter's
 /// ringing (a Mitchell or Lanczos pixel filter overshoots at the medium's edge) to clamp.
 const ALPHA_OVERSHOOT: f32 = 0.01;
+
+/// The size (width, height) of the image `read_picture` would read, from its file's header alone:
+/// no pixel is decoded.
+pub fn image_size(path: &Path) -> Result<(u32, u32)> {
+    let size = ffi::read_image_size(bridge_path(path)?).map_err(bridge_error)?;
+    Ok((size.width, size.height))
+}
 
 /// Reads a picture: colour decoded to linear (see the module's documentation) and alpha.
 pub fn read_picture(path: &Path, override_space: Option<ColorSpace>) -> Result<Picture> {
@@ -419,6 +428,9 @@ mod tests {
         assert_eq!(d("Linear", "uint8", None), Decoding::Linear);
         assert_eq!(d("lin_rec709", "uint16", None), Decoding::Linear);
         assert_eq!(d("Gamma2.2", "uint8", None), Decoding::Gamma(2.2));
+        // OpenImageIO's label of every PNM file: by the storage, as no label.
+        assert_eq!(d("Rec709", "uint8", None), Decoding::Srgb);
+        assert_eq!(d("Rec709", "float", None), Decoding::Linear);
         assert_eq!(
             d("sRGB", "uint8", Some(ColorSpace::Linear)),
             Decoding::Linear
@@ -441,7 +453,7 @@ mod tests {
             "whatever",
         ] {
             let e = d(declared, &[], None).unwrap_err().to_string();
-            assert!(e.contains(declared) && e.contains("color_space"), "{e}");
+            assert!(e.contains(declared) && e.contains("convert it"), "{e}");
             assert_eq!(
                 d(declared, &[], Some(ColorSpace::Linear)).unwrap(),
                 Decoding::Linear

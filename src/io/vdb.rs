@@ -117,11 +117,17 @@ fn bridge_threads() -> u32 {
 
 /// A name that several grids of the file share picks none of them: which one was meant is the
 /// user's to say, by position (`volgrad info` numbers the grids).
-fn refuse_repeated_name(path: &Path, grids: &[String], name: &str, choose: &str) -> Result<()> {
+/// An error if several grids of `path` are named `name`; `density` says whether the one wanted
+/// is the density, which medium.grid_index can choose by its position.
+fn refuse_repeated_name(path: &Path, grids: &[String], name: &str, density: bool) -> Result<()> {
     let at: Vec<usize> = (0..grids.len()).filter(|&i| grids[i] == name).collect();
     if at.len() > 1 {
+        let choose = match density {
+            true => "choose the density by its position (medium.grid_index), or give the grids names of their own",
+            false => "give the grids names of their own",
+        };
         bail!(
-            "'{}' holds {} grids named '{name}' (positions {at:?} in `volgrad info`): {choose}give the grids names of their own",
+            "'{}' holds {} grids named '{name}' (positions {at:?} in `volgrad info`): {choose}",
             path.display(),
             at.len()
         );
@@ -129,15 +135,12 @@ fn refuse_repeated_name(path: &Path, grids: &[String], name: &str, choose: &str)
     Ok(())
 }
 
-/// How a density grid may be chosen when its name is shared.
-const BY_POSITION: &str = "choose the density by its position (medium.grid_index), or ";
-
 fn read_data(path: &Path, selector: &GridSelector, to_fog: bool) -> Result<FloatGridData> {
     let p = bridge_path(path)?;
     let threads = bridge_threads();
     match selector {
         GridSelector::Name(name) => {
-            refuse_repeated_name(path, &list_grid_names(path)?, name, BY_POSITION)?;
+            refuse_repeated_name(path, &list_grid_names(path)?, name, true)?;
             ffi::read_float_grid(p, name, -1, to_fog, threads)
         }
         GridSelector::Index(i) => match i32::try_from(*i) {
@@ -148,7 +151,7 @@ fn read_data(path: &Path, selector: &GridSelector, to_fog: bool) -> Result<Float
             let grids = list_grid_names(path)?;
             match grids.iter().position(|name| name == "density") {
                 Some(i) => {
-                    refuse_repeated_name(path, &grids, "density", BY_POSITION)?;
+                    refuse_repeated_name(path, &grids, "density", true)?;
                     ffi::read_float_grid(p, "", i as i32, to_fog, threads)
                 }
                 None if grids.is_empty() => bail!("'{}' holds no grids", path.display()),
@@ -171,7 +174,7 @@ fn read_data(path: &Path, selector: &GridSelector, to_fog: bool) -> Result<Float
 /// vec3 grid, each as it is stored (any background). A name several grids share is refused, as
 /// for the density, rather than the first taken.
 pub fn read_components(path: &Path, name: &str) -> Result<Vec<Grid>> {
-    refuse_repeated_name(path, &list_grid_names(path)?, name, "")?;
+    refuse_repeated_name(path, &list_grid_names(path)?, name, false)?;
     let threads = bridge_threads();
     let data =
         ffi::read_grid_components(bridge_path(path)?, name, -1, threads).map_err(bridge_error)?;

@@ -163,11 +163,8 @@ impl<'a> Run<'a> {
                     options.out.display()
                 )
             })?;
-            let settings = settings_toml::with_command(
-                &problem.settings_toml,
-                options.estimator,
-                options.stop.as_ref(),
-            );
+            let settings =
+                settings_toml::with_command(&problem.settings_toml, options.estimator, &stop);
             write_bytes_whole(&options.out.join("settings.toml"), settings)
         }))?;
         let mut run = Run {

@@ -55,15 +55,14 @@ pub fn resolved(run_file: &RunFile, run_path: &Path, notes: &str) -> Result<Stri
 /// `settings` with what it cannot hold as keys, the command line's choices that shaped the run
 /// (its estimator and when it stopped), as a closing note that says how to replay it: without
 /// `--estimator`, a replay of a DRT run would run joint.
-pub fn with_command(settings: &str, estimator: Estimator, stop: Option<&Stop>) -> String {
+pub fn with_command(settings: &str, estimator: Estimator, stop: &Stop) -> String {
     let stop = match stop {
-        Some(Stop::Iterations(n)) => format!(" --iterations {n}"),
-        Some(Stop::Budget(d)) if d.subsec_nanos() == 0 => format!(" --budget {}s", d.as_secs()),
-        Some(Stop::Budget(d)) => format!(" --budget {}ms", d.as_millis()),
-        Some(Stop::Replay(fractions)) => {
+        Stop::Iterations(n) => format!(" --iterations {n}"),
+        Stop::Budget(d) if d.subsec_nanos() == 0 => format!(" --budget {}s", d.as_secs()),
+        Stop::Budget(d) => format!(" --budget {}ms", d.as_millis()),
+        Stop::Replay(fractions) => {
             format!(" --schedule-from <a log of {} iterations>", fractions.len())
         }
-        None => String::new(),
     };
     format!(
         "{settings}# Run with --estimator {estimator}{stop}. To replay it, step for step: \

@@ -123,24 +123,22 @@ pub fn view_specs(
     Ok(specs)
 }
 
-/// An error if a picture is two training views, or a training view and a held-out one (as one
-/// file, however its path is written): a held-out view the fit was trained on scores the fit
-/// against its own targets, and a picture listed twice weighs twice.
+/// An error if two views name one picture (as one file, however its path is written): a
+/// held-out view the fit was trained on scores the fit against its own targets, and a picture
+/// listed twice weighs twice (in the fit, or in the held-out score).
 pub fn refuse_shared_pictures(training: &[ViewSpec], held_out: &[ViewSpec]) -> Result<()> {
-    let mut seen: HashMap<PathBuf, &str> = HashMap::new();
-    for (spec, training) in
-        (training.iter().map(|s| (s, true))).chain(held_out.iter().map(|s| (s, false)))
-    {
+    let mut seen: HashMap<PathBuf, (&str, bool)> = HashMap::new();
+    let views = (training.iter().map(|s| (s, true))).chain(held_out.iter().map(|s| (s, false)));
+    for (spec, is_training) in views {
         let Some(image) = &spec.image else { continue };
         let key = image.canonicalize().unwrap_or_else(|_| image.clone());
-        if let Some(first) = seen.insert(key, &spec.name) {
-            let held_out = if training {
-                ""
-            } else {
-                " (a held-out view must be a picture no training view uses)"
+        if let Some((first, first_is_training)) = seen.insert(key, (&spec.name, is_training)) {
+            let why = match (first_is_training, is_training) {
+                (true, false) => " (a held-out view must be a picture no training view uses)",
+                _ => "",
             };
             bail!(
-                "{first} and {} name the same picture '{}'{held_out}: list each picture once",
+                "{first} and {} name the same picture '{}'{why}: list each picture once",
                 spec.name,
                 image.display()
             );
@@ -365,8 +363,8 @@ pub struct TargetRenderer<'a> {
 impl TargetRenderer<'_> {
     /// The views of `read` with their targets (`relit` still false), their captures indexed in
     /// `captures` (0 for a name not there: `check_captures` refuses it where it matters).
-    /// Gives `read` its targets; held-out ones (`held_out`) must not be black everywhere, since
-    /// their score is a PSNR, relative to the target's brightest value.
+    /// Held-out views (`held_out`) must not be black everywhere: their score is a PSNR, relative
+    /// to the target's brightest value.
     pub fn complete(
         &mut self,
         read: Vec<ReadView>,

@@ -181,8 +181,8 @@ pub fn view_sets<'de, D: serde::Deserializer<'de>>(d: D) -> Result<Vec<ViewSetFi
 pub fn check_sizes(sets: &[ViewTables]) -> Result<()> {
     let mut pixels = 0u64;
     for (_, name, listed, set) in sets {
-        // Saturating: sizes a user typed can make any product wrap, and all that matters is
-        // whether the total is past the limit.
+        // Saturating: a view's pixels fit in a u64, but the sums and an orbit's count times its
+        // pixels can wrap, and all that matters is whether the total is past the limit.
         for v in listed.iter() {
             pixels = pixels.saturating_add(u64::from(v.width) * u64::from(v.height));
         }
