@@ -2,6 +2,7 @@
 //! (`exr`, `image`): EXR as float and half, 8-bit PNG, and errors that name the file.
 
 mod bridge_common;
+mod common;
 
 use std::path::Path;
 
@@ -353,24 +354,14 @@ fn an_exr_data_window_is_placed_on_its_display_window() {
 /// from the header alone is the same.
 #[test]
 fn a_png_offset_does_not_move_its_pixels() {
-    fn crc32(bytes: &[u8]) -> u32 {
-        let mut crc = !0u32;
-        for &b in bytes {
-            crc ^= u32::from(b);
-            for _ in 0..8 {
-                crc = (crc >> 1) ^ (0xEDB8_8320 & (crc & 1).wrapping_neg());
-            }
-        }
-        !crc
-    }
     let img = test_image(5, 3, 3, true);
     let dir = tempfile::tempdir().unwrap();
     let plain = dir.path().join("plain.png");
     ffi::write_image(path_str(&plain), &img, "uint8").unwrap();
     let bytes = std::fs::read(&plain).unwrap();
     // oFFs: x and y (pixels, big-endian i32), unit 0 (pixels); right after IHDR (8 + 25 bytes).
-    let body = [&b"oFFs"[..], &5i32.to_be_bytes(), &7i32.to_be_bytes(), &[0]].concat();
-    let chunk = [&9u32.to_be_bytes()[..], &body, &crc32(&body).to_be_bytes()].concat();
+    let offsets = [&5i32.to_be_bytes()[..], &7i32.to_be_bytes(), &[0]].concat();
+    let chunk = common::png_chunk(b"oFFs", &offsets);
     let offset = dir.path().join("offset.png");
     std::fs::write(&offset, [&bytes[..33], &chunk, &bytes[33..]].concat()).unwrap();
     let (a, b) = (

@@ -379,32 +379,13 @@ fn flags_that_would_be_ignored_or_replaced_are_refused() {
 /// before a buffer for them is asked for (it was `std::bad_alloc`, or an abort).
 #[test]
 fn an_image_header_declaring_too_many_pixels_is_refused() {
-    fn crc32(bytes: &[u8]) -> u32 {
-        let mut crc = !0u32;
-        for &b in bytes {
-            crc ^= u32::from(b);
-            for _ in 0..8 {
-                crc = (crc >> 1) ^ (0xEDB8_8320 & (crc & 1).wrapping_neg());
-            }
-        }
-        !crc
-    }
-    let chunk = |kind: &[u8], data: &[u8]| {
-        let body = [kind, data].concat();
-        [
-            &(data.len() as u32).to_be_bytes()[..],
-            &body,
-            &crc32(&body).to_be_bytes(),
-        ]
-        .concat()
-    };
     let side = 100_000u32.to_be_bytes();
     let header = [&side[..], &side, &[8, 2, 0, 0, 0]].concat(); // 8-bit RGB
     let png = [
         &b"\x89PNG\r\n\x1a\n"[..],
-        &chunk(b"IHDR", &header),
-        &chunk(b"IDAT", &[0x78, 0x9c, 0x03, 0x00, 0x00, 0x00, 0x00, 0x01]), // an empty zlib stream
-        &chunk(b"IEND", &[]),
+        &common::png_chunk(b"IHDR", &header),
+        &common::png_chunk(b"IDAT", &[0x78, 0x9c, 0x03, 0x00, 0x00, 0x00, 0x00, 0x01]), // an empty zlib stream
+        &common::png_chunk(b"IEND", &[]),
     ]
     .concat();
     let dir = fixture(&run_file("0.1", ""));
