@@ -366,6 +366,20 @@ fn grid_classes_backgrounds_and_empty_files() {
             "1 inactive tiles whose value is not its background 0",
         ],
     );
+    // As an albedo grid too (its brick map would read the background there, OpenVDB 0.7).
+    let as_albedo = format!(
+        "albedo = {{ grid = {:?}, vdb = {:?} }}",
+        grid.name,
+        path(&off)
+    );
+    assert_clean_error(
+        &scene(&tiny, &as_albedo),
+        &[
+            "off.vdb",
+            "1 inactive tiles whose value is not its background 0",
+            "volgrad reads the background",
+        ],
+    );
     assert_clean_error(
         &scene(&neg, ""),
         &["neg.vdb", "negative values", "class \"level set\""],

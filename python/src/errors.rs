@@ -3,8 +3,9 @@
 //! scenes, a file whose contents are not what it should hold) `ValueError`.
 
 use pyo3::exceptions::{PyFileNotFoundError, PyOSError, PyValueError};
+use pyo3::prelude::*;
+use pyo3::types::PyBool;
 use pyo3::PyErr;
-use pyo3::PyResult;
 
 /// The exception for `error`, its message the whole chain ("reading x: cause: ...") as the
 /// command line prints it.
@@ -61,4 +62,24 @@ pub fn narrow(argument: &str, value: f64) -> PyResult<f32> {
         )));
     }
     Ok(value as f32)
+}
+
+/// A seed argument: none, or a whole number in [0, 2⁶⁴) (a Python or numpy integer, not a
+/// bool); anything else a `ValueError` naming the range, as `volgrad.torch` and `volgrad.jax`
+/// raise (PyO3's own conversion raises `OverflowError` or `TypeError`).
+pub fn seed(value: Option<&Bound<'_, PyAny>>) -> PyResult<Option<u64>> {
+    let Some(value) = value.filter(|v| !v.is_none()) else {
+        return Ok(None);
+    };
+    match value.is_instance_of::<PyBool>() {
+        false => value.extract::<u64>().ok(),
+        true => None,
+    }
+    .map(Some)
+    .ok_or_else(|| {
+        let given = value.repr().map_or_else(|_| "?".into(), |r| r.to_string());
+        PyValueError::new_err(format!(
+            "seed must be a whole number in [0, 2**64) (got {given})"
+        ))
+    })
 }

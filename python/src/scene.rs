@@ -112,11 +112,12 @@ impl Scene {
         lights: Option<&Bound<'_, PyAny>>,
         camera: Option<Camera>,
         spp: Option<u32>,
-        seed: Option<u64>,
+        seed: Option<&Bound<'_, PyAny>>,
         max_depth: Option<u32>,
         emission: Option<&Bound<'_, PyAny>>,
         emission_kind: Option<&Bound<'_, PyDict>>,
     ) -> PyResult<Scene> {
+        let seed = errors::seed(seed)?;
         let transform = arrays::matrix_argument(index_to_world, "index_to_world")?;
         let density =
             arrays::float32_argument::<numpy::Ix3>(density, "density", "of shape (nx, ny, nz)")?;
@@ -307,7 +308,7 @@ impl Scene {
         py: Python<'py>,
         cameras: Option<CameraArg>,
         spp: Option<u32>,
-        seed: Option<u64>,
+        seed: Option<&Bound<'_, PyAny>>,
         max_depth: Option<u32>,
         threads: Option<usize>,
         density: Option<&Bound<'py, PyAny>>,
@@ -317,6 +318,7 @@ impl Scene {
         let stand_ins = StandIns::read(density, albedo, emission)?;
         let mut guard = exclusive(slf)?;
         let this = &mut *guard;
+        let seed = errors::seed(seed)?;
         let sampling = Sampling::resolve(&this.scene, spp, seed, max_depth).or_raise()?;
         let (cameras, listed) = views::cameras(this.own_camera(), cameras).or_raise()?;
         let image = this.run_with(py, threads, &stand_ins, |scene, _| {
@@ -343,7 +345,7 @@ impl Scene {
         estimator: &str,
         parameter: &str,
         spp: Option<u32>,
-        seed: Option<u64>,
+        seed: Option<&Bound<'_, PyAny>>,
         max_depth: Option<u32>,
         threads: Option<usize>,
         density: Option<&Bound<'py, PyAny>>,
@@ -353,6 +355,7 @@ impl Scene {
         let stand_ins = StandIns::read(density, albedo, emission)?;
         let mut guard = exclusive(slf)?;
         let this = &mut *guard;
+        let seed = errors::seed(seed)?;
         let sampling = Sampling::resolve(&this.scene, spp, seed, max_depth).or_raise()?;
         let estimator = views::estimator(estimator).or_raise()?;
         let parameter = views::parameter(parameter).or_raise()?;

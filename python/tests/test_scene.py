@@ -268,6 +268,12 @@ def bad_calls():
     # Inside the light dicts and emission_kind too: a sun of 1e-300 would be dark.
     yield lambda: small_scene(lights=[{"type": "constant", "radiance": [1.0, 1e-300, 1.0]}]), ValueError, r"albedo and the lights: light\[0\].radiance\[1\] = 1e-300 is beyond"
     yield lambda: small_scene(emission=ball(), emission_kind={"radiance": 1e39}), ValueError, "emission_kind: radiance = 1e39 is beyond"
+    # Seeds as volgrad.torch and volgrad.jax take them: whole numbers in [0, 2**64), not bools.
+    seed_range = r"^seed must be a whole number in \[0, 2\*\*64\)"
+    for seed in (-1, 2**64, 1.5, True):
+        yield lambda seed=seed: scene.render(seed=seed), ValueError, seed_range
+    yield lambda: scene.grad(adjoint, seed=-1), ValueError, seed_range
+    yield lambda: small_scene(seed=2**64), ValueError, seed_range
 
 
 @pytest.mark.skipif(sys.version_info < (3, 11), reason="exception notes are Python 3.11's")
@@ -293,6 +299,8 @@ def test_numpy_values_stand_for_numbers_in_the_parts():
     # The albedo too: a numpy number or triple is the constant a Python one is.
     for albedo, same in [(np.float64(0.8), 0.8), (np.array([0.8, 0.5, 0.2], np.float32), [0.8, 0.5, 0.2])]:
         np.testing.assert_array_equal(small_scene(albedo=albedo).render(spp=2, seed=1), small_scene(albedo=same).render(spp=2, seed=1))
+    # And a numpy integer is a seed.
+    np.testing.assert_array_equal(small_scene().render(spp=2, seed=np.uint64(2**64 - 1)), small_scene().render(spp=2, seed=2**64 - 1))
 
 
 def test_a_gradient_does_not_depend_on_the_units():

@@ -172,12 +172,22 @@ fn read_data(path: &Path, selector: &GridSelector, to_fog: bool) -> Result<Float
 
 /// Reads the grid named `name` as float components: one for a float grid, three (x, y, z) for a
 /// vec3 grid, each as it is stored (any background). A name several grids share is refused, as
-/// for the density, rather than the first taken.
+/// for the density, rather than the first taken; so are inactive tiles of a value other than
+/// the background, which OpenVDB reads as their value and the brick map (holding leaves and
+/// active tiles) as the background.
 pub fn read_components(path: &Path, name: &str) -> Result<Vec<Grid>> {
     refuse_repeated_name(path, &list_grid_names(path)?, name, false)?;
     let threads = bridge_threads();
     let data =
         ffi::read_grid_components(bridge_path(path)?, name, -1, threads).map_err(bridge_error)?;
+    if let Some(d) = data.iter().find(|d| d.inactive_tiles_off_background > 0) {
+        bail!(
+            "grid '{name}' in '{}' has {} inactive tiles whose value is not its background {}: OpenVDB reads their value there, volgrad reads the background; activate them or set them to the background",
+            path.display(),
+            d.inactive_tiles_off_background,
+            d.background
+        );
+    }
     data.into_iter()
         .map(|d| Grid::from_data(d).map_err(|e| anyhow!("grid in '{}': {e}", path.display())))
         .collect()

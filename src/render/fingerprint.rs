@@ -51,7 +51,8 @@ pub fn lights(f: &mut Fingerprint, lights: &Lights) {
     ));
     if let Some(map) = &lights.environment.map {
         let (w, h, texels) = map.texels();
-        f.text(&format!("envmap {w}×{h}")).vec3s(texels);
+        f.text(&format!("envmap {w}×{h} frame {:?}", map.frame()))
+            .vec3s(texels);
     }
 }
 

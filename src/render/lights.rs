@@ -3,17 +3,20 @@
 
 use std::f32::consts::PI;
 
-use glam::Vec3;
+use glam::{Mat3, Quat, Vec3};
 
 use crate::render::sampling::{uniform_sphere, Distribution1D, UNIFORM_SPHERE_PDF};
 
-/// A lat-long environment map, y up, in Mitsuba 3's orientation: u = atan2(x, −z)/2π, v = θ/π with
-/// θ measured from +y. Texels are piecewise constant, and so is the sampling density.
+/// A lat-long environment map. In its own frame it is y up, in Mitsuba 3's orientation:
+/// u = atan2(x, −z)/2π, v = θ/π with θ measured from +y; `oriented` turns that frame in the world.
+/// Texels are piecewise constant, and so is the sampling density.
 #[derive(Clone)]
 pub struct EnvMap {
     width: usize,
     height: usize,
     texels: Vec<Vec3>,
+    /// The map's frame in the world (its columns the map's x, y, z); none: the world's own.
+    frame: Option<Mat3>,
     rows: Distribution1D,
     columns: Vec<Distribution1D>,
     /// The largest channel of any texel.
@@ -44,15 +47,49 @@ impl EnvMap {
             width,
             height,
             texels,
+            frame: None,
             rows,
             columns,
             brightest,
         }
     }
 
-    fn texel_of(&self, dir: Vec3) -> (usize, usize) {
+    /// The map with its top (+y of its frame) toward the unit vector `up` and then turned by
+    /// `rotation` radians about `up`, right-handed (counter-clockwise seen from above). Its top
+    /// is tilted onto `up` by the shortest turn, about y × up (about x when `up` is −y): with
+    /// `up` = +z, u = 0 looks toward +y and u = 0.25 toward +x before the turn. A rotation keeps
+    /// solid angles, so the sampling density is the map's own at the direction taken back.
+    pub fn oriented(mut self, up: Vec3, rotation: f32) -> Self {
+        let tilt = if up.dot(Vec3::Y) < -0.999_999 {
+            Quat::from_rotation_x(PI)
+        } else {
+            Quat::from_rotation_arc(Vec3::Y, up)
+        };
+        let turn = Quat::from_axis_angle(up, rotation) * tilt;
+        self.frame = (turn != Quat::IDENTITY).then(|| Mat3::from_quat(turn));
+        self
+    }
+
+    /// The map's frame in the world (columns: its x, y, z), if `oriented` turned it.
+    pub fn frame(&self) -> Option<Mat3> {
+        self.frame
+    }
+
+    /// A world direction in the map's frame.
+    #[inline]
+    fn to_map(&self, dir: Vec3) -> Vec3 {
+        self.frame.map_or(dir, |f| f.transpose() * dir)
+    }
+
+    /// (u, v) of a direction in the map's frame: u across, v down from the top row.
+    fn uv(dir: Vec3) -> (f32, f32) {
         let u = (dir.x.atan2(-dir.z) / (2.0 * PI)).rem_euclid(1.0);
         let v = dir.y.clamp(-1.0, 1.0).acos() / PI;
+        (u, v)
+    }
+
+    fn texel_of(&self, dir: Vec3) -> (usize, usize) {
+        let (u, v) = Self::uv(dir);
         (
             ((u * self.width as f32) as usize).min(self.width - 1),
             ((v * self.height as f32) as usize).min(self.height - 1),
@@ -74,7 +111,7 @@ impl EnvMap {
     }
 
     pub fn eval(&self, dir: Vec3) -> Vec3 {
-        let (x, y) = self.texel_of(dir);
+        let (x, y) = self.texel_of(self.to_map(dir));
         self.texels[y * self.width + x]
     }
 
@@ -82,6 +119,7 @@ impl EnvMap {
     /// dω = 2π²·sin θ du dv at `dir`'s own θ (not its row's centre, which is only the weight the
     /// rows are drawn with: a map of a few rows spans much of θ in each).
     pub fn pdf(&self, dir: Vec3) -> f32 {
+        let dir = self.to_map(dir);
         let (x, y) = self.texel_of(dir);
         // sin θ from the components across the axis, which keep their precision near the poles
         // (1 − cos²θ rounds to 0 there in f32). At a pole itself the density is unbounded: a
@@ -96,10 +134,11 @@ impl EnvMap {
     pub fn sample(&self, u: [f32; 2]) -> Vec3 {
         let (y, dv) = self.rows.sample(u[0]);
         let (x, du) = self.columns[y].sample(u[1]);
-        Self::direction(
+        let local = Self::direction(
             (x as f32 + du) / self.width as f32,
             (y as f32 + dv) / self.height as f32,
-        )
+        );
+        self.frame.map_or(local, |f| f * local)
     }
 }
 
@@ -192,11 +231,23 @@ mod tests {
         }
     }
 
+    #[test]
+    fn a_turned_map_keeps_its_density() {
+        let tilted = Vec3::new(1.0, -2.0, 0.5).normalize();
+        for (up, rotation) in [(Vec3::Z, 1.3), (Vec3::NEG_Y, 0.0), (tilted, -2.0)] {
+            check_envmap_turned(16, 8, up, rotation);
+        }
+    }
+
     fn check_envmap(w: usize, h: usize) {
+        check_envmap_turned(w, h, Vec3::Y, 0.0);
+    }
+
+    fn check_envmap_turned(w: usize, h: usize, up: Vec3, rotation: f32) {
         let texels = (0..w * h)
             .map(|i| Vec3::splat(((i * 7919) % 13) as f32 + if i == 37 { 200.0 } else { 0.5 }))
             .collect();
-        let map = EnvMap::new(w, h, texels);
+        let map = EnvMap::new(w, h, texels).oriented(up, rotation);
         // ∫ pdf dω = 1, by stratified directions.
         let n = 400usize;
         let mut integral = 0.0f64;
@@ -238,5 +289,30 @@ mod tests {
         assert!((EnvMap::direction(0.0, 0.5) - Vec3::new(0.0, 0.0, -1.0)).length() < 1e-6);
         assert!((EnvMap::direction(0.25, 0.5) - Vec3::X).length() < 1e-6);
         assert!((EnvMap::direction(0.3, 0.0) - Vec3::Y).length() < 1e-6);
+    }
+
+    /// `up = [0, 0, 1]`, `rotation_deg = 90` is Blender's world: Cycles' Environment Texture
+    /// reads direction d at u = 0.5 − atan2(d.y, d.x)/2π and v = 1 − acos(d.z)/π from the
+    /// bottom row (`direction_to_equirectangular` in Cycles' kernel), so acos(d.z)/π from the top.
+    #[test]
+    fn up_z_turned_a_quarter_reads_the_map_as_blender_does() {
+        let map = EnvMap::new(1, 1, vec![Vec3::ONE]).oriented(Vec3::Z, 0.5 * PI);
+        let mut rng = pixel_rng(5, 0, 0);
+        for _ in 0..1000 {
+            let d = uniform_sphere([rng.gen(), rng.gen()]);
+            let (u, v) = EnvMap::uv(map.to_map(d));
+            let u_cycles = (0.5 - d.y.atan2(d.x) / (2.0 * PI)).rem_euclid(1.0);
+            let v_cycles = d.z.clamp(-1.0, 1.0).acos() / PI;
+            let du = (u - u_cycles).abs();
+            assert!(
+                du.min(1.0 - du) < 1e-4 && (v - v_cycles).abs() < 1e-4,
+                "{d}: ({u}, {v}) against Cycles' ({u_cycles}, {v_cycles})"
+            );
+        }
+        // Unturned, the map is the world's own, to the bit.
+        assert!(EnvMap::new(1, 1, vec![Vec3::ONE])
+            .oriented(Vec3::Y, 0.0)
+            .frame
+            .is_none());
     }
 }

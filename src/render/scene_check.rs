@@ -290,9 +290,18 @@ pub fn check_lights(lights: &[LightFile]) -> Result<()> {
             LightFile::Constant { radiance } => {
                 light_value(&format!("light[{i}].radiance"), radiance.rgb())?
             }
-            LightFile::Envmap { scale, .. } => {
+            LightFile::Envmap {
+                scale,
+                up,
+                rotation_deg,
+                ..
+            } => {
                 envmaps += 1;
                 light_value(&format!("light[{i}].scale"), Vec3::splat(*scale))?;
+                unit(&format!("light[{i}].up"), *up)?;
+                if !rotation_deg.is_finite() {
+                    bail!("light[{i}].rotation_deg must be finite (got {rotation_deg})");
+                }
             }
             LightFile::Directional {
                 direction,

@@ -213,6 +213,12 @@ pub enum LightFile {
         file: String,
         #[serde(default = "one")]
         scale: f32,
+        /// The world direction of the image's top row.
+        #[serde(default = "default_up", deserialize_with = "crate::io::exact::array")]
+        up: [f32; 3],
+        /// Turns the image about `up`, counter-clockwise seen from above, in degrees.
+        #[serde(default)]
+        rotation_deg: f32,
     },
     Directional {
         /// The direction in which the light travels.
