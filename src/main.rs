@@ -66,7 +66,10 @@ fn main() -> ExitCode {
     let (cluster, _session) = match Cluster::from_launcher() {
         Ok(c) => c,
         Err(e) => {
-            eprintln!("error: {e:#}");
+            // Every process the launcher started meets it (each sees itself alone): one says so.
+            if volgrad::cluster::launcher_rank() == 0 {
+                eprintln!("error: {e:#}");
+            }
             return ExitCode::FAILURE;
         }
     };

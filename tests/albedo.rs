@@ -336,7 +336,10 @@ fn coloured_smoke_renders_and_exports_an_rgb_albedo_gradient() {
     ));
     assert_clean_error(
         &volgrad_in(d, &["merge", "g.vdb", "density.vdb", "-o", "mixed.vdb"]),
-        &["another transform, name or number of channels"],
+        &[
+            "another computation",
+            "volgrad_parameter is 'albedo' there and 'extinction' here",
+        ],
     );
     // gradcheck knows the parameter: the green channel's pass against finite differences.
     ok(volgrad_in(

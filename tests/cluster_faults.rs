@@ -115,13 +115,21 @@ fn a_write_rank_0_cannot_make_ends_every_rank_with_one_error() {
 
 /// Several processes that a launcher started but that cannot talk to each other (`srun
 /// --mpi=none`, or PMI's variables left in the environment without a launcher) would each run
-/// the whole job on the same outputs: each refuses with one error, before touching anything.
+/// the whole job on the same outputs: each refuses before touching anything, and the first
+/// (by the launcher's rank) says why, once for the job.
 #[test]
 fn processes_that_cannot_reach_each_other_refuse_to_run_as_copies() {
     let dir = tempfile::tempdir().unwrap();
-    for env in [
-        &[("SLURM_STEP_NUM_TASKS", "3"), ("SLURM_PROCID", "1")][..],
-        &[("PMI_SIZE", "2"), ("PMI_RANK", "0")][..],
+    for (env, says_why) in [
+        (
+            &[("SLURM_STEP_NUM_TASKS", "3"), ("SLURM_PROCID", "0")][..],
+            true,
+        ),
+        (
+            &[("SLURM_STEP_NUM_TASKS", "3"), ("SLURM_PROCID", "1")][..],
+            false,
+        ),
+        (&[("PMI_SIZE", "2"), ("PMI_RANK", "0")][..], true),
     ] {
         let mut command = Command::new(env!("CARGO_BIN_EXE_volgrad"));
         command
@@ -129,7 +137,17 @@ fn processes_that_cannot_reach_each_other_refuse_to_run_as_copies() {
             .args(["make-grid", "box", "-o", "box.vdb"])
             .envs(env.iter().copied());
         let out = wait(command, LIMIT);
-        common::assert_clean_error(&out, &["the launcher started", "MPI sees only this one"]);
+        match says_why {
+            true => common::assert_clean_error(
+                &out,
+                &["the launcher started", "MPI sees only this one"],
+            ),
+            false => assert!(
+                !out.status.success() && stderr(&out).is_empty(),
+                "{env:?}: {}",
+                stderr(&out)
+            ),
+        }
         assert!(!dir.path().join("box.vdb").exists(), "{env:?}");
     }
     // One task of one is a plain run.
@@ -241,4 +259,89 @@ fn ranks_given_different_work_are_refused() {
         );
         assert!(!d.join("a/s.exr").exists(), "{err}");
     }
+}
+
+/// `mpirun -n 1 -wdir a volgrad ARGS : -n 1 -wdir b volgrad ARGS`, each rank on one thread.
+fn in_folders(d: &std::path::Path, args: &[&str]) -> std::process::Output {
+    let exe = env!("CARGO_BIN_EXE_volgrad");
+    let app = |folder: &'static str| {
+        let mut all = vec!["-n", "1", "-wdir", folder, exe];
+        all.extend(args);
+        all.extend(["-q", "--threads", "1"]);
+        all
+    };
+    let mut command = mpirun(d);
+    command.args(app("a")).arg(":").args(app("b"));
+    wait(command, Duration::from_secs(90))
+}
+
+fn refused_as_other_files(out: &std::process::Output) {
+    let err = stderr(out);
+    assert!(!out.status.success(), "{err}");
+    assert_eq!(err.matches("error").count(), 1, "one message: {err}");
+    assert!(
+        err.contains("rank 1 was started with other arguments, or reads other files"),
+        "{err}"
+    );
+}
+
+/// Inputs that differ between machines are named before any check of their content: here rank
+/// 1's start holds a value no scene renders, which it would refuse alone while rank 0 went on to
+/// render the targets with it (a rank left in a collective the other never enters).
+#[test]
+fn inputs_that_differ_are_refused_before_their_content_is_checked() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let run = run_file("iterations = 2").replace("start = 0.0", "start = \"start.vdb\"");
+    let sphere = common::mpi::repo("scenes/analytic/sphere.vdb");
+    let mut grid =
+        volgrad::io::vdb::read_grid(&sphere, &volgrad::io::vdb::GridSelector::Default).unwrap();
+    for (folder, scale) in [("a", 1.0f32), ("b", 1e36)] {
+        std::fs::create_dir(d.join(folder)).unwrap();
+        std::fs::write(d.join(folder).join("run.toml"), &run).unwrap();
+        let leaves = (grid.bricks.leaves().iter())
+            .map(|leaf| volgrad::volume::brickmap::Leaf {
+                values: leaf.values.map(|v| v * scale),
+                ..leaf.clone()
+            })
+            .collect();
+        let start = volgrad::volume::brickmap::BrickMap::new(leaves, vec![]);
+        let original = std::mem::replace(&mut grid.bricks, start);
+        volgrad::io::vdb::write_grids(&d.join(folder).join("start.vdb"), &[&grid], false, false)
+            .unwrap();
+        grid.bricks = original;
+    }
+    refused_as_other_files(&in_folders(d, &["optimize", "run.toml", "--out", "o"]));
+}
+
+/// A resumed run's ranks each find their own latest checkpoint: a folder one machine sees
+/// older (a network file system's cache) would start them at different iterations. Here rank
+/// 1's folder holds a later one.
+#[test]
+fn checkpoints_that_differ_are_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    for (folder, iterations) in [("a", "4"), ("b", "8")] {
+        std::fs::create_dir(d.join(folder)).unwrap();
+        std::fs::write(d.join(folder).join("run.toml"), run_file("")).unwrap();
+        let args = [
+            "optimize",
+            "run.toml",
+            "--iterations",
+            iterations,
+            "--out",
+            "o",
+            "-q",
+        ];
+        ok(ranks(&d.join(folder), 1, &args, Duration::from_secs(90)));
+    }
+    let resume = [
+        "optimize",
+        "run.toml",
+        "--resume",
+        "o",
+        "--iterations",
+        "12",
+    ];
+    refused_as_other_files(&in_folders(d, &resume));
 }

@@ -115,6 +115,21 @@ fn reference_agrees_with_fd_and_survives_a_vdb_round_trip() {
     let mut other = scene.clone();
     other.medium.transform = centred(N, 2.0);
     assert!(compare::load_reference(&file, &other).is_err());
+    // So is one of another computation on the same grid, naming what differs.
+    let mut denser = scene.clone();
+    denser.medium.density_scale *= 2.0;
+    let e = compare::load_reference(&file, &denser)
+        .err()
+        .unwrap()
+        .to_string();
+    assert!(e.contains("volgrad_scene_fingerprint"), "{e}");
+    let mut deeper = scene.clone();
+    deeper.settings.max_depth += 1;
+    let e = compare::load_reference(&file, &deeper)
+        .err()
+        .unwrap()
+        .to_string();
+    assert!(e.contains("volgrad_max_depth is '16'"), "{e}");
 }
 
 #[test]
@@ -137,6 +152,13 @@ fn sweeps_write_a_row_per_run_and_valid_charts() {
         let spent: f64 = runs.iter().map(|r| r.seconds).sum();
         assert!(spent < 1.2, "{name} spent {spent} s of a 0.4 s budget");
     }
+    // A sweep ends at the largest spp asked for, not at the next power of two past it.
+    let capped =
+        compare::gradient_sweeps(&scene, &[Estimator::Joint], &r, &sweep_options(60_000, 6));
+    assert_eq!(
+        capped.iter().map(|r| r.spp).collect::<Vec<_>>(),
+        [1, 2, 4, 6]
+    );
     let (joint, naive) = (rows_of(&rows, "joint"), rows_of(&rows, "naive"));
     let (first, last) = (joint.first().unwrap(), joint.last().unwrap());
     assert!(

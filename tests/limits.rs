@@ -370,8 +370,34 @@ fn flags_that_would_be_ignored_or_replaced_are_refused() {
             vec!["compare", "--suite", "stability", "--suite-spp", "0"],
             "--suite-spp",
         ),
+        // 2 × 2³¹ runs wrapped to none (a reference of NaN standard errors).
+        (
+            vec!["compare", "scene.toml", "--reference-seeds", "2147483648"],
+            "--reference-seeds",
+        ),
     ] {
         assert_flag_refused(&volgrad_in(d, &args), flag);
+    }
+    // A flag only the other suite reads is refused, not ignored.
+    for (args, flags) in [
+        (
+            vec![
+                "compare",
+                "--suite",
+                "stability",
+                "--budget",
+                "1s",
+                "--max-spp",
+                "8",
+            ],
+            "--budget, --max-spp",
+        ),
+        (
+            vec!["compare", "scene.toml", "--suite-runs", "4"],
+            "--suite-runs",
+        ),
+    ] {
+        assert_clean_error(&volgrad_in(d, &args), &[flags, "belong to the"]);
     }
 }
 

@@ -35,9 +35,10 @@ pub struct Args {
         default_value = "joint,drt,naive"
     )]
     pub estimators: Vec<Estimator>,
-    /// Wall time per estimator (and per majorant mode for the renderer), e.g. 120s, 2m.
-    #[arg(long, default_value = "120s", value_parser = values::duration)]
-    pub budget: Duration,
+    /// Wall time per estimator (and per majorant mode for the renderer), e.g. 120s, 2m (default:
+    /// 120s).
+    #[arg(long, value_parser = values::duration)]
+    pub budget: Option<Duration>,
     /// Wall time per majorant mode of the forward-renderer comparison (default: budget / 4; 0s
     /// skips it).
     #[arg(long, value_parser = values::duration)]
@@ -45,21 +46,21 @@ pub struct Args {
     /// A reference gradient written by an earlier `volgrad compare` (reference.vdb).
     #[arg(long)]
     pub reference: Option<PathBuf>,
-    /// Samples per pixel of each reference run.
-    #[arg(long, default_value_t = 64)]
-    pub reference_spp: u32,
-    /// Runs of each of joint and drt averaged into the reference.
-    #[arg(long, default_value_t = 8)]
-    pub reference_seeds: u32,
+    /// Samples per pixel of each reference run (default: 64).
+    #[arg(long, value_parser = clap::value_parser!(u32).range(1..))]
+    pub reference_spp: Option<u32>,
+    /// Runs of each of joint and drt averaged into the reference, 1 to 10000 (default: 8).
+    #[arg(long, value_parser = clap::value_parser!(u32).range(1..=10_000))]
+    pub reference_seeds: Option<u32>,
     /// Use the reference even if finite differences disagree with it (|z| > 4).
     #[arg(long)]
     pub force_reference: bool,
-    /// Largest spp of a sweep.
-    #[arg(long, default_value_t = 4096)]
-    pub max_spp: u32,
-    /// Voxels (of largest |gradient|) checked against finite differences.
-    #[arg(long, default_value_t = 3)]
-    pub fd_voxels: usize,
+    /// Largest spp of a sweep (default: 4096).
+    #[arg(long, value_parser = clap::value_parser!(u32).range(1..))]
+    pub max_spp: Option<u32>,
+    /// Voxels (of largest |gradient|) checked against finite differences (default: 3).
+    #[arg(long)]
+    pub fd_voxels: Option<usize>,
     /// Samples per pixel of each finite-difference render (default: 16; 4096 for the suite).
     #[arg(long, value_parser = clap::value_parser!(u32).range(1..))]
     pub fd_spp: Option<u32>,
@@ -67,12 +68,12 @@ pub struct Args {
     #[arg(long, value_parser = clap::value_parser!(u32).range(2..))]
     pub repeats: Option<u32>,
     /// Stability suite: independent runs per estimator and scene (for the standard error), at
-    /// least 2.
-    #[arg(long, default_value_t = 8, value_parser = clap::value_parser!(u32).range(2..))]
-    pub suite_runs: u32,
-    /// Stability suite: samples per pixel of each run.
-    #[arg(long, default_value_t = 64, value_parser = clap::value_parser!(u32).range(1..))]
-    pub suite_spp: u32,
+    /// least 2 (default: 8).
+    #[arg(long, value_parser = clap::value_parser!(u32).range(2..))]
+    pub suite_runs: Option<u32>,
+    /// Stability suite: samples per pixel of each run (default: 64).
+    #[arg(long, value_parser = clap::value_parser!(u32).range(1..))]
+    pub suite_spp: Option<u32>,
     /// Random seed (default: render.seed, or 1 for the suite).
     #[arg(long)]
     pub seed: Option<u64>,
@@ -92,8 +93,14 @@ pub struct Args {
 
 pub fn run(args: &Args) -> Result<()> {
     set_threads(args.threads)?;
-    let mut estimators = args.estimators.clone();
-    estimators.dedup();
+    refuse_other_suites_flags(args)?;
+    // Each estimator once, in the order given (a repeat would sweep it twice into one curve).
+    let mut estimators = Vec::new();
+    for &e in &args.estimators {
+        if !estimators.contains(&e) {
+            estimators.push(e);
+        }
+    }
     match (args.suite, &args.scene) {
         (Suite::Stability, Some(path)) => bail!(
             "--suite stability runs its own scenes: leave out '{}'",
@@ -103,6 +110,7 @@ pub fn run(args: &Args) -> Result<()> {
         (Suite::EqualTime, None) => bail!("give a scene file, or --suite stability"),
         (Suite::EqualTime, Some(path)) => {
             let scene = Scene::load(path)?;
+            let budget = args.budget.unwrap_or(Duration::from_secs(120));
             let name = path
                 .file_stem()
                 .map_or("scene".into(), |s| s.to_string_lossy().into_owned());
@@ -112,14 +120,14 @@ pub fn run(args: &Args) -> Result<()> {
                 .unwrap_or_else(|| PathBuf::from(format!("compare-{name}")));
             let options = EqualTimeOptions {
                 estimators,
-                budget: args.budget,
-                render_budget: args.render_budget.unwrap_or(args.budget / 4),
+                budget,
+                render_budget: args.render_budget.unwrap_or(budget / 4),
                 reference: args.reference.clone(),
-                reference_spp: args.reference_spp,
-                reference_seeds: args.reference_seeds,
+                reference_spp: args.reference_spp.unwrap_or(64),
+                reference_seeds: args.reference_seeds.unwrap_or(8),
                 force_reference: args.force_reference,
-                max_spp: args.max_spp,
-                fd_voxels: args.fd_voxels,
+                max_spp: args.max_spp.unwrap_or(4096),
+                fd_voxels: args.fd_voxels.unwrap_or(3),
                 fd_spp: args.fd_spp.unwrap_or(16),
                 fd_repeats: args.repeats.unwrap_or(8),
                 seed: args.seed.unwrap_or(scene.settings.seed),
@@ -134,14 +142,55 @@ pub fn run(args: &Args) -> Result<()> {
     }
 }
 
+/// A flag only the other suite reads is refused by name, rather than ignored.
+fn refuse_other_suites_flags(args: &Args) -> Result<()> {
+    let (given, suite, other): (Vec<&str>, _, _) = match args.suite {
+        Suite::EqualTime => (
+            [
+                ("--suite-runs", args.suite_runs.is_some()),
+                ("--suite-spp", args.suite_spp.is_some()),
+            ]
+            .into_iter()
+            .filter_map(|(flag, given)| given.then_some(flag))
+            .collect(),
+            "equal-time",
+            "stability",
+        ),
+        Suite::Stability => (
+            [
+                ("--budget", args.budget.is_some()),
+                ("--render-budget", args.render_budget.is_some()),
+                ("--reference", args.reference.is_some()),
+                ("--reference-spp", args.reference_spp.is_some()),
+                ("--reference-seeds", args.reference_seeds.is_some()),
+                ("--force-reference", args.force_reference),
+                ("--max-spp", args.max_spp.is_some()),
+                ("--fd-voxels", args.fd_voxels.is_some()),
+            ]
+            .into_iter()
+            .filter_map(|(flag, given)| given.then_some(flag))
+            .collect(),
+            "stability",
+            "equal-time",
+        ),
+    };
+    match given.as_slice() {
+        [] => Ok(()),
+        flags => bail!(
+            "{} belong to the {other} suite, not --suite {suite}: leave them out",
+            flags.join(", ")
+        ),
+    }
+}
+
 fn stability(args: &Args, estimators: &[Estimator]) -> Result<()> {
     let out = args
         .out
         .clone()
         .unwrap_or_else(|| PathBuf::from("compare-stability"));
     let options = StabilityOptions {
-        runs: args.suite_runs,
-        spp: args.suite_spp,
+        runs: args.suite_runs.unwrap_or(8),
+        spp: args.suite_spp.unwrap_or(64),
         fd_spp: args.fd_spp.unwrap_or(4096),
         fd_repeats: args.repeats.unwrap_or(8),
         seed: args.seed.unwrap_or(1),

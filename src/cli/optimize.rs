@@ -146,6 +146,32 @@ pub fn run(args: &Args, cluster: &Cluster) -> Result<()> {
         (.., Some(log)) => Some(cluster.agree(Stop::replay_log(log))?),
         (None, None, None) => None,
     };
+    if cluster.size() > 1 {
+        // Each rank found its own latest checkpoint and read its own replay log: a folder one
+        // machine sees older (a network file system's cache, a disk of its own) would start the
+        // ranks at different iterations, or stop them at different ones.
+        let files: Vec<&Path> = resume
+            .iter()
+            .map(PathBuf::as_path)
+            .chain(args.schedule_from.as_deref())
+            .collect();
+        let contents = cluster.agree(
+            (files.iter())
+                .map(|p| std::fs::read(p).with_context(|| format!("cannot read '{}'", p.display())))
+                .collect::<Result<Vec<_>>>(),
+        )?;
+        check_same_job(cluster, || {
+            (files.iter().zip(&contents))
+                .map(|(p, bytes)| {
+                    format!(
+                        "{} {}",
+                        p.display(),
+                        Fingerprint::default().bytes(bytes).hex()
+                    )
+                })
+                .collect()
+        })?;
+    }
     let progress = !args.quiet && cluster.is_root();
     let problem = cluster.agree(Problem::load(
         &args.run,

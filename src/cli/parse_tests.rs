@@ -39,7 +39,7 @@ fn flags_parse_into_the_library_types() {
     {
         Command::Compare(a) => {
             assert_eq!(a.estimators, [Estimator::Drt, Estimator::Joint]);
-            assert_eq!(a.budget, std::time::Duration::from_secs(120));
+            assert_eq!(a.budget, Some(std::time::Duration::from_secs(120)));
         }
         _ => panic!("not compare"),
     }

@@ -133,7 +133,8 @@ fn sweep(
         if spp >= max_spp || spent + 2.0 * last > budget.as_secs_f64() {
             break;
         }
-        spp *= 2;
+        // Doubling, the last step at the largest spp asked for, not past it.
+        spp = spp.saturating_mul(2).min(max_spp);
     }
     rows
 }

@@ -90,11 +90,12 @@ pub fn build_reference(scene: &Scene, o: &ReferenceOptions) -> Reference {
     }
 }
 
-fn reference_provenance(scene: &Scene, r: &Reference) -> Provenance {
+/// What a reference of `runs` runs of `spp_per_run` on `scene` is the gradient of.
+fn reference_provenance(scene: &Scene, runs: u32, spp_per_run: u32) -> Provenance {
     Provenance {
         estimator: "joint+drt".into(),
-        spp: r.spp_per_run as u64 * r.runs as u64,
-        seed: format!("{} runs of {} spp", r.runs, r.spp_per_run),
+        spp: spp_per_run as u64 * runs as u64,
+        seed: format!("{runs} runs of {spp_per_run} spp"),
         loss: Loss::Mean.to_string(),
         scene: scene.path.display().to_string(),
         scene_fingerprint: fingerprint::scene(scene),
@@ -108,7 +109,7 @@ fn reference_provenance(scene: &Scene, r: &Reference) -> Provenance {
 
 /// Writes `grad_<grid>` (the mean) and `grad_<grid>_stderr` to one VDB.
 pub fn save_reference(path: &Path, scene: &Scene, r: &Reference, overwrite: bool) -> Result<()> {
-    let provenance = reference_provenance(scene, r);
+    let provenance = reference_provenance(scene, r.runs, r.spp_per_run);
     let transform = scene.medium.transform;
     let extra = [
         meta("volgrad_sum_stderr", "string", r.sum_se),
@@ -158,9 +159,15 @@ pub fn load_reference(path: &Path, scene: &Scene) -> Result<Reference> {
             .find(|e| e.name == key)
             .map(|e| e.value.clone())
     };
-    if get("volgrad_loss") != Some(Loss::Mean.to_string()) {
+    // The scene's content, the loss, the parameter, the domain and the depth: a reference of
+    // another computation would score every estimator against the wrong answer.
+    let found = Provenance::from_metadata(&mean.metadata, path)?;
+    let wanted = reference_provenance(scene, 1, 1).computation();
+    if let Some(((field, value), (_, want))) =
+        (found.computation().into_iter().zip(wanted)).find(|(a, b)| a != b)
+    {
         bail!(
-            "the reference '{}' is not the gradient of loss \"mean\"",
+            "the reference '{}' is of another computation: its {field} is '{value}', this scene's '{want}' (a scene or setting changed since it was made: build it again without --reference)",
             path.display()
         );
     }

@@ -80,17 +80,24 @@ pub fn equal_time(scene: &Scene, name: &str, out: &Path, o: &EqualTimeOptions) -
     let names: Vec<String> = o.estimators.iter().map(|e| e.to_string()).collect();
     let names: Vec<&str> = names.iter().map(String::as_str).collect();
     let mut summary = format!(
-        "### `volgrad compare {}`\n\nBudget {} s per estimator; reference: {} runs × {} spp (joint and drt alternating); {} threads.\n\n#### Reference against finite differences\n\n{check_table}\n",
+        "### `volgrad compare {}`\n\nBudget {} s per estimator, spp doubling from 1 up to {}, seed {}; reference: {} runs × {} spp (joint and drt alternating); {} threads.\n\n#### Reference against finite differences\n\n{check_table}\n",
         scene.path.display(),
         o.budget.as_secs_f64(), // as given: 0.2 s, not "0"
+        o.max_spp,
+        o.seed,
         reference.runs,
         reference.spp_per_run,
         rayon::current_num_threads()
     );
     summary += &c::summary(&rows, &names, "drt", "joint", "Gradient");
-    let title = format!("{name}: gradient error against time");
-    let chart = c::chart(&rows, &title, "relative RMSE vs reference");
-    c::write_chart(out, "gradient-error", &chart)?;
+    let mut charts = vec![(
+        "gradient-error",
+        c::chart(
+            &rows,
+            &format!("{name}: gradient error against time"),
+            "relative RMSE vs reference",
+        ),
+    )];
     if !o.render_budget.is_zero() {
         let image_reference = c::build_image_reference(
             scene,
@@ -114,12 +121,18 @@ pub fn equal_time(scene: &Scene, name: &str, out: &Path, o: &EqualTimeOptions) -
             "Forward render",
         );
         let title = format!("{name}: image error against time");
-        let chart = c::chart(&render_rows, &title, "relative image RMSE");
-        c::write_chart(out, "render-error", &chart)?;
+        charts.push((
+            "render-error",
+            c::chart(&render_rows, &title, "relative image RMSE"),
+        ));
         rows.extend(render_rows);
     }
+    // The measurements first: a chart that cannot be drawn must not lose them.
     write_bytes_whole(&out.join("runs.csv"), c::csv(&rows))?;
     write_bytes_whole(&out.join("summary.md"), &summary)?;
+    for (file, chart) in &charts {
+        c::write_chart(out, file, chart)?;
+    }
     Ok(summary)
 }
 

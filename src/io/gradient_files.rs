@@ -64,7 +64,7 @@ impl Provenance {
 
     /// Every field that defines the computation, as (metadata name, value), in the order a
     /// mismatch is reported.
-    fn computation(&self) -> [(&'static str, String); 8] {
+    pub fn computation(&self) -> [(&'static str, String); 8] {
         [
             ("volgrad_parameter", self.parameter.clone()),
             ("volgrad_scene_fingerprint", self.scene_fingerprint.clone()),
@@ -80,7 +80,7 @@ impl Provenance {
         ]
     }
 
-    fn from_metadata(entries: &[MetaEntry], file: &Path) -> Result<Self> {
+    pub fn from_metadata(entries: &[MetaEntry], file: &Path) -> Result<Self> {
         let get = |name: &str| -> Result<String> {
             entries
                 .iter()
@@ -197,6 +197,15 @@ pub fn merge(inputs: &[&Path]) -> Result<Vec<Grid>> {
         let components = vdb::read_components(path, &name)?;
         let provenance = Provenance::from_metadata(&components[0].metadata, path)?;
         if let Some((f, p)) = &first {
+            // The computation first: another parameter is named as such, not as another grid.
+            let mut differs = p.computation().into_iter().zip(provenance.computation());
+            if let Some(((field, first_value), (_, value))) = differs.find(|(a, b)| a != b) {
+                bail!(
+                    "'{}' is another computation than '{}': {field} is '{first_value}' there and '{value}' here (merge combines runs of one computation with different seeds)",
+                    path.display(),
+                    inputs[0].display(),
+                );
+            }
             let grid = &components[0];
             if f[0].name != grid.name
                 || f[0].transform != grid.transform
@@ -207,14 +216,6 @@ pub fn merge(inputs: &[&Path]) -> Result<Vec<Grid>> {
                     path.display(),
                     grid.name,
                     f[0].name
-                );
-            }
-            let mut differs = p.computation().into_iter().zip(provenance.computation());
-            if let Some(((field, first_value), (_, value))) = differs.find(|(a, b)| a != b) {
-                bail!(
-                    "'{}' is another computation than '{}': {field} is '{first_value}' there and '{value}' here (merge combines runs of one computation with different seeds)",
-                    path.display(),
-                    inputs[0].display(),
                 );
             }
         }

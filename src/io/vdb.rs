@@ -181,11 +181,15 @@ pub fn read_components(path: &Path, name: &str) -> Result<Vec<Grid>> {
     let data =
         ffi::read_grid_components(bridge_path(path)?, name, -1, threads).map_err(bridge_error)?;
     if let Some(d) = data.iter().find(|d| d.inactive_tiles_off_background > 0) {
+        let background: Vec<String> = data.iter().map(|d| d.background.to_string()).collect();
         bail!(
             "grid '{name}' in '{}' has {} inactive tiles whose value is not its background {}: OpenVDB reads their value there, volgrad reads the background; activate them or set them to the background",
             path.display(),
             d.inactive_tiles_off_background,
-            d.background
+            match background.len() {
+                1 => background[0].clone(),
+                _ => format!("({})", background.join(", ")),
+            }
         );
     }
     data.into_iter()

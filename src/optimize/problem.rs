@@ -118,6 +118,12 @@ impl Problem {
         target_cache: Option<&Path>,
         cluster: &Cluster,
     ) -> Result<Problem> {
+        let inputs = cluster.agree(Inputs::read(run_path, seed))?;
+        // Files that differ between machines are named before any check of their content, which
+        // could stop one rank while the others go on to render the targets together.
+        if cluster.size() > 1 {
+            cluster.check_same_inputs(inputs.fingerprint())?;
+        }
         let Inputs {
             mut file,
             scene,
@@ -126,7 +132,7 @@ impl Problem {
             training,
             held_out,
             light_sets,
-        } = cluster.agree(Inputs::read(run_path, seed))?;
+        } = inputs;
         let captures = captures(&training);
         let world_box = domain.world_box();
         let cameras: Vec<Camera> = training.iter().map(|v| v.camera()).collect();
@@ -307,6 +313,20 @@ struct Inputs {
 }
 
 impl Inputs {
+    /// The content of everything read: the scene, the known grids and every view.
+    fn fingerprint(&self) -> u64 {
+        let mut f = Fingerprint::default();
+        f.text(&crate::render::fingerprint::scene(&self.scene));
+        for grid in [&self.grids.truth, &self.grids.start].into_iter().flatten() {
+            f.text(&format!("{:?}", grid.transform));
+            crate::render::fingerprint::bricks(&mut f, &grid.bricks);
+        }
+        for view in self.training.iter().chain(&self.held_out) {
+            view.fingerprint_into(&mut f);
+        }
+        f.value()
+    }
+
     fn read(run_path: &Path, seed: Option<u64>) -> Result<Inputs> {
         let mut file = RunFile::read(run_path)?;
         file.target_seed = Some(file.target_seed.unwrap_or(file.seed));

@@ -267,6 +267,21 @@ impl ReadView {
     pub fn camera(&self) -> Camera {
         self.camera
     }
+
+    /// Feeds what the view was read as to `f`: its name, camera, lights and pictures.
+    pub fn fingerprint_into(&self, f: &mut crate::io::fingerprint::Fingerprint) {
+        f.text(&format!(
+            "{} {:?} {}",
+            self.name, self.camera, self.light_set
+        ));
+        for picture in [&self.target, &self.alpha, &self.background] {
+            f.text(
+                &picture
+                    .as_ref()
+                    .map_or("none".into(), crate::io::fingerprint::image),
+            );
+        }
+    }
 }
 
 /// The views of `specs` with their lights indexed in `sets` and their image files read: all that

@@ -51,8 +51,12 @@ pub fn lights(f: &mut Fingerprint, lights: &Lights) {
     ));
     if let Some(map) = &lights.environment.map {
         let (w, h, texels) = map.texels();
-        f.text(&format!("envmap {w}×{h} frame {:?}", map.frame()))
-            .vec3s(texels);
+        f.text(&format!("envmap {w}×{h}")).vec3s(texels);
+        // Only a turned map says so: an unturned one keeps the fingerprint it had before maps
+        // could turn (gradient files and target caches written then still match).
+        if let Some(frame) = map.frame() {
+            f.text(&format!("frame {frame:?}"));
+        }
     }
 }
 
