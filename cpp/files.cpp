@@ -3,6 +3,9 @@
 
 #include "volgrad/cpp/internal.h"
 
+#include <fcntl.h>
+#include <unistd.h>
+
 #include <cerrno>
 #include <cstring>
 #include <filesystem>
@@ -65,7 +68,24 @@ void check_writable_target(const std::string& path) {
     if (fs::is_directory(p, ec)) fail("cannot write " + quoted(path) + ": it is a directory");
 }
 
+fs::path temporary_beside(const std::string& path, const std::string& extension) {
+    const fs::path p(path);
+    const std::string name =
+        "." + p.filename().string() + "." + std::to_string(::getpid()) + ".tmp" + extension;
+    return p.parent_path() / name;
+}
+
 void commit_file(const fs::path& tmp, const std::string& path) {
+    // On the disk before the rename: a crash must leave the old file or the whole new one.
+    const int fd = ::open(tmp.c_str(), O_RDONLY);
+    const bool synced = fd >= 0 && ::fsync(fd) == 0;
+    const int sync_errno = errno;
+    if (fd >= 0) ::close(fd);
+    if (!synced) {
+        std::error_code ignored;
+        fs::remove(tmp, ignored);
+        fail("cannot write " + quoted(path) + ": " + errno_text(sync_errno));
+    }
     std::error_code ec;
     fs::rename(tmp, path, ec);
     if (ec) {

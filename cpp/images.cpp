@@ -204,7 +204,7 @@ void write_image(rust::Str path_str, const ImageData& image, rust::Str pixel_typ
     if (std::string(out->format_name()) == "openexr") spec.attribute("compression", "zip");
 
     // OIIO picks the format from the extension, so the temporary name keeps it.
-    const fs::path tmp = p.parent_path() / ("." + p.stem().string() + ".tmp" + ext);
+    const fs::path tmp = temporary_beside(path, ext);
     auto cleanup = [&] {
         std::error_code ignored;
         fs::remove(tmp, ignored);

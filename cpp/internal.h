@@ -61,7 +61,13 @@ void check_readable(const std::string& path);
 /// Fails unless the directory that will hold `path` exists and `path` is not a directory.
 void check_writable_target(const std::string& path);
 
-/// Renames `tmp` over `path`, removing `tmp` on failure.
+/// A temporary name beside `path` that no other process writing it at once takes and no user
+/// file is likely to have: `.NAME.PID.tmp`, then `extension` (an image writer picks its format
+/// by it).
+std::filesystem::path temporary_beside(const std::string& path, const std::string& extension);
+
+/// Flushes `tmp` to the disk and renames it over `path` (as the Rust side's whole-file writes
+/// do), removing `tmp` on failure.
 void commit_file(const std::filesystem::path& tmp, const std::string& path);
 
 // ------------------------------------------------------------------------------------------------

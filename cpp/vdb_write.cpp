@@ -305,7 +305,7 @@ namespace {
 
 /// Writes `grids` to a temporary file beside `path` that then replaces it.
 void write_archive(const std::string& path, const openvdb::GridCPtrVec& grids) {
-    const fs::path tmp = path + ".tmp";
+    const fs::path tmp = temporary_beside(path, "");
     std::ofstream os(tmp, std::ios::out | std::ios::binary | std::ios::trunc);
     if (!os) {
         fail("cannot write " + quoted(path) + ": cannot create " + quoted(tmp.string()) + ": " +

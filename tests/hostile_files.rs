@@ -218,3 +218,38 @@ fn no_output_is_written_in_place() {
         in_place.join("\n")
     );
 }
+
+/// A VDB or an image is written under a temporary name of the writing process's own, then renamed:
+/// a user's `NAME.tmp` beside the output is not the temporary (it was truncated, then removed),
+/// and nothing is left behind.
+#[test]
+fn a_users_file_is_never_the_temporary() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    for name in ["g.vdb.tmp", ".r.tmp.exr"] {
+        std::fs::write(d.join(name), "mine").unwrap();
+    }
+    ok(volgrad_in(
+        d,
+        &["make-grid", "box", "--size", "4", "-o", "g.vdb"],
+    ));
+    let scene = scene_in(d, "s.toml", 30.0, 1.0);
+    ok(volgrad_in(
+        d,
+        &["render", path(&scene), "--spp", "1", "-o", "r.exr", "-q"],
+    ));
+    for name in ["g.vdb.tmp", ".r.tmp.exr"] {
+        assert_eq!(
+            std::fs::read_to_string(d.join(name)).unwrap(),
+            "mine",
+            "{name}"
+        );
+    }
+    let mut left: Vec<String> = std::fs::read_dir(d)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .filter(|n| n.contains(".tmp") && n != "g.vdb.tmp" && n != ".r.tmp.exr")
+        .collect();
+    left.sort();
+    assert!(left.is_empty(), "left behind: {left:?}");
+}

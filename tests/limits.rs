@@ -460,3 +460,62 @@ fn a_bad_flag_is_refused_before_the_target_is_rendered() {
     }
     assert_clean_error(&child.wait_with_output().unwrap(), &["albedo"]);
 }
+
+/// make-grid refuses what it would otherwise ignore or make unreadable, naming the flag: a slab's
+/// thickness on a box, a fog value on a level set, the companion grid's name for the density
+/// (every read refuses two grids of one name), angles and sizes no scene can use.
+#[test]
+fn make_grid_refuses_what_it_would_ignore() {
+    let dir = tempfile::tempdir().unwrap();
+    for (args, needles) in [
+        (
+            vec!["box", "--thickness", "4"],
+            vec!["--thickness is a slab's", "box"],
+        ),
+        (
+            vec!["sphere", "--class", "levelset", "--value", "5"],
+            vec!["--value is a fog volume's"],
+        ),
+        (
+            vec!["fireball", "--name", "temperature"],
+            vec!["--name temperature"],
+        ),
+        (vec!["coloured-smoke", "--name", "Cd"], vec!["--name Cd"]),
+        (
+            vec!["box", "--rotate-deg", "nan,0,0"],
+            vec!["--rotate-deg must be three finite angles"],
+        ),
+        (
+            vec!["box", "--voxel-size", "1e200"],
+            vec!["--voxel-size × --size"],
+        ),
+        (
+            vec!["box", "--size", "1024"],
+            vec!["--size must be between 1 and 512"],
+        ),
+    ] {
+        let out = volgrad_in(
+            dir.path(),
+            &[&["make-grid"], &args[..], &["-o", "g.vdb"]].concat(),
+        );
+        assert_clean_error(&out, &needles);
+        assert!(!dir.path().join("g.vdb").exists(), "{args:?}");
+    }
+}
+
+/// gradcheck on a grid with no voxels has nothing to check: an error, not "all 0 checks" and
+/// exit 0. Its voxel count is bounded like every count a flag gives.
+#[test]
+fn gradcheck_with_nothing_to_check_fails() {
+    let dir = fixture(&run_file("0.1", ""));
+    let d = dir.path();
+    let mut grid = read_grid(&d.join("ball.vdb"), &GridSelector::Default).unwrap();
+    grid.bricks = volgrad::volume::brickmap::BrickMap::new(vec![], vec![]);
+    volgrad::io::vdb::write_grids(&d.join("empty.vdb"), &[&grid], false, false).unwrap();
+    let scene = std::fs::read_to_string(d.join("scene.toml")).unwrap();
+    std::fs::write(d.join("empty.toml"), scene.replace("ball.vdb", "empty.vdb")).unwrap();
+    let out = volgrad_in(d, &["gradcheck", "empty.toml", "--fd-spp", "4", "-q"]);
+    assert_clean_error(&out, &["nothing to check"]);
+    let out = volgrad_in(d, &["gradcheck", "scene.toml", "--voxels", "10001"]);
+    assert_flag_refused(&out, "--voxels");
+}

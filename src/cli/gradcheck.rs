@@ -19,9 +19,9 @@ pub struct Args {
     pub scene: PathBuf,
     #[arg(long, value_enum, default_value_t = Estimator::Joint)]
     pub estimator: Estimator,
-    /// Number of random voxels to check.
-    #[arg(long, default_value_t = 4)]
-    pub voxels: usize,
+    /// Number of random voxels to check, 0 to 10000.
+    #[arg(long, default_value_t = 4, value_parser = clap::value_parser!(u32).range(0..=10_000))]
+    pub voxels: u32,
     /// Image width for the check (the height follows the scene's aspect ratio): finite differences
     /// render the image many times, so a small one keeps the check quick.
     #[arg(long, default_value_t = 32)]
@@ -60,7 +60,7 @@ pub fn run(args: &Args) -> Result<()> {
     let options = GradcheckOptions {
         grad,
         repeats: args.fd_args.repeats,
-        voxels: args.voxels,
+        voxels: args.voxels as usize,
         fd,
         fixed_eps: args.fd_args.eps.is_some(),
         progress: !args.adjoint.sampling.quiet,
@@ -71,6 +71,12 @@ pub fn run(args: &Args) -> Result<()> {
     };
     eprintln!("checking {:?} on {} ({} spp × {} runs) against finite differences (ε {eps}, {} spp × {} repeats) on d(mean pixel)/dθ", args.estimator, grad.parameter, grad.spp, options.repeats, fd.spp, fd.repeats);
     let checks = gradcheck(&scene, &options)?;
+    if checks.is_empty() {
+        bail!(
+            "nothing to check: the scene's {} grid has no voxels",
+            grad.parameter
+        );
+    }
     print!("{}", checks_table(&checks).markdown());
     let failed = checks.iter().filter(|c| !c.passed()).count();
     if failed > 0 {

@@ -4,11 +4,13 @@
 use std::path::PathBuf;
 
 use anyhow::{bail, Result};
+use clap::ValueEnum;
 
 use volgrad::io::make_grid::{
     coloured_smoke_albedo, fireball_temperature, make_grid, Class, GridKind, GridSpec,
 };
 use volgrad::io::vdb;
+use volgrad::render::scene_check::MAX_COORDINATE;
 
 #[derive(clap::Args)]
 pub struct Args {
@@ -21,12 +23,12 @@ pub struct Args {
     /// Edge length in voxels.
     #[arg(long, default_value_t = 16)]
     pub size: u32,
-    /// Slab thickness in voxels.
-    #[arg(long, default_value_t = 2)]
-    pub thickness: u32,
-    /// Grid value inside the shape (fog volumes; a level set holds distances).
-    #[arg(long, default_value_t = 1.0, allow_negative_numbers = true)]
-    pub value: f32,
+    /// Slab thickness in voxels (slab only; default 2).
+    #[arg(long)]
+    pub thickness: Option<u32>,
+    /// Grid value inside the shape (fog volumes only: a level set holds distances; default 1).
+    #[arg(long, allow_negative_numbers = true)]
+    pub value: Option<f32>,
     /// Voxel size: one number, or three (x,y,z) for anisotropic voxels.
     #[arg(long, value_delimiter = ',', default_value = "1")]
     pub voxel_size: Vec<f64>,
@@ -64,18 +66,49 @@ pub fn run(args: &Args) -> Result<()> {
             args.output.display()
         );
     }
-    if args.kind == GridKind::Slab && !(1..=args.size).contains(&args.thickness) {
+    let thickness = match (args.kind, args.thickness) {
+        (GridKind::Slab, t) => t.unwrap_or(2),
+        (_, None) => 2,
+        (kind, Some(_)) => bail!(
+            "--thickness is a slab's: leave it out for {}",
+            kind.to_possible_value()
+                .map_or(String::new(), |v| v.get_name().to_string())
+        ),
+    };
+    if args.kind == GridKind::Slab && !(1..=args.size).contains(&thickness) {
         bail!(
-            "--thickness must be 1 to --size ({}) voxels (got {})",
+            "--thickness must be 1 to --size ({}) voxels (got {thickness})",
             args.size,
-            args.thickness
+        );
+    }
+    if args.class == Class::Levelset && args.value.is_some() {
+        bail!("--value is a fog volume's: a level set holds the distances to its surface");
+    }
+    // A grid no scene can place a camera beside is of no use to render.
+    let extent = voxel_size.iter().fold(0.0f64, |m, &s| m.max(s)) * f64::from(args.size);
+    if extent > f64::from(MAX_COORDINATE) {
+        bail!(
+            "--voxel-size × --size is {extent:e} world units: at most {MAX_COORDINATE:e}, the farthest a scene places anything"
+        );
+    }
+    // The companion grid's name, which the density's must not take (every read would refuse
+    // a file holding two grids of one name).
+    let companion = match args.kind {
+        GridKind::Fireball => Some("temperature"),
+        GridKind::ColouredSmoke => Some("Cd"),
+        _ => None,
+    };
+    if companion == Some(args.name.as_str()) {
+        bail!(
+            "--name {} is the name of the grid made beside it: give the density another",
+            args.name
         );
     }
     let spec = GridSpec {
         kind: args.kind,
         size: args.size,
-        thickness: args.thickness,
-        value: args.value,
+        thickness,
+        value: args.value.unwrap_or(1.0),
         voxel_size,
         rotate_deg,
         name: args.name.clone(),

@@ -71,10 +71,14 @@ impl GridSpec {
 }
 
 /// Builds the grid. Its centre maps to the world origin.
+/// The largest edge `make_grid` makes: 512³ voxels are 0.5 GiB of values, held three times over
+/// while the file is written (1024³ asked for more memory than most machines have).
+pub const MAX_SIZE: u32 = 512;
+
 pub fn make_grid(spec: &GridSpec) -> anyhow::Result<Grid> {
-    if spec.size == 0 || spec.size > 1024 {
+    if spec.size == 0 || spec.size > MAX_SIZE {
         anyhow::bail!(
-            "--size must be between 1 and 1024 voxels (got {})",
+            "--size must be between 1 and {MAX_SIZE} voxels (got {})",
             spec.size
         );
     }
@@ -85,6 +89,12 @@ pub fn make_grid(spec: &GridSpec) -> anyhow::Result<Grid> {
         anyhow::bail!(
             "--voxel-size must be from {MIN_VOXEL_SIZE:e} up (got {:?})",
             spec.voxel_size
+        );
+    }
+    if !spec.rotate_deg.iter().all(|a| a.is_finite()) {
+        anyhow::bail!(
+            "--rotate-deg must be three finite angles (got {:?})",
+            spec.rotate_deg
         );
     }
     if spec.class == Class::Levelset {
