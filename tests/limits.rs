@@ -503,10 +503,11 @@ fn make_grid_refuses_what_it_would_ignore() {
     }
 }
 
-/// gradcheck on a grid with no voxels has nothing to check: an error, not "all 0 checks" and
-/// exit 0. Its voxel count is bounded like every count a flag gives.
+/// A density grid with no active voxels: render says the medium is empty (and renders the
+/// lights), gradcheck has nothing to check (an error, not "all 0 checks" and exit 0). gradcheck's
+/// voxel count is bounded like every count a flag gives.
 #[test]
-fn gradcheck_with_nothing_to_check_fails() {
+fn a_grid_with_no_voxels_is_named() {
     let dir = fixture(&run_file("0.1", ""));
     let d = dir.path();
     let mut grid = read_grid(&d.join("ball.vdb"), &GridSelector::Default).unwrap();
@@ -514,6 +515,15 @@ fn gradcheck_with_nothing_to_check_fails() {
     volgrad::io::vdb::write_grids(&d.join("empty.vdb"), &[&grid], false, false).unwrap();
     let scene = std::fs::read_to_string(d.join("scene.toml")).unwrap();
     std::fs::write(d.join("empty.toml"), scene.replace("ball.vdb", "empty.vdb")).unwrap();
+    let out = ok(volgrad_in(
+        d,
+        &["render", "empty.toml", "--spp", "1", "-o", "e.exr", "-q"],
+    ));
+    assert!(
+        stderr(&out).contains("has no active voxels: the medium is empty"),
+        "{}",
+        stderr(&out)
+    );
     let out = volgrad_in(d, &["gradcheck", "empty.toml", "--fd-spp", "4", "-q"]);
     assert_clean_error(&out, &["nothing to check"]);
     let out = volgrad_in(d, &["gradcheck", "scene.toml", "--voxels", "10001"]);

@@ -10,7 +10,8 @@ use glam::IVec3;
 
 use super::values::{self, FdDirection, IndexBox};
 use super::{
-    check_same_job, report_non_finite, set_threads, AdjointArgs, Domain, FdArgs, FD_REPEATS, FD_SPP,
+    check_same_job, report_non_finite, set_threads, warn_if_empty, AdjointArgs, Domain, FdArgs,
+    FD_REPEATS, FD_SPP,
 };
 use volgrad::cluster::images::render_shared;
 use volgrad::cluster::passes::{adjoint_shared, gradient_shared};
@@ -285,6 +286,7 @@ pub fn run(args: &Args, cluster: &Cluster) -> Result<()> {
         let source = load_target(args)?;
         Ok((scene, source))
     }))?;
+    warn_if_empty(&scene, cluster);
     // What the gradient file records, and what the ranks compare: hashed once.
     let scene_fingerprint = fingerprint::scene(&scene);
     check_same_job(cluster, || {

@@ -218,6 +218,18 @@ pub fn set_threads(threads: Option<usize>) -> Result<()> {
     Ok(())
 }
 
+/// Says on stderr (once, from rank 0) that the density grid has no active voxels: the medium is
+/// empty and the picture shows the lights alone. Likelier a file whose voxels were left inactive
+/// (volgrad renders active voxels and tiles) than a wish.
+pub fn warn_if_empty(scene: &Scene, cluster: &Cluster) {
+    if cluster.is_root() && scene.medium.grid.active_bounds().is_none() {
+        eprintln!(
+            "warning: the density grid '{}' has no active voxels: the medium is empty (volgrad reads active voxels and tiles; `volgrad info` lists the grid)",
+            scene.grid_name
+        );
+    }
+}
+
 /// Says on stderr how many samples came out non-finite and were dropped (none, for a valid scene).
 pub fn report_non_finite(stats: &RenderStats) {
     if stats.non_finite > 0 {

@@ -190,8 +190,10 @@ pub fn run(args: &Args, cluster: &Cluster) -> Result<()> {
         }
         vec![f.hex()]
     })?;
-    ctrlc::set_handler(|| INTERRUPTED.store(true, Ordering::SeqCst))
-        .context("cannot install the Ctrl-C handler")?;
+    cluster.agree(
+        ctrlc::set_handler(|| INTERRUPTED.store(true, Ordering::SeqCst))
+            .context("cannot install the Ctrl-C handler"),
+    )?;
     let options = RunOptions {
         estimator: args.estimator,
         stop,

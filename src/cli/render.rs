@@ -4,7 +4,7 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Result};
 
-use super::{bytes, check_same_job, report_non_finite, set_threads, SamplingArgs};
+use super::{bytes, check_same_job, report_non_finite, set_threads, warn_if_empty, SamplingArgs};
 use volgrad::cluster::images::render_shared;
 use volgrad::cluster::Cluster;
 use volgrad::io::images;
@@ -95,6 +95,7 @@ pub fn run(args: &Args, cluster: &Cluster) -> Result<()> {
     let scene = cluster.agree(load_scene(&args.scene, args.majorant, args.majorant_cell))?;
     let load_seconds = loading.elapsed().as_secs_f64();
     check_same_job(cluster, || vec![fingerprint::scene(&scene)])?;
+    warn_if_empty(&scene, cluster);
     let options = RenderOptions {
         spp: cluster.agree(sampling.spp(&scene))?,
         seed: sampling.seed(&scene),

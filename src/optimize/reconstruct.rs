@@ -171,7 +171,8 @@ impl<'a> Run<'a> {
             problem,
             options,
             fingerprint,
-            log: LogRow::parse_all(&position.log)?,
+            // What every rank meets alike is agreed, so that it is printed once.
+            log: cluster.agree(LogRow::parse_all(&position.log))?,
             bar: progress_bar(options.progress && cluster.is_root(), &stop),
             stop,
             position,
@@ -333,7 +334,8 @@ impl<'a> Run<'a> {
         while level < domain.levels && fraction >= s.level_starts[level] {
             let keep = emission.then(|| domain.voxel_box(level + 1));
             let transform = domain.transform(level);
-            self.parameters = upsample(&self.parameters, &transform, s.moments, keep)?.0;
+            let upsampled = upsample(&self.parameters, &transform, s.moments, keep);
+            self.parameters = self.options.cluster.agree(upsampled)?.0;
             level += 1;
         }
         self.position.level = level as u32;

@@ -100,7 +100,9 @@ pub fn equal_time(
         }
         runs.push(StudyRun {
             estimator,
-            log: LogRow::parse_all(&outcome.position.log)?,
+            log: run_options
+                .cluster
+                .agree(LogRow::parse_all(&outcome.position.log))?,
             evaluation: outcome.evaluation,
         });
     }
