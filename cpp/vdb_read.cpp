@@ -392,6 +392,21 @@ rust::Vec<rust::String> list_grid_names(rust::Str path_str) {
 
 namespace {
 
+/// The value type a grid type names: "Tree_vec3s_5_4_3" is a grid of vec3s.
+std::string value_type_of(const std::string& grid_type) {
+    std::string t = grid_type.rfind("Tree_", 0) == 0 ? grid_type.substr(5) : grid_type;
+    // The node sizes (three "_N") follow the value type.
+    for (int level = 0; level < 3; ++level) {
+        const size_t cut = t.rfind('_');
+        if (cut == std::string::npos || cut + 1 == t.size() ||
+            t.find_first_not_of("0123456789", cut + 1) != std::string::npos) {
+            return grid_type;
+        }
+        t.resize(cut);
+    }
+    return t;
+}
+
 /// Fails unless `grid` has a linear transform (the only kind volgrad renders).
 void check_linear(const openvdb::GridBase& grid, const std::string& what) {
     if (!grid.constTransform().baseMap()->isLinear()) {
@@ -407,6 +422,13 @@ FloatGridData read_float_grid_with(rust::Str path_str, rust::Str name_str, int32
     const std::string name = to_std(name_str);
     auto vdb = open_vdb(path);
     const size_t i = select_grid(*vdb, path, name, index);
+    // Refused from the file's table of grids, before the grid is read: a points cache or a large
+    // vector grid would otherwise be read whole only to be turned away.
+    const std::string type = vdb->grid_type(i);
+    if (type != openvdb::FloatGrid::gridType() && type != openvdb::DoubleGrid::gridType()) {
+        fail("grid '" + vdb->name(i) + "' in " + quoted(path) + " has value type " +
+             value_type_of(type) + ", not float");
+    }
     if (decode_in_parallel && vdb->can_defer_buffers(i)) {
         DeferredBuffers deferred;
         const openvdb::GridBase::Ptr base = with_context(

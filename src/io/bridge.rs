@@ -112,8 +112,9 @@ pub mod ffi {
         /// Resizes a vector to `len` values (new ones 0), so that C++ fills a large array through
         /// `data()`: `rust::Vec::push_back` costs four calls into Rust per value, most of the
         /// time of reading a large grid.
-        fn resize_f32s(v: &mut Vec<f32>, len: usize);
-        fn resize_leaves(v: &mut Vec<LeafData>, len: usize);
+        /// Both fail (a C++ exception) where the memory cannot be had, rather than abort.
+        fn resize_f32s(v: &mut Vec<f32>, len: usize) -> Result<()>;
+        fn resize_leaves(v: &mut Vec<LeafData>, len: usize) -> Result<()>;
     }
 
     unsafe extern "C++" {
@@ -241,36 +242,63 @@ pub fn bridge_error(e: cxx::Exception) -> anyhow::Error {
     }
 }
 
-/// `v` as `len` zeros, for the bridge to fill (an image's pixels): a fresh zeroed allocation gets
-/// its zero pages from the kernel as they are first written, where `resize` would write every
-/// byte once more first.
-fn resize_f32s(v: &mut Vec<f32>, len: usize) {
-    if v.is_empty() {
-        *v = vec![0.0; len];
-    } else {
-        v.resize(len, 0.0);
-    }
+/// `v` as `len` zeros, for the bridge to fill (an image's pixels).
+fn resize_f32s(v: &mut Vec<f32>, len: usize) -> Result<(), String> {
+    // SAFETY: all-zero bytes are the f32 0.0.
+    *v = unsafe { zeroed_vec(len) }?;
+    Ok(())
 }
 
-/// `v` as `len` zeroed leaves, for the bridge to fill. Memory from `alloc_zeroed` gets its zero
-/// pages from the kernel as they are first written (by the bridge's threads), where `resize`
-/// would write every byte once more first (≈ 40 ms per 100 MiB).
-fn resize_leaves(v: &mut Vec<LeafData>, len: usize) {
-    if len == 0 {
-        v.clear();
-        return;
+/// `v` as `len` zeroed leaves, for the bridge to fill.
+fn resize_leaves(v: &mut Vec<LeafData>, len: usize) -> Result<(), String> {
+    // SAFETY: a LeafData is integers and floats only, for which all-zero bytes are a valid value.
+    *v = unsafe { zeroed_vec(len) }?;
+    Ok(())
+}
+
+/// `len` zeroed values, or an error where the memory cannot be had (a grid or an image larger
+/// than the machine: an error the user reads, where `Vec`'s own allocation would abort). Memory
+/// from `alloc_zeroed` gets its zero pages from the kernel as they are first written (by the
+/// bridge's threads), where `resize` would write every byte once more first (≈ 40 ms per
+/// 100 MiB).
+///
+/// # Safety
+/// All-zero bytes must be a valid `T`.
+unsafe fn zeroed_vec<T>(len: usize) -> Result<Vec<T>, String> {
+    if len == 0 || std::mem::size_of::<T>() == 0 {
+        return Ok(Vec::new());
     }
-    let layout = std::alloc::Layout::array::<LeafData>(len).unwrap_or_else(|_| {
-        // More leaves than an address space holds: only a corrupt count can ask for it.
-        std::alloc::handle_alloc_error(std::alloc::Layout::new::<LeafData>())
-    });
-    // SAFETY: a LeafData is integers and floats only, for which all-zero bytes are a valid value,
-    // and the allocation has the layout of `len` of them, as `Vec::from_raw_parts` requires.
-    *v = unsafe {
-        let p = std::alloc::alloc_zeroed(layout).cast::<LeafData>();
-        if p.is_null() {
-            std::alloc::handle_alloc_error(layout);
-        }
-        Vec::from_raw_parts(p, len, len)
+    let too_large = || {
+        format!(
+            "out of memory: {len} values of {} bytes cannot be allocated",
+            std::mem::size_of::<T>()
+        )
     };
+    let layout = std::alloc::Layout::array::<T>(len).map_err(|_| too_large())?;
+    // SAFETY: the layout is non-zero in size; the allocation has the layout of `len` values of
+    // T, as `Vec::from_raw_parts` requires, and all-zero bytes are a valid T (the caller's word).
+    let p = unsafe { std::alloc::alloc_zeroed(layout) }.cast::<T>();
+    if p.is_null() {
+        return Err(too_large());
+    }
+    Ok(unsafe { Vec::from_raw_parts(p, len, len) })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// What no machine holds is an error the bridge throws to C++ (and the user reads), not an
+    /// abort: the layout's own overflow, and an allocation the system refuses.
+    #[test]
+    fn memory_that_cannot_be_had_is_an_error() {
+        let mut leaves = Vec::new();
+        let e = resize_leaves(&mut leaves, usize::MAX / 2).unwrap_err();
+        assert!(e.contains("out of memory"), "{e}");
+        let mut pixels = Vec::new();
+        let e = resize_f32s(&mut pixels, 1 << 60).unwrap_err();
+        assert!(e.contains("out of memory"), "{e}");
+        resize_f32s(&mut pixels, 3).unwrap();
+        assert_eq!(pixels, [0.0; 3]);
+    }
 }

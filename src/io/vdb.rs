@@ -285,7 +285,11 @@ impl Grid {
         // load.
         let finite = |values: &[f32]| values.iter().fold(true, |ok, v| ok & v.is_finite());
         if !d.leaves.par_iter().all(|leaf| finite(&leaf.values)) || !finite(&d.tile_values) {
-            bail!("grid '{}' holds NaN or infinite values", d.name);
+            // A double grid's finite values beyond f32's range (about 3.4e38) arrive infinite too.
+            bail!(
+                "grid '{}' holds NaN or infinite values (or, stored as double, values beyond a 32-bit float's range, about 3.4e38)",
+                d.name
+            );
         }
         let tiles = (0..d.tile_values.len())
             .map(|i| Tile {
