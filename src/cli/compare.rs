@@ -144,41 +144,34 @@ pub fn run(args: &Args) -> Result<()> {
 
 /// A flag only the other suite reads is refused by name, rather than ignored.
 fn refuse_other_suites_flags(args: &Args) -> Result<()> {
-    let (given, suite, other): (Vec<&str>, _, _) = match args.suite {
-        Suite::EqualTime => (
-            [
-                ("--suite-runs", args.suite_runs.is_some()),
-                ("--suite-spp", args.suite_spp.is_some()),
-            ]
-            .into_iter()
-            .filter_map(|(flag, given)| given.then_some(flag))
-            .collect(),
-            "equal-time",
-            "stability",
+    use Suite::{EqualTime, Stability};
+    let flags = [
+        ("--budget", args.budget.is_some(), EqualTime),
+        ("--render-budget", args.render_budget.is_some(), EqualTime),
+        ("--reference", args.reference.is_some(), EqualTime),
+        ("--reference-spp", args.reference_spp.is_some(), EqualTime),
+        (
+            "--reference-seeds",
+            args.reference_seeds.is_some(),
+            EqualTime,
         ),
-        Suite::Stability => (
-            [
-                ("--budget", args.budget.is_some()),
-                ("--render-budget", args.render_budget.is_some()),
-                ("--reference", args.reference.is_some()),
-                ("--reference-spp", args.reference_spp.is_some()),
-                ("--reference-seeds", args.reference_seeds.is_some()),
-                ("--force-reference", args.force_reference),
-                ("--max-spp", args.max_spp.is_some()),
-                ("--fd-voxels", args.fd_voxels.is_some()),
-            ]
-            .into_iter()
-            .filter_map(|(flag, given)| given.then_some(flag))
-            .collect(),
-            "stability",
-            "equal-time",
-        ),
-    };
-    match given.as_slice() {
+        ("--force-reference", args.force_reference, EqualTime),
+        ("--max-spp", args.max_spp.is_some(), EqualTime),
+        ("--fd-voxels", args.fd_voxels.is_some(), EqualTime),
+        ("--suite-runs", args.suite_runs.is_some(), Stability),
+        ("--suite-spp", args.suite_spp.is_some(), Stability),
+    ];
+    let misplaced: Vec<&str> = (flags.iter())
+        .filter(|&&(_, given, suite)| given && suite != args.suite)
+        .map(|&(flag, ..)| flag)
+        .collect();
+    let name = |suite: Suite| suite.to_possible_value().map(|v| v.get_name().to_string());
+    match misplaced.as_slice() {
         [] => Ok(()),
         flags => bail!(
-            "{} belong to the {other} suite, not --suite {suite}: leave them out",
-            flags.join(", ")
+            "{} belong to the other suite, not --suite {}: leave them out",
+            flags.join(", "),
+            name(args.suite).unwrap_or_default()
         ),
     }
 }
