@@ -395,3 +395,52 @@ fn coloured_smoke_honours_half() {
     let halves = colours("half.vdb", true);
     assert!(!halves.is_empty() && halves.iter().all(is_half));
 }
+
+/// An RGB albedo zero in a channel: the derivative there carries what the next vertex sends back
+/// in that channel, even where the path stopped at that vertex because its throughput was 0 in
+/// every channel. Seen from +z, a front half of red albedo (1, 0, 0) before a back half of
+/// (0, 1, 1): a path that scatters in front and then collides behind stops there, and green's
+/// derivative at the front (α_green = 0) needs the green light the back would have scattered.
+#[test]
+fn a_zero_albedo_channel_has_the_derivative_of_what_lies_behind() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let front = |v: IVec3| v.z >= 4;
+    write_grids(d, |v| match front(v) {
+        true => Vec3::new(1.0, 0.0, 0.0),
+        false => Vec3::new(0.0, 1.0, 1.0),
+    });
+    let s = load(d, "density_scale = 0.4\nalbedo = { grid = \"Cd\" }", SKY, 8);
+    let adjoint = Loss::Mean.adjoint(&RgbImage::new(s.camera.width, s.camera.height), None);
+    let options = |parameter, channel| GradOptions {
+        parameter,
+        channel,
+        ..GradOptions::new(Estimator::Joint, 4096, 5, s.settings.max_depth)
+    };
+    let g = gradient(&s, &adjoint, &options(Parameter::Albedo, Some(1))).values();
+    let got: f64 = (g.voxels())
+        .filter(|(v, _)| front(*v))
+        .map(|(_, value)| value)
+        .sum();
+    let mean_at = |delta: f32| {
+        let mut s = s.clone();
+        let Albedo::Grid(a) = &mut s.medium.albedo else {
+            unreachable!()
+        };
+        let deltas: Vec<_> = (0..512)
+            .map(|i| IVec3::new(i / 64, (i / 8) % 8, i % 8))
+            .filter(|&v| front(v))
+            .map(|v| (v, delta))
+            .collect();
+        a.channels[1] = a.channels[1].with_added(&deltas);
+        let image = gradient(&s, &adjoint, &options(Parameter::Extinction, None)).image;
+        Loss::Mean.evaluate(&image, None)
+    };
+    // One-sided (an albedo below 0 is no albedo); the image is a polynomial in the step, whose
+    // second-order part is a path scattering green twice in front.
+    let eps = 0.01;
+    let fd = (mean_at(eps) - mean_at(0.0)) / eps as f64;
+    eprintln!("green's derivative at the front: {got} against {fd} by differences");
+    assert!(fd > 1e-3, "{fd}");
+    assert!((got - fd).abs() < 0.05 * fd, "{got} against {fd}");
+}

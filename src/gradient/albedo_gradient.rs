@@ -8,8 +8,12 @@
 //! with w_k(x_j) the weight of voxel k in the albedo lookup at x_j (in the albedo grid's own index
 //! space). Russian roulette's probability depends on α, but its estimate is unbiased for any
 //! probability, so the factor is held fixed. A collision past the maximum depth scatters nothing
-//! (its term is −Le). Where the path stopped because α = 0, nothing was traced beyond: the
-//! in-scattered light there is estimated on the spot with NEE and one suffix path.
+//! (its term is −Le). Where the path stopped because β·α = 0, nothing was traced beyond: the
+//! in-scattered light L_s there is estimated on the spot with NEE and one suffix path. It serves
+//! that vertex's own term, and R at the stop as well: R_j = (1 − α_j)·Le + α_j·L_s holds in every
+//! channel, also those whose throughput was already 0 (an RGB albedo zero in a channel at an
+//! earlier vertex), where the path's radiance does not need it but that earlier vertex's derivative
+//! does (∂pixel_c/∂α_{j−1,c} at α_{j−1,c} = 0 carries R_{j,c}).
 
 use glam::Vec3;
 use rand::Rng;
@@ -35,6 +39,12 @@ impl<R: Rng> Replay<'_, R> {
         };
         let segments = &scratch.record.segments;
         carried_radiance(segments, &mut scratch.carried);
+        let stop = self.in_scattered_at_stop(segments);
+        if let Some((last, in_scattered)) = stop {
+            let p = segments[last].at(segments[last].collision().unwrap_or(0.0));
+            let extra = self.scene.medium.albedo.at(p) * in_scattered;
+            add_behind(segments, &mut scratch.carried, last, extra);
+        }
         for (j, segment) in segments.iter().enumerate() {
             let Some(t) = segment.collision() else {
                 continue;
@@ -49,9 +59,12 @@ impl<R: Rng> Replay<'_, R> {
                     let deeper = scratch.carried.get(j + 1).copied().unwrap_or(Vec3::ZERO);
                     nee + continuation_weight * deeper
                 }
-                _ if segment.depth > self.options.max_depth => Vec3::ZERO,
-                // Absorbed (α = 0): what would have scattered on, estimated here.
-                _ => self.absorbed_in_scattered(segment, t),
+                _ => match stop {
+                    // Stopped (β·α = 0): what would have scattered on, estimated above.
+                    Some((last, in_scattered)) if last == j => in_scattered,
+                    // Past the maximum depth: nothing scatters.
+                    _ => Vec3::ZERO,
+                },
             };
             let emitted = match &self.scene.medium.emission {
                 Some(e) => e.radiance(p),
@@ -65,13 +78,40 @@ impl<R: Rng> Replay<'_, R> {
         radiance
     }
 
-    /// NEE and one suffix path at distance `t` along `segment`, where the path stopped with α = 0.
-    fn absorbed_in_scattered(&mut self, segment: &Segment, t: f32) -> Vec3 {
+    /// Where the path stopped at a collision within the maximum depth (β·α = 0 in every
+    /// channel): the last segment's index and the light arriving there to scatter on, estimated
+    /// with NEE and one suffix path.
+    fn in_scattered_at_stop(&mut self, segments: &[Segment]) -> Option<(usize, Vec3)> {
+        let last = segments.len().checked_sub(1)?;
+        let segment = &segments[last];
+        let stopped = matches!(segment.end, SegmentEnd::Stopped { .. });
+        let t = segment.collision()?;
+        if !stopped || segment.depth > self.options.max_depth {
+            return None;
+        }
         let light_sample = LightSample::draw(self.rng);
         let one_path = SuffixPlan {
             count: 1,
             weight: 1.0,
         };
-        self.in_scattered(segment, t, &light_sample, one_path)
+        Some((last, self.in_scattered(segment, t, &light_sample, one_path)))
+    }
+}
+
+/// Adds `extra` to R at vertex `last` and what it carries back to every vertex before it:
+/// R_i gains α_i·w_i·(R_{i+1}'s gain) at each scattering vertex (`carried_radiance`'s rule).
+fn add_behind(segments: &[Segment], carried: &mut [Vec3], last: usize, extra: Vec3) {
+    let mut gain = extra;
+    carried[last] += gain;
+    for i in (0..last).rev() {
+        gain = match segments[i].end {
+            SegmentEnd::Scattered {
+                albedo,
+                continuation_weight,
+                ..
+            } => albedo * continuation_weight * gain,
+            _ => Vec3::ZERO,
+        };
+        carried[i] += gain;
     }
 }

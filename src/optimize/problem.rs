@@ -248,6 +248,7 @@ impl Problem {
         let start = start_parameters(&domain, &start_file, grids.start.as_ref(), hull.as_ref());
         file.unknown.start = Some(start_file);
         let settings = Settings::of(&file, &units, scene.settings.max_depth)?;
+        refuse_exposure_with_relative_l2(&settings, &views)?;
         let mut notes = derivation_notes(unknown, &units, &settings, footprint);
         if let Some(hull) = &hull {
             notes += &format!(
@@ -299,6 +300,20 @@ impl Problem {
         let (transform, bounds) = (self.domain.transform(level), self.domain.bounds(level));
         scene_with(&self.scene, self.unknown, theta, transform, bounds)
     }
+}
+
+/// A fitted exposure k moves a picture with alpha too (its background is k times the scene's
+/// light), and relative-l2 divides by the target: its exposure gradient would need the target's
+/// derivative in the denominator as well, which the step does not estimate. Refused rather than
+/// fitted with a biased gradient.
+fn refuse_exposure_with_relative_l2(settings: &Settings, views: &[View]) -> Result<()> {
+    if settings.fit_exposure
+        && settings.loss == Loss::RelativeL2
+        && views.iter().any(|v| v.background.is_some())
+    {
+        bail!("optimizer.fit_exposure with loss = \"relative-l2\" and pictures with alpha is not supported (the target's background moves with the exposure, and relative-l2 divides by the target): use loss = \"l2\" or \"l1\"");
+    }
+    Ok(())
 }
 
 /// What a run file names, read: what one rank may fail to read while another does not.
