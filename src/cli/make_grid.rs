@@ -66,15 +66,13 @@ pub fn run(args: &Args) -> Result<()> {
             args.output.display()
         );
     }
-    let thickness = match (args.kind, args.thickness) {
-        (GridKind::Slab, t) => t.unwrap_or(2),
-        (_, None) => 2,
-        (kind, Some(_)) => bail!(
+    if args.thickness.is_some() && args.kind != GridKind::Slab {
+        bail!(
             "--thickness is a slab's: leave it out for {}",
-            kind.to_possible_value()
-                .map_or(String::new(), |v| v.get_name().to_string())
-        ),
-    };
+            (args.kind.to_possible_value()).map_or(String::new(), |v| v.get_name().to_string())
+        );
+    }
+    let thickness = args.thickness.unwrap_or(2);
     if args.kind == GridKind::Slab && !(1..=args.size).contains(&thickness) {
         bail!(
             "--thickness must be 1 to --size ({}) voxels (got {thickness})",
