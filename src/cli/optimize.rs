@@ -18,7 +18,6 @@ use volgrad::optimize::problem::Problem;
 use volgrad::optimize::reconstruct::{reconstruct, RunOptions};
 use volgrad::optimize::schedule::Stop;
 use volgrad::optimize::study;
-use volgrad::render::fingerprint;
 
 #[derive(clap::Args)]
 pub struct Args {
@@ -180,16 +179,10 @@ pub fn run(args: &Args, cluster: &Cluster) -> Result<()> {
         args.target_cache.as_deref(),
         cluster,
     ))?;
-    // The scene's, the targets' and the truth's content: a grid or an image that differs between
-    // machines (a truth that differs has already mixed the targets its ranks rendered).
-    check_same_job(cluster, || {
-        let mut f = Fingerprint::default();
-        f.text(&problem.fingerprint);
-        if let Some(truth) = &problem.truth {
-            fingerprint::bricks(&mut f, truth);
-        }
-        vec![f.hex()]
-    })?;
+    // What the files read were is compared inside `Problem::load`, before any work; the targets
+    // (the problem's fingerprint holds them) may also have come from a target cache of each
+    // machine's own.
+    check_same_job(cluster, || vec![problem.fingerprint.clone()])?;
     cluster.agree(
         ctrlc::set_handler(|| INTERRUPTED.store(true, Ordering::SeqCst))
             .context("cannot install the Ctrl-C handler"),
