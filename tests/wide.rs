@@ -74,6 +74,8 @@ fn blobs_far_apart_render_and_differentiate_in_little_memory() {
         "majorant {} bytes",
         scene.medium.majorant.memory_bytes()
     );
+    // A box of cells per blob: a walk crosses the gap between them in one jump, not node by node.
+    assert_eq!(scene.medium.majorant.flat_boxes(), 2);
     let options = RenderOptions {
         spp: 8,
         seed: 3,

@@ -134,8 +134,13 @@ fn print_stats(scene: &Scene, stats: &RenderStats, load_seconds: f64) {
     println!("wall time            {:.3} s", stats.wall.as_secs_f64());
     println!("paths                {}", stats.paths);
     println!("paths/s              {:.0}", stats.paths_per_second());
+    let layout = match m.majorant.flat_boxes() {
+        0 => "in blocks".to_string(),
+        1 => "in one box".to_string(),
+        n => format!("in {n} boxes around the data"),
+    };
     println!(
-        "majorant             {majorant} ({} cells)",
+        "majorant             {majorant} ({} cells {layout})",
         m.majorant.cell_count()
     );
     println!(

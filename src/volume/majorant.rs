@@ -11,7 +11,7 @@ use glam::{IVec3, Vec3};
 use crate::volume::brickmap::BrickMap;
 use crate::volume::hot_spots::{HotSpots, MajorantCells};
 use crate::volume::majorant_cells::{
-    cell_offset, flat_cell_budget, Block, Builder, BLOCK_CELLS, BLOCK_EDGE, BLOCK_LOG2,
+    cell_offset, flat_cell_budget, Block, Builder, FlatCells, BLOCK_CELLS, BLOCK_EDGE, BLOCK_LOG2,
 };
 use crate::volume::sparse_index::SparseIndex;
 
@@ -71,9 +71,10 @@ pub struct MajorantGrid {
     /// Cells of the medium's box (inclusive); a walk that starts on its faces starts inside.
     pub(super) c_lo: IVec3,
     pub(super) c_hi: IVec3,
-    /// Flat mode (a compact medium): one majorant per cell of the box `c_lo ..= c_hi`, x-major,
-    /// walked by a single-level DDA. Empty in block mode.
-    pub(super) flat: Vec<f32>,
+    /// Flat mode: one majorant per cell, x-major, walked by a single-level DDA, in one box over
+    /// `c_lo ..= c_hi` (a compact medium) or in a box per cluster of the data (a wide medium whose
+    /// data lie in a few clusters; the walk jumps between them). Empty in block mode.
+    pub(super) flat: Vec<FlatCells>,
     /// Block mode: block coordinates → index + 1 into `blocks`.
     pub(super) index: SparseIndex,
     pub(super) blocks: Vec<Block>,
@@ -101,7 +102,11 @@ impl MajorantGrid {
                 inv_cell_size: (bounds.1 - bounds.0).max(Vec3::splat(1e-6)).recip(),
                 c_lo: IVec3::ZERO,
                 c_hi: IVec3::ZERO,
-                flat: vec![bricks.max_value().max(0.0) * density_scale],
+                flat: vec![FlatCells {
+                    lo: IVec3::ZERO,
+                    hi: IVec3::ZERO,
+                    cells: vec![bricks.max_value().max(0.0) * density_scale],
+                }],
                 index: SparseIndex::new(IVec3::ZERO, IVec3::splat(-1)),
                 blocks: Vec::new(),
                 refine: true,
@@ -118,8 +123,9 @@ impl MajorantGrid {
         }
     }
 
-    /// The grid mode's grid, cells of `s` voxels: flat when the box has at most `flat_budget`
-    /// cells, in blocks otherwise (the tests pick either layout this way).
+    /// The grid mode's grid, cells of `s` voxels: flat when the box (or the boxes of the data's
+    /// clusters) has at most `flat_budget` cells, in blocks otherwise (the tests pick the layout
+    /// this way).
     pub(super) fn build_cells(
         bricks: &BrickMap,
         bounds: (Vec3, Vec3),
@@ -135,7 +141,7 @@ impl MajorantGrid {
             inv_cell_size: Vec3::splat(1.0 / s as f32),
             c_lo: cells.c_lo,
             c_hi: cells.c_hi,
-            flat: cells.flat,
+            flat: cells.flats,
             index: cells.index,
             blocks: cells.blocks,
             refine: true,
@@ -161,7 +167,7 @@ impl MajorantGrid {
     /// Cells with their own majorant (constant blocks count as one cell).
     pub fn cell_count(&self) -> usize {
         if !self.flat.is_empty() {
-            return self.flat.len();
+            return self.flat.iter().map(|f| f.cells.len()).sum();
         }
         self.blocks
             .iter()
@@ -169,11 +175,17 @@ impl MajorantGrid {
             .sum()
     }
 
+    /// The flat boxes the cells are in: one over the medium, one per cluster of its data, or
+    /// none (blocks).
+    pub fn flat_boxes(&self) -> usize {
+        self.flat.len()
+    }
+
     pub fn memory_bytes(&self) -> usize {
         let cells: usize = self.blocks.iter().filter(|b| b.cells.is_some()).count()
             * std::mem::size_of::<[f32; BLOCK_CELLS]>();
         cells
-            + self.flat.len() * std::mem::size_of::<f32>()
+            + self.flat.iter().map(|f| f.cells.len()).sum::<usize>() * std::mem::size_of::<f32>()
             + self.blocks.len() * std::mem::size_of::<Block>()
             + self.index.memory_bytes()
             + self.hot_spots.memory_bytes()
@@ -199,7 +211,7 @@ impl MajorantCells for MajorantGrid {
             return 0.0;
         }
         if !self.flat.is_empty() {
-            return self.flat[cell_offset(c - self.c_lo, self.c_hi - self.c_lo + 1)];
+            return self.flat.iter().find_map(|f| f.get(c)).unwrap_or(0.0);
         }
         match self.index.get(c >> BLOCK_LOG2) {
             0 => 0.0,

@@ -6,9 +6,10 @@
 //! `c·S − 1 ..= c·S + S` (the one-voxel apron), so the cell's majorant is the maximum σt over that
 //! range; a nearest lookup reads a subset.
 //!
-//! Memory follows the data: a compact medium's cells are one flat array; a wide one's are grouped
-//! in blocks of 8³, and a block exists only where a brick or a tile raises it (a `SparseIndex`
-//! finds it). A block inside a tile is one shared constant, not 512 cells. Kept apart from the
+//! Memory follows the data: a compact medium's cells are one flat array; a wide one's are one flat
+//! array per cluster of its data (`majorant_clusters`) where a few boxes hold them, and otherwise
+//! grouped in blocks of 8³, a block existing only where a brick or a tile raises it (a
+//! `SparseIndex` finds it). A block inside a tile is one shared constant, not 512 cells. Kept apart from the
 //! grid that holds the result (`majorant`) and the walk over it (`majorant_walk`): building is the
 //! one part that reads voxels.
 
@@ -16,6 +17,7 @@ use glam::{IVec3, Vec3};
 use rayon::prelude::*;
 
 use crate::volume::brickmap::{BrickMap, Leaf, BRICK_EDGE as BRICK_EDGE_VOXELS};
+use crate::volume::majorant_clusters::{self, CellBox};
 use crate::volume::sparse_index::SparseIndex;
 
 /// Cells per block edge (log2) and cells per block.
@@ -41,17 +43,48 @@ pub(super) fn cell_offset(local: IVec3, dims: IVec3) -> usize {
     (local.x as usize * dims.y as usize + local.y as usize) * dims.z as usize + local.z as usize
 }
 
+/// A box of cells `lo ..= hi`, one majorant each, x-major.
+#[derive(Clone)]
+pub(super) struct FlatCells {
+    pub(super) lo: IVec3,
+    pub(super) hi: IVec3,
+    pub(super) cells: Vec<f32>,
+}
+
+impl FlatCells {
+    fn zeros(b: CellBox) -> Self {
+        FlatCells {
+            lo: b.lo,
+            hi: b.hi,
+            cells: vec![0.0; b.cells() as usize],
+        }
+    }
+
+    pub(super) fn dims(&self) -> IVec3 {
+        self.hi - self.lo + 1
+    }
+
+    /// The majorant of cell `c`, if the box holds it.
+    #[inline]
+    pub(super) fn get(&self, c: IVec3) -> Option<f32> {
+        (c.cmpge(self.lo).all() && c.cmple(self.hi).all())
+            .then(|| self.cells[cell_offset(c - self.lo, self.dims())])
+    }
+}
+
 /// The most cells a flat majorant may have: 2048 per leaf or tile (8 KiB next to a leaf's 2 KiB, so
 /// that a compact grid keeps the fastest walk even with 1³ cells: the cloud's are 2.6 × its leaf
-/// data, as before), or 2¹² for tiny grids. Beyond it (wide grids) cells live in blocks.
+/// data, as before), or 2¹² for tiny grids. Beyond it (wide grids) cells live in a box per cluster
+/// of the data, or in blocks.
 pub(super) fn flat_cell_budget(bricks: &BrickMap) -> u64 {
     (2048 * (bricks.leaves().len() + bricks.tiles().len()) as u64).max(1 << 12)
 }
 
 /// The cells of a grid-mode majorant, built by `Builder::build` and then moved into the grid.
 pub(super) struct Builder {
-    /// Flat mode's cells (empty in block mode).
-    pub(super) flat: Vec<f32>,
+    /// Flat mode's cells: one box over the medium's or one per cluster of its data (empty in
+    /// block mode).
+    pub(super) flats: Vec<FlatCells>,
     pub(super) index: SparseIndex,
     pub(super) blocks: Vec<Block>,
     /// Cells of the medium's box (inclusive): cells beyond it are never walked.
@@ -62,7 +95,7 @@ pub(super) struct Builder {
 impl Builder {
     /// The majorants of the cells of edge `s` voxels over the continuous index box `bounds`,
     /// values multiplied by `density_scale`: one flat array when the box has at most
-    /// `flat_budget` cells, blocks otherwise.
+    /// `flat_budget` cells, one per cluster when the clusters' boxes have, blocks otherwise.
     pub(super) fn build(
         bricks: &BrickMap,
         bounds: (Vec3, Vec3),
@@ -75,15 +108,14 @@ impl Builder {
         let last_voxel = bounds.1.floor().as_ivec3();
         let c_lo = first_voxel.div_euclid(IVec3::splat(s));
         let c_hi = last_voxel.div_euclid(IVec3::splat(s)).max(c_lo);
-        let flat_cells = (0..3).try_fold(1u64, |acc, a| {
-            acc.checked_mul((c_hi[a] as i64 - c_lo[a] as i64 + 1) as u64)
-        });
-        let flat = match flat_cells {
-            Some(n) if n <= flat_budget => vec![0.0; n as usize],
-            _ => Vec::new(),
+        let whole = CellBox { lo: c_lo, hi: c_hi };
+        let boxes = if whole.cells() <= flat_budget {
+            vec![whole]
+        } else {
+            majorant_clusters::find(bricks, s, c_lo, c_hi, flat_budget).unwrap_or_default()
         };
         let mut builder = Builder {
-            flat,
+            flats: boxes.into_iter().map(FlatCells::zeros).collect(),
             index: SparseIndex::new(c_lo >> BLOCK_LOG2, c_hi >> BLOCK_LOG2),
             blocks: Vec::new(),
             c_lo,
@@ -152,7 +184,7 @@ impl Builder {
     /// the table row by row: three million calls of `raise` were a third of a large grid's build.
     fn raise_table(&mut self, first: IVec3, dims: IVec3, table: &[f32], scale: f32) {
         let at = |c: IVec3| table[cell_offset(c - first, dims)];
-        if self.flat.is_empty() {
+        if self.flats.is_empty() {
             for k in 0..table.len() as i32 {
                 let cell =
                     first + IVec3::new(k / (dims.y * dims.z), (k / dims.z) % dims.y, k % dims.z);
@@ -162,16 +194,21 @@ impl Builder {
             }
             return;
         }
-        let (lo, hi) = (first.max(self.c_lo), (first + dims - 1).min(self.c_hi));
-        let flat_dims = self.c_hi - self.c_lo + 1;
-        for x in lo.x..=hi.x {
-            for y in lo.y..=hi.y {
-                let row = cell_offset(IVec3::new(x, y, lo.z) - self.c_lo, flat_dims);
-                for z in lo.z..=hi.z {
-                    let value = at(IVec3::new(x, y, z));
-                    if value > 0.0 {
-                        let c = &mut self.flat[row + (z - lo.z) as usize];
-                        *c = c.max(value * scale);
+        for flat in &mut self.flats {
+            let (lo, hi) = (first.max(flat.lo), (first + dims - 1).min(flat.hi));
+            if lo.cmpgt(hi).any() {
+                continue;
+            }
+            let flat_dims = flat.dims();
+            for x in lo.x..=hi.x {
+                for y in lo.y..=hi.y {
+                    let row = cell_offset(IVec3::new(x, y, lo.z) - flat.lo, flat_dims);
+                    for z in lo.z..=hi.z {
+                        let value = at(IVec3::new(x, y, z));
+                        if value > 0.0 {
+                            let c = &mut flat.cells[row + (z - lo.z) as usize];
+                            *c = c.max(value * scale);
+                        }
                     }
                 }
             }
@@ -184,14 +221,17 @@ impl Builder {
         if lo.cmpgt(hi).any() {
             return;
         }
-        if !self.flat.is_empty() {
-            let dims = self.c_hi - self.c_lo + 1;
-            for x in lo.x..=hi.x {
-                for y in lo.y..=hi.y {
-                    for z in lo.z..=hi.z {
-                        let local = IVec3::new(x, y, z) - self.c_lo;
-                        let c = &mut self.flat[cell_offset(local, dims)];
-                        *c = c.max(sigma);
+        if !self.flats.is_empty() {
+            for flat in &mut self.flats {
+                let (lo, hi) = (lo.max(flat.lo), hi.min(flat.hi));
+                let dims = flat.dims();
+                for x in lo.x..=hi.x {
+                    for y in lo.y..=hi.y {
+                        for z in lo.z..=hi.z {
+                            let c =
+                                &mut flat.cells[cell_offset(IVec3::new(x, y, z) - flat.lo, dims)];
+                            *c = c.max(sigma);
+                        }
                     }
                 }
             }

@@ -1,13 +1,15 @@
 //! The walk over a `MajorantGrid`: a 3D DDA over its cells (pbrt-v4's `DDAMajorantIterator`), in
 //! two levels when the cells live in blocks: a DDA over 8³-cell blocks that skips absent blocks
 //! without producing segments and crosses a constant block in one segment, and inside the other
-//! blocks a DDA over their cells. A flat grid (a compact medium) is walked by the inner DDA alone.
+//! blocks a DDA over their cells. A flat grid (a compact medium) is walked by the inner DDA alone;
+//! a grid flat in a box per cluster of the data, by that DDA in each box the ray crosses, in order.
 
 use glam::{IVec3, Vec3};
 
 use crate::volume::brickmap::floor_ivec3;
 use crate::volume::majorant::MajorantGrid;
-use crate::volume::majorant_cells::{cell_offset, BLOCK_EDGE, BLOCK_LOG2};
+use crate::volume::majorant_cells::{cell_offset, FlatCells, BLOCK_EDGE, BLOCK_LOG2};
+use crate::volume::majorant_clusters::MAX_CLUSTERS;
 use crate::volume::ray::MajorantSegment;
 use crate::volume::sparse_index::NODE_LOG2;
 
@@ -24,17 +26,16 @@ impl MajorantGrid {
         let step = IVec3::from(d.cmpgt(Vec3::ZERO)) - IVec3::from(d.cmplt(Vec3::ZERO));
         // Edge / |d| rather than 1 / |d_cells|: exact for the global mode's single cell.
         let cell_delta_t = self.cell_size / d.abs();
-        if !self.flat.is_empty() {
-            // In the flat array's own coordinates: cell c_lo is (0, 0, 0).
-            let dims = self.c_hi - self.c_lo + 1;
-            let local = p0 - self.c_lo.as_vec3();
-            return Walk::Flat(FlatWalk {
-                cells: &self.flat,
-                dims,
-                dda: Dda::new(local, step, cell_delta_t, t0, Some((IVec3::ZERO, dims - 1))),
-                t: t0,
-                t_end: t1,
-            });
+        let ray = CellRay {
+            o_cells,
+            d_cells,
+            step,
+            cell_delta_t,
+        };
+        match self.flat.as_slice() {
+            [] => {}
+            [cells] => return Walk::Flat(FlatWalk::new(cells, &ray, t0, t1)),
+            clusters => return Walk::Clusters(ClusterWalk::new(clusters, ray, t0, t1)),
         }
         let block = BLOCK_EDGE as f32;
         Walk::Blocks(DdaWalk {
@@ -53,6 +54,7 @@ impl MajorantGrid {
 /// A walk over a majorant grid, by layout.
 pub enum Walk<'a> {
     Flat(FlatWalk<'a>),
+    Clusters(ClusterWalk<'a>),
     Blocks(DdaWalk<'a>),
 }
 
@@ -63,18 +65,49 @@ impl Iterator for Walk<'_> {
     fn next(&mut self) -> Option<MajorantSegment> {
         match self {
             Walk::Flat(w) => w.next(),
+            Walk::Clusters(w) => w.next(),
             Walk::Blocks(w) => w.next(),
         }
     }
 }
 
-/// The walk over a flat grid: one DDA over its cells, ending where the ray leaves the array.
+/// The ray in cell units (cell c spans [c, c + 1)), as every walk starts from it.
+struct CellRay {
+    o_cells: Vec3,
+    d_cells: Vec3,
+    step: IVec3,
+    cell_delta_t: Vec3,
+}
+
+/// The walk over a flat box of cells: one DDA over its cells, ending where the ray leaves it.
 pub struct FlatWalk<'a> {
     cells: &'a [f32],
     dims: IVec3,
     dda: Dda,
     t: f32,
     t_end: f32,
+}
+
+impl<'a> FlatWalk<'a> {
+    #[inline(always)]
+    fn new(flat: &'a FlatCells, ray: &CellRay, t0: f32, t1: f32) -> Self {
+        // In the box's own coordinates: cell `flat.lo` is (0, 0, 0).
+        let dims = flat.dims();
+        let local = ray.o_cells + ray.d_cells * t0 - flat.lo.as_vec3();
+        FlatWalk {
+            cells: &flat.cells,
+            dims,
+            dda: Dda::new(
+                local,
+                ray.step,
+                ray.cell_delta_t,
+                t0,
+                Some((IVec3::ZERO, dims - 1)),
+            ),
+            t: t0,
+            t_end: t1,
+        }
+    }
 }
 
 impl Iterator for FlatWalk<'_> {
@@ -100,6 +133,86 @@ impl Iterator for FlatWalk<'_> {
             self.t_end = t1; // left the grid
         }
         Some(segment)
+    }
+}
+
+/// The walk over a grid flat in a box per cluster: the stretch of the ray inside each box it
+/// crosses, in order along the ray, walked as a flat box. The empty space between the boxes
+/// yields no segment, as the cells of majorant 0 in it would yield no tentative collision.
+pub struct ClusterWalk<'a> {
+    clusters: &'a [FlatCells],
+    ray: CellRay,
+    /// The boxes the ray crosses on `[t0, t1)`: where it enters and leaves each, and which.
+    spans: [(f32, f32, u8); MAX_CLUSTERS],
+    count: usize,
+    next: usize,
+    current: Option<FlatWalk<'a>>,
+}
+
+impl<'a> ClusterWalk<'a> {
+    #[inline]
+    fn new(clusters: &'a [FlatCells], ray: CellRay, t0: f32, t1: f32) -> Self {
+        let mut walk = ClusterWalk {
+            clusters,
+            ray,
+            spans: [(0.0, 0.0, 0); MAX_CLUSTERS],
+            count: 0,
+            next: 0,
+            current: None,
+        };
+        let (o, d) = (walk.ray.o_cells, walk.ray.d_cells);
+        let inv_d = d.recip();
+        for (i, cluster) in clusters.iter().enumerate().take(MAX_CLUSTERS) {
+            let (lo, hi) = (cluster.lo.as_vec3(), cluster.hi.as_vec3() + 1.0);
+            let (mut enter, mut leave) = (t0, t1);
+            for a in 0..3 {
+                if d[a] == 0.0 {
+                    if o[a] < lo[a] || o[a] >= hi[a] {
+                        leave = f32::NEG_INFINITY;
+                    }
+                    continue;
+                }
+                let (near, far) = ((lo[a] - o[a]) * inv_d[a], (hi[a] - o[a]) * inv_d[a]);
+                enter = enter.max(near.min(far));
+                leave = leave.min(near.max(far));
+            }
+            if enter < leave {
+                // Insertion by entry: the boxes are disjoint, so their stretches are too.
+                let mut k = walk.count;
+                while k > 0 && walk.spans[k - 1].0 > enter {
+                    walk.spans[k] = walk.spans[k - 1];
+                    k -= 1;
+                }
+                walk.spans[k] = (enter, leave, i as u8);
+                walk.count += 1;
+            }
+        }
+        walk
+    }
+}
+
+impl Iterator for ClusterWalk<'_> {
+    type Item = MajorantSegment;
+
+    #[inline]
+    fn next(&mut self) -> Option<MajorantSegment> {
+        loop {
+            if let Some(segment) = self.current.as_mut().and_then(|w| w.next()) {
+                return Some(segment);
+            }
+            if self.next == self.count {
+                return None;
+            }
+            let (mut enter, leave, i) = self.spans[self.next];
+            if self.next > 0 {
+                // Boxes that touch: rounding must not let the next stretch begin before the last
+                // one ended.
+                enter = enter.max(self.spans[self.next - 1].1);
+            }
+            self.next += 1;
+            let cluster = &self.clusters[i as usize];
+            self.current = Some(FlatWalk::new(cluster, &self.ray, enter, leave));
+        }
     }
 }
 
@@ -293,6 +406,7 @@ impl Iterator for DdaWalk<'_> {
 mod tests {
     use super::*;
     use crate::volume::brickmap::BrickMapBuilder;
+    use crate::volume::hot_spots::MajorantCells;
     use crate::volume::majorant::Majorant;
 
     #[test]
@@ -319,7 +433,7 @@ mod tests {
         let bounds = (Vec3::splat(-0.5), Vec3::splat(23.5));
         let flat = MajorantGrid::build_cells(&m, bounds, 2.0, 8, u64::MAX);
         let blocks = MajorantGrid::build_cells(&m, bounds, 2.0, 8, 0);
-        assert_eq!((flat.flat.len(), flat.blocks.len()), (27, 0));
+        assert_eq!((flat.cell_count(), flat.blocks.len()), (27, 0));
         assert_eq!((blocks.flat.len(), blocks.blocks.len()), (0, 1));
         let mut state = 12345u64;
         for k in 0..40000 {
@@ -361,6 +475,76 @@ mod tests {
                 "segments cover {covered} of {exit}"
             );
         }
+    }
+
+    #[test]
+    fn clusters_walk_the_occupied_cells_of_the_whole_box() {
+        // Three clusters far apart: the walk over their boxes gives the segments of majorant > 0
+        // that the walk over one array spanning all of them gives, and the same cell majorants.
+        let mut b = BrickMapBuilder::new();
+        for (k, centre) in [IVec3::ZERO, IVec3::new(300, 0, 0), IVec3::new(0, 200, 150)]
+            .into_iter()
+            .enumerate()
+        {
+            for v in 0..27 * 8 {
+                let p = centre + IVec3::new(v % 6, (v / 6) % 6, v / 36) * 3;
+                b.set(p, 1.0 + ((v * 7 + k as i32) % 5) as f32, true);
+            }
+        }
+        let m = b.build();
+        let (lo, hi) = m.active_bounds().unwrap();
+        let bounds = (lo.as_vec3() - 0.5, hi.as_vec3() + 0.5);
+        let whole = MajorantGrid::build_cells(&m, bounds, 1.5, 4, u64::MAX);
+        let clustered =
+            MajorantGrid::build_cells(&m, bounds, 1.5, 4, whole.cell_count() as u64 - 1);
+        assert_eq!((whole.flat.len(), clustered.flat.len()), (1, 3));
+        assert!(clustered.cell_count() * 100 < whole.cell_count());
+        for x in -1..80 {
+            for y in (-1..55).step_by(3) {
+                for z in (-1..42).step_by(2) {
+                    let c = IVec3::new(x, y, z);
+                    assert_eq!(whole.cell_majorant(c), clustered.cell_majorant(c), "{c}");
+                }
+            }
+        }
+        let mut state = 777u64;
+        let mut r = || {
+            state = state
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            (state >> 40) as f32 / (1u64 << 24) as f32
+        };
+        let size = hi.as_vec3() - lo.as_vec3();
+        let mut crossed = 0;
+        for k in 0..20000 {
+            // From a cluster toward another, or from anywhere in the box anywhere.
+            let o = if k % 2 == 0 {
+                Vec3::new(r(), r(), r()) * 16.0
+            } else {
+                lo.as_vec3() + Vec3::new(r(), r(), r()) * size
+            };
+            let d = if k % 4 == 0 {
+                (Vec3::new(300.0, 0.0, 0.0) + Vec3::new(r(), r(), r()) * 16.0 - o).normalize()
+            } else {
+                (Vec3::new(r(), r(), r()) - 0.5).normalize()
+            };
+            let occupied = |grid: &MajorantGrid| -> Vec<MajorantSegment> {
+                grid.walk(o, d, 0.0, f32::INFINITY)
+                    .filter(|s| s.sigma_max > 0.0 && s.t1 > s.t0)
+                    .collect()
+            };
+            let (a, b) = (occupied(&whole), occupied(&clustered));
+            assert_eq!(a.len(), b.len(), "ray {o} {d}");
+            for (s, t) in a.iter().zip(&b) {
+                assert_eq!(s.sigma_max, t.sigma_max);
+                assert!(
+                    (s.t0 - t.t0).abs() < 1e-3 && (s.t1 - t.t1).abs() < 1e-3,
+                    "{s:?} {t:?}"
+                );
+            }
+            crossed += a.len();
+        }
+        assert!(crossed > 20000, "{crossed}");
     }
 
     #[test]

@@ -283,6 +283,7 @@ mod tests {
                 };
                 let segments = || match medium.majorant.walk(ray.o, ray.d, t0, t1) {
                     Walk::Flat(s) => s.collect::<Vec<_>>(),
+                    Walk::Clusters(s) => s.collect::<Vec<_>>(),
                     Walk::Blocks(s) => s.collect::<Vec<_>>(),
                 };
                 let coarse = segments();
@@ -417,6 +418,7 @@ mod hot_spot_tests {
                 let segments: Vec<MajorantSegment> =
                     match medium.majorant.walk(ray.o, ray.d, t0, t1) {
                         Walk::Flat(s) => s.collect(),
+                        Walk::Clusters(s) => s.collect(),
                         Walk::Blocks(s) => s.collect(),
                     };
                 for seg in segments {

@@ -62,6 +62,7 @@ fn walk_tentative<R: Rng>(
     let refine = medium.majorant.refine.then_some((medium, ray));
     match medium.majorant.walk(ray.o, ray.d, t0, t1) {
         Walk::Flat(segments) => walk_segments(segments, refine, rng, visit),
+        Walk::Clusters(segments) => walk_segments(segments, refine, rng, visit),
         Walk::Blocks(segments) => walk_segments(segments, refine, rng, visit),
     }
 }
