@@ -22,6 +22,10 @@ const GROUP_LOG2: i32 = 7;
 /// Beyond this many groups the data are spread too finely for a few boxes: the blocks serve.
 const MAX_GROUPS: usize = 4096;
 
+/// Beyond this many boxes left once neighbours have merged, the data are in too many clusters to
+/// merge pair by pair into a few (each merge is quadratic in the boxes): the blocks serve.
+const MAX_TO_MERGE: usize = 4 * MAX_CLUSTERS;
+
 /// An inclusive box of cells.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct CellBox {
@@ -102,17 +106,22 @@ pub fn find(
     }
     // The same boxes whatever the hash map's order.
     boxes.sort_unstable_by_key(|b| (b.lo.to_array(), b.hi.to_array()));
+    let cells = |boxes: &[CellBox]| {
+        boxes
+            .iter()
+            .fold(0u64, |sum, b| sum.saturating_add(b.cells()))
+    };
     loop {
         merge_neighbours(&mut boxes);
+        // Disjoint now, and merging only grows them: their cells only add up to more from here.
+        if boxes.len() > MAX_TO_MERGE || cells(&boxes) > budget {
+            return None;
+        }
         if boxes.len() <= MAX_CLUSTERS {
-            break;
+            return Some(boxes);
         }
         merge_cheapest_pair(&mut boxes);
     }
-    let cells = boxes
-        .iter()
-        .fold(0u64, |sum, b| sum.saturating_add(b.cells()));
-    (cells <= budget).then_some(boxes)
 }
 
 /// Merges, until none is left, every pair of boxes that intersect (the result must be disjoint)
@@ -231,6 +240,19 @@ mod tests {
         for (i, a) in boxes.iter().enumerate() {
             assert!(boxes[i + 1..].iter().all(|b| !a.intersects(b)));
         }
+        // Thousands of specks far apart are too many clusters: the blocks serve, found at once.
+        let specks: Vec<IVec3> = (0..4096)
+            .map(|k| IVec3::new(k % 16, (k / 16) % 16, k / 256) * 256)
+            .collect();
+        let mut b = BrickMapBuilder::new();
+        specks.iter().for_each(|&v| b.set(v, 1.0, true));
+        let m = b.build();
+        let start = std::time::Instant::now();
+        assert_eq!(
+            find(&m, 4, IVec3::splat(-1), IVec3::splat(1024), u64::MAX),
+            None
+        );
+        assert!(start.elapsed().as_secs_f64() < 5.0, "{:?}", start.elapsed());
         // A tile is a box too, and one that reaches across clusters joins them.
         let five: Vec<IVec3> = (0..5).map(|k| IVec3::new(k * 400, 0, 0)).collect();
         let m = cluster_map(&five);

@@ -34,7 +34,11 @@ impl MajorantGrid {
         };
         match self.flat.as_slice() {
             [] => {}
-            [cells] => return Walk::Flat(FlatWalk::new(cells, &ray, t0, t1)),
+            // One box over the medium's: the plain flat walk (a box smaller than the medium's, as
+            // a medium given wider bounds than its data has, is entered where the ray meets it).
+            [cells] if (cells.lo, cells.hi) == (self.c_lo, self.c_hi) => {
+                return Walk::Flat(FlatWalk::new(cells, &ray, t0, t1))
+            }
             clusters => return Walk::Clusters(ClusterWalk::new(clusters, ray, t0, t1)),
         }
         let block = BLOCK_EDGE as f32;
@@ -121,7 +125,8 @@ impl Iterator for FlatWalk<'_> {
         }
         let dda = &mut self.dda;
         let a = dda.exit_axis();
-        let t1 = dda.next_t[a].min(self.t_end);
+        // max: a start clamped into the box (rounding at its face) must not end before it began.
+        let t1 = dda.next_t[a].min(self.t_end).max(self.t);
         let segment = MajorantSegment {
             t0: self.t,
             t1,
@@ -146,6 +151,8 @@ pub struct ClusterWalk<'a> {
     spans: [(f32, f32, u8); MAX_CLUSTERS],
     count: usize,
     next: usize,
+    /// Where the last stretch walked ended.
+    walked_to: f32,
     current: Option<FlatWalk<'a>>,
 }
 
@@ -158,6 +165,7 @@ impl<'a> ClusterWalk<'a> {
             spans: [(0.0, 0.0, 0); MAX_CLUSTERS],
             count: 0,
             next: 0,
+            walked_to: t0,
             current: None,
         };
         let (o, d) = (walk.ray.o_cells, walk.ray.d_cells);
@@ -203,13 +211,11 @@ impl Iterator for ClusterWalk<'_> {
             if self.next == self.count {
                 return None;
             }
-            let (mut enter, leave, i) = self.spans[self.next];
-            if self.next > 0 {
-                // Boxes that touch: rounding must not let the next stretch begin before the last
-                // one ended.
-                enter = enter.max(self.spans[self.next - 1].1);
-            }
+            let (enter, leave, i) = self.spans[self.next];
             self.next += 1;
+            // Boxes that touch: rounding must not let a stretch begin before the last one ended.
+            let enter = enter.max(self.walked_to);
+            self.walked_to = self.walked_to.max(leave);
             let cluster = &self.clusters[i as usize];
             self.current = Some(FlatWalk::new(cluster, &self.ray, enter, leave));
         }
@@ -403,173 +409,5 @@ impl Iterator for DdaWalk<'_> {
 }
 
 #[cfg(test)]
-mod tests {
-    use super::*;
-    use crate::volume::brickmap::BrickMapBuilder;
-    use crate::volume::hot_spots::MajorantCells;
-    use crate::volume::majorant::Majorant;
-
-    #[test]
-    fn majorant_bounds_every_trilinear_lookup() {
-        // A hot voxel next to a cell boundary must raise the neighbouring cell too (the apron).
-        let mut b = BrickMapBuilder::new();
-        for x in 0..24 {
-            for y in 0..24 {
-                for z in 0..24 {
-                    let hot = (x, y, z) == (7, 8, 15) || (x, y, z) == (16, 3, 3);
-                    b.set(
-                        IVec3::new(x, y, z),
-                        if hot {
-                            9.0
-                        } else {
-                            0.1 * ((x * 7 + y * 3 + z) % 5) as f32
-                        },
-                        true,
-                    );
-                }
-            }
-        }
-        let m = b.build();
-        let bounds = (Vec3::splat(-0.5), Vec3::splat(23.5));
-        let flat = MajorantGrid::build_cells(&m, bounds, 2.0, 8, u64::MAX);
-        let blocks = MajorantGrid::build_cells(&m, bounds, 2.0, 8, 0);
-        assert_eq!((flat.cell_count(), flat.blocks.len()), (27, 0));
-        assert_eq!((blocks.flat.len(), blocks.blocks.len()), (0, 1));
-        let mut state = 12345u64;
-        for k in 0..40000 {
-            let grid = if k % 2 == 0 { &flat } else { &blocks };
-            let mut r = || {
-                state = state
-                    .wrapping_mul(6364136223846793005)
-                    .wrapping_add(1442695040888963407);
-                (state >> 40) as f32 / (1u64 << 24) as f32
-            };
-            let o = Vec3::new(r(), r(), r()) * 24.0 - 0.5;
-            let d = (Vec3::new(r(), r(), r()) - 0.5).normalize();
-            let exit = (0..3)
-                .map(|a| {
-                    if d[a] > 0.0 {
-                        (23.5 - o[a]) / d[a]
-                    } else {
-                        (-0.5 - o[a]) / d[a]
-                    }
-                })
-                .fold(f32::INFINITY, f32::min);
-            let mut covered = 0.0;
-            for seg in grid.walk(o, d, 0.0, exit) {
-                assert!(seg.t1 >= seg.t0);
-                covered += seg.t1 - seg.t0;
-                for k in 0..=4 {
-                    let t = seg.t0 + (seg.t1 - seg.t0) * (k as f32 + 0.5) / 5.0;
-                    let sigma = 2.0 * m.trilinear(o + d * t);
-                    assert!(
-                        sigma <= seg.sigma_max + 1e-5,
-                        "σ {sigma} > majorant {} at {}",
-                        seg.sigma_max,
-                        o + d * t
-                    );
-                }
-            }
-            assert!(
-                (covered - exit).abs() < 1e-3 * exit.max(1.0),
-                "segments cover {covered} of {exit}"
-            );
-        }
-    }
-
-    #[test]
-    fn clusters_walk_the_occupied_cells_of_the_whole_box() {
-        // Three clusters far apart: the walk over their boxes gives the segments of majorant > 0
-        // that the walk over one array spanning all of them gives, and the same cell majorants.
-        let mut b = BrickMapBuilder::new();
-        for (k, centre) in [IVec3::ZERO, IVec3::new(300, 0, 0), IVec3::new(0, 200, 150)]
-            .into_iter()
-            .enumerate()
-        {
-            for v in 0..27 * 8 {
-                let p = centre + IVec3::new(v % 6, (v / 6) % 6, v / 36) * 3;
-                b.set(p, 1.0 + ((v * 7 + k as i32) % 5) as f32, true);
-            }
-        }
-        let m = b.build();
-        let (lo, hi) = m.active_bounds().unwrap();
-        let bounds = (lo.as_vec3() - 0.5, hi.as_vec3() + 0.5);
-        let whole = MajorantGrid::build_cells(&m, bounds, 1.5, 4, u64::MAX);
-        let clustered =
-            MajorantGrid::build_cells(&m, bounds, 1.5, 4, whole.cell_count() as u64 - 1);
-        assert_eq!((whole.flat.len(), clustered.flat.len()), (1, 3));
-        assert!(clustered.cell_count() * 100 < whole.cell_count());
-        for x in -1..80 {
-            for y in (-1..55).step_by(3) {
-                for z in (-1..42).step_by(2) {
-                    let c = IVec3::new(x, y, z);
-                    assert_eq!(whole.cell_majorant(c), clustered.cell_majorant(c), "{c}");
-                }
-            }
-        }
-        let mut state = 777u64;
-        let mut r = || {
-            state = state
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            (state >> 40) as f32 / (1u64 << 24) as f32
-        };
-        let size = hi.as_vec3() - lo.as_vec3();
-        let mut crossed = 0;
-        for k in 0..20000 {
-            // From a cluster toward another, or from anywhere in the box anywhere.
-            let o = if k % 2 == 0 {
-                Vec3::new(r(), r(), r()) * 16.0
-            } else {
-                lo.as_vec3() + Vec3::new(r(), r(), r()) * size
-            };
-            let d = if k % 4 == 0 {
-                (Vec3::new(300.0, 0.0, 0.0) + Vec3::new(r(), r(), r()) * 16.0 - o).normalize()
-            } else {
-                (Vec3::new(r(), r(), r()) - 0.5).normalize()
-            };
-            let occupied = |grid: &MajorantGrid| -> Vec<MajorantSegment> {
-                grid.walk(o, d, 0.0, f32::INFINITY)
-                    .filter(|s| s.sigma_max > 0.0 && s.t1 > s.t0)
-                    .collect()
-            };
-            let (a, b) = (occupied(&whole), occupied(&clustered));
-            assert_eq!(a.len(), b.len(), "ray {o} {d}");
-            for (s, t) in a.iter().zip(&b) {
-                assert_eq!(s.sigma_max, t.sigma_max);
-                assert!(
-                    (s.t0 - t.t0).abs() < 1e-3 && (s.t1 - t.t1).abs() < 1e-3,
-                    "{s:?} {t:?}"
-                );
-            }
-            crossed += a.len();
-        }
-        assert!(crossed > 20000, "{crossed}");
-    }
-
-    #[test]
-    fn global_mode_is_one_cell_with_the_grid_maximum() {
-        let mut b = BrickMapBuilder::new();
-        b.set(IVec3::new(3, 4, 5), 7.0, true);
-        b.set(IVec3::new(30, 4, 5), 1.0, true);
-        let m = b.build();
-        let grid = MajorantGrid::build(
-            &m,
-            (Vec3::new(2.5, 3.5, 4.5), Vec3::new(30.5, 4.5, 5.5)),
-            0.5,
-            Majorant::global(),
-        );
-        assert_eq!(grid.cell_count(), 1);
-        let segs: Vec<_> = grid
-            .walk(Vec3::new(2.5, 4.0, 5.0), Vec3::X, 0.0, 28.0)
-            .collect();
-        assert_eq!(
-            segs,
-            vec![MajorantSegment {
-                t0: 0.0,
-                t1: 28.0,
-                sigma_max: 3.5
-            }]
-        );
-    }
-}
+#[path = "majorant_walk_tests.rs"]
+mod tests;
