@@ -13,8 +13,8 @@
 //    allocates strings of those sizes (garbage lengths otherwise cost multi-GB allocations).
 //  * It reads a float or double grid's metadata, transform and topology the way Archive::readGrid
 //    does, but decodes the voxel buffers itself, with OpenVDB's decoder on several threads, from
-//    the file mapped into memory (OpenVDB's reader decodes one leaf after another: most of a large
-//    grid's load). Other grids, and level sets to be converted to fog, go through readGrid.
+//    the grid's bytes read into memory (OpenVDB's reader decodes one leaf after another: most of a
+//    large grid's load). Other grids, and level sets to be converted to fog, go through readGrid.
 //    Known limit: a file whose compressed voxel payload is corrupted in place (not truncated) can
 //    still crash inside OpenVDB 10 (io::bloscFromStream reads an uncompressed chunk into its buffer
 //    before checking the chunk's length); nothing outside OpenVDB can check that cheaply.
@@ -30,6 +30,7 @@
 #include <openvdb/io/io.h>
 #include <openvdb/openvdb.h>
 
+#include <algorithm>
 #include <cerrno>
 #include <filesystem>
 #include <fstream>
@@ -40,7 +41,6 @@
 #include <vector>
 
 #include <fcntl.h>
-#include <sys/mman.h>
 #include <unistd.h>
 
 namespace volgrad {
@@ -48,60 +48,80 @@ namespace volgrad {
 namespace fs = std::filesystem;
 
 
-/// A whole file mapped read-only into memory, so that several threads can read it at once without
-/// a system call per seek.
-class MappedFile {
+/// The bytes `[begin, end)` of a file, read into memory, so that several threads can read them at
+/// once without a system call per seek. Read, not mapped: a mapped file that another program
+/// truncates or rewrites in place while the decoders run faults them (SIGBUS), where a copy
+/// only goes stale; a file shorter than its checked size by the time it is read is an error.
+class FileBytes {
 public:
-    explicit MappedFile(const std::string& path) {
+    FileBytes(const std::string& path, int64_t begin, int64_t end) : first_(begin) {
         const int fd = ::open(path.c_str(), O_RDONLY | O_CLOEXEC);
         if (fd < 0) fail("cannot open " + quoted(path) + ": " + errno_text(errno));
-        size_ = size_t(fs::file_size(path));
-        void* p = ::mmap(nullptr, size_, PROT_READ, MAP_PRIVATE, fd, 0);
-        const int err = errno;
+        size_ = size_t(std::max<int64_t>(end - begin, 0));
+        data_.reset(new char[size_ == 0 ? 1 : size_]);
+        size_t done = 0;
+        while (done < size_) {
+            const ssize_t n = ::pread(fd, data_.get() + done, size_ - done, off_t(begin + done));
+            if (n < 0 && errno == EINTR) continue;
+            if (n <= 0) {
+                const int err = errno;
+                ::close(fd);
+                fail("cannot read " + quoted(path) + ": " +
+                     (n == 0 ? std::string("it is shorter than when it was opened (changed while "
+                                           "being read?)")
+                             : errno_text(err)));
+            }
+            done += size_t(n);
+        }
         ::close(fd);
-        if (p == MAP_FAILED) fail("cannot map " + quoted(path) + ": " + errno_text(err));
-        data_ = static_cast<const char*>(p);
     }
-    MappedFile(const MappedFile&) = delete;
-    MappedFile& operator=(const MappedFile&) = delete;
-    ~MappedFile() { ::munmap(const_cast<char*>(data_), size_); }
-    const char* data() const { return data_; }
+    FileBytes(const FileBytes&) = delete;
+    FileBytes& operator=(const FileBytes&) = delete;
+    const char* data() const { return data_.get(); }
     size_t size() const { return size_; }
+    /// The file offset of `data()[0]`.
+    int64_t first() const { return first_; }
 
 private:
-    const char* data_ = nullptr;
+    std::unique_ptr<char[]> data_;
     size_t size_ = 0;
+    int64_t first_ = 0;
 };
 
-/// A seekable stream buffer over bytes in memory: OpenVDB's decoders read std::istreams, and each
-/// thread that decodes leaves needs a stream of its own over the same mapped file.
+/// A seekable stream buffer over bytes in memory whose positions are the file's offsets:
+/// OpenVDB's decoders read std::istreams (and seek to offsets in the file), and each thread that
+/// decodes leaves needs a stream of its own over the same bytes.
 class MemoryBuffer : public std::streambuf {
 public:
-    explicit MemoryBuffer(const MappedFile& file) {
-        char* begin = const_cast<char*>(file.data());  // only ever read: the get area
-        setg(begin, begin, begin + file.size());
+    explicit MemoryBuffer(const FileBytes& bytes) : first_(bytes.first()) {
+        char* begin = const_cast<char*>(bytes.data());  // only ever read: the get area
+        setg(begin, begin, begin + bytes.size());
     }
 
 protected:
     pos_type seekoff(off_type off, std::ios_base::seekdir dir, std::ios_base::openmode) override {
-        const char* base = dir == std::ios_base::beg   ? eback()
-                           : dir == std::ios_base::cur ? gptr()
-                                                       : egptr();
-        if (off < eback() - base || off > egptr() - base) return pos_type(off_type(-1));
-        setg(eback(), const_cast<char*>(base) + off, egptr());
-        return pos_type(gptr() - eback());
+        // In offsets from the get area's start.
+        const off_type target = dir == std::ios_base::beg   ? off - first_
+                                : dir == std::ios_base::cur ? (gptr() - eback()) + off
+                                                            : (egptr() - eback()) + off;
+        if (target < 0 || target > egptr() - eback()) return pos_type(off_type(-1));
+        setg(eback(), eback() + target, egptr());
+        return pos_type(target + first_);
     }
     pos_type seekpos(pos_type pos, std::ios_base::openmode mode) override {
         return seekoff(off_type(pos), std::ios_base::beg, mode);
     }
+
+private:
+    off_type first_;
 };
 
-/// What decoding a grid's voxel buffers needs after `VdbArchive::read_topology`: the mapped file,
+/// What decoding a grid's voxel buffers needs after `VdbArchive::read_topology`: the grid's bytes,
 /// a stream whose OpenVDB state (format version, compression, half floats, background) is the
 /// grid's, and where each leaf's buffer starts, in leaf-iteration order (the order they are
 /// stored in).
 struct DeferredBuffers {
-    std::unique_ptr<MappedFile> file;
+    std::unique_ptr<FileBytes> file;
     std::unique_ptr<MemoryBuffer> buffer;
     std::unique_ptr<std::istream> state;
     openvdb::io::StreamMetadata::Ptr meta;  // the grid's stream metadata, which `state` points to
@@ -228,13 +248,13 @@ public:
     }
 
     /// Grid `i` read as Archive::readGrid reads it (compression, metadata, transform, topology),
-    /// but from the mapped file and without its voxel buffers: the leaves are created with their
+    /// but from the grid's bytes in memory and without its voxel buffers: the leaves are created with their
     /// masks and no values. `deferred` receives the stream state to decode the buffers with,
     /// which `find_leaf_buffers` then locates. Only for grids that `can_defer_buffers`.
     openvdb::GridBase::Ptr read_topology(size_t i, DeferredBuffers& deferred) {
         const openvdb::io::GridDescriptor& gd = descriptors_[i];
         check_grid_metadata(gd);
-        deferred.file = std::make_unique<MappedFile>(path_);
+        deferred.file = std::make_unique<FileBytes>(path_, gd.getGridPos(), gd.getEndPos());
         deferred.buffer = std::make_unique<MemoryBuffer>(*deferred.file);
         deferred.state = std::make_unique<std::istream>(deferred.buffer.get());
         std::istream& is = *deferred.state;

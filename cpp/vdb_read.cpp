@@ -281,7 +281,7 @@ void find_leaf_buffers(const GridT& grid, int64_t grid_end, DeferredBuffers& def
 }
 
 /// Decodes the stored buffers of leaves [begin, end) into out[l].values, through a stream of its
-/// own over the mapped file (so that threads decode at once) with the grid's stream state.
+/// own over the grid's bytes (so that threads decode at once) with the grid's stream state.
 template <typename LeafT>
 void decode_leaf_values(DeferredBuffers& deferred, const LeafT* const* nodes, size_t begin,
                         size_t end, LeafData* out) {

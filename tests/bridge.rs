@@ -463,6 +463,40 @@ fn error_truncated_and_garbage_files() {
     assert!(e.contains("is not a valid VDB file"), "{e}");
 }
 
+/// A file another program rewrites in place while it is read (truncated, then written again):
+/// each read gives the whole grid or an error, never a fault. The parallel decoder once read the
+/// file mapped into memory, where a page beyond a truncation is a SIGBUS that kills the process.
+#[test]
+fn a_file_rewritten_in_place_while_it_is_read_gives_the_grid_or_an_error() {
+    use std::sync::atomic::{AtomicBool, Ordering};
+    let dir = tempfile::tempdir().unwrap();
+    let bytes = std::fs::read(asset("wdas_cloud_sixteenth.vdb")).unwrap();
+    let p = dir.path().join("rewritten.vdb");
+    std::fs::write(&p, &bytes).unwrap();
+    let stop = AtomicBool::new(false);
+    let (mut whole, mut refused) = (0, 0);
+    std::thread::scope(|scope| {
+        scope.spawn(|| {
+            while !stop.load(Ordering::Relaxed) {
+                std::fs::write(&p, &bytes).unwrap(); // truncates, then writes
+                std::thread::sleep(std::time::Duration::from_millis(1));
+            }
+        });
+        for _ in 0..400 {
+            match ffi::read_float_grid(path_str(&p), "density", -1, false, 2) {
+                Ok(g) => {
+                    assert_eq!(active_voxels(&g), 415_642);
+                    whole += 1;
+                }
+                Err(_) => refused += 1,
+            }
+        }
+        stop.store(true, Ordering::Relaxed);
+    });
+    println!("{whole} whole reads, {refused} refused");
+    assert_eq!(whole + refused, 400);
+}
+
 #[test]
 fn error_unknown_grid_name_lists_names() {
     let p = asset("grids.vdb");
