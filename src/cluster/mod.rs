@@ -17,6 +17,11 @@ pub mod sparse_sum;
 
 use anyhow::{anyhow, Result};
 
+/// The most values one MPI call moves from a rank: MPI's counts and displacements are 32-bit, so
+/// larger arrays (a gradient of 2048³ voxels is 2³³ values) go in pieces.
+#[cfg_attr(not(feature = "mpi"), allow(dead_code))]
+const MAX_COUNT: usize = 1 << 30;
+
 /// This process's place in the job, and the communicator to the other ranks.
 pub struct Cluster {
     rank: usize,
@@ -153,8 +158,10 @@ impl Cluster {
         #[cfg(feature = "mpi")]
         if let Some(world) = &self.world {
             use mpi::collective::{CommunicatorCollectives, SystemOperation};
-            let mine = values.to_vec();
-            world.all_reduce_into(&mine[..], values, SystemOperation::sum());
+            for piece in values.chunks_mut(MAX_COUNT) {
+                let mine = piece.to_vec();
+                world.all_reduce_into(&mine[..], piece, SystemOperation::sum());
+            }
         }
         let _ = values;
     }
@@ -164,8 +171,10 @@ impl Cluster {
         #[cfg(feature = "mpi")]
         if let Some(world) = &self.world {
             use mpi::collective::{CommunicatorCollectives, SystemOperation};
-            let mine = bits.to_vec();
-            world.all_reduce_into(&mine[..], bits, SystemOperation::bitwise_or());
+            for piece in bits.chunks_mut(MAX_COUNT) {
+                let mine = piece.to_vec();
+                world.all_reduce_into(&mine[..], piece, SystemOperation::bitwise_or());
+            }
         }
         let _ = bits;
     }
@@ -182,26 +191,36 @@ impl Cluster {
         values
     }
 
-    /// Every rank's `mine`, concatenated in rank order.
+    /// Every rank's `mine`, concatenated in rank order. In rounds of at most `MAX_COUNT / size`
+    /// values from each rank, so that a round's counts and displacements fit MPI's 32 bits.
     pub fn gather_all<T: Summable>(&self, mine: &[T]) -> Vec<T> {
         #[cfg(feature = "mpi")]
         if let Some(world) = &self.world {
             use mpi::collective::CommunicatorCollectives;
             use mpi::datatype::PartitionMut;
-            let mut counts = vec![0 as mpi::Count; self.size];
-            world.all_gather_into(&(mine.len() as mpi::Count), &mut counts[..]);
-            let displs: Vec<mpi::Count> = counts
-                .iter()
-                .scan(0, |at, &n| {
-                    let d = *at;
-                    *at += n;
-                    Some(d)
-                })
-                .collect();
-            let total = counts.iter().map(|&n| n as usize).sum();
-            let mut all = vec![T::default(); total];
-            let mut partition = PartitionMut::new(&mut all[..], counts, &displs[..]);
-            world.all_gather_varcount_into(mine, &mut partition);
+            let mut lens = vec![0u64; self.size];
+            world.all_gather_into(&(mine.len() as u64), &mut lens[..]);
+            let lens: Vec<usize> = lens.into_iter().map(|n| n as usize).collect();
+            let starts = prefix_sums(&lens);
+            let mut all = vec![T::default(); lens.iter().sum()];
+            let piece = (MAX_COUNT / self.size).max(1);
+            let rounds = lens.iter().max().map_or(0, |n| n.div_ceil(piece));
+            for round in 0..rounds {
+                let counts = round_counts(&lens, piece, round);
+                let displs = prefix_sums(&counts);
+                let mut received = vec![T::default(); counts.iter().sum()];
+                let sent = &mine[(round * piece).min(mine.len())..][..counts[self.rank]];
+                let as_count = |v: &[usize]| v.iter().map(|&n| n as mpi::Count).collect::<Vec<_>>();
+                let (c, d) = (as_count(&counts), as_count(&displs));
+                world.all_gather_varcount_into(
+                    sent,
+                    &mut PartitionMut::new(&mut received[..], c, &d[..]),
+                );
+                for k in 0..self.size {
+                    let to = starts[k] + round * piece;
+                    all[to..to + counts[k]].copy_from_slice(&received[displs[k]..][..counts[k]]);
+                }
+            }
             return all;
         }
         mine.to_vec()
@@ -268,6 +287,28 @@ impl Cluster {
     }
 }
 
+/// Where each of `counts` begins when they are laid end to end.
+#[cfg_attr(not(feature = "mpi"), allow(dead_code))]
+fn prefix_sums(counts: &[usize]) -> Vec<usize> {
+    counts
+        .iter()
+        .scan(0, |at, &n| {
+            let start = *at;
+            *at += n;
+            Some(start)
+        })
+        .collect()
+}
+
+/// How many values each rank, holding `lens`, sends in round `round` of a gather in pieces of at
+/// most `piece` values: values `round·piece ..` of its own, up to `piece` of them.
+#[cfg_attr(not(feature = "mpi"), allow(dead_code))]
+fn round_counts(lens: &[usize], piece: usize, round: usize) -> Vec<usize> {
+    lens.iter()
+        .map(|&n| n.saturating_sub(round * piece).min(piece))
+        .collect()
+}
+
 /// An error every rank of the job returns together (`Cluster::agree`): rank 0 prints it, and
 /// every rank ends normally.
 #[derive(Debug)]
@@ -290,3 +331,32 @@ impl<T: Copy + Default + mpi::traits::Equivalence> Summable for T {}
 pub trait Summable: Copy + Default {}
 #[cfg(not(feature = "mpi"))]
 impl<T: Copy + Default> Summable for T {}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_gather_in_rounds_moves_every_value_once_and_no_round_overflows() {
+        // Three ranks' arrays, gathered in pieces of 4: each value of each rank is sent in exactly
+        // one round, at its place, and no round moves more than a piece from a rank.
+        let lens = [10usize, 0, 7];
+        let piece = 4;
+        let rounds = lens.iter().max().unwrap().div_ceil(piece);
+        let mut sent = [0usize; 3];
+        for round in 0..rounds {
+            let counts = round_counts(&lens, piece, round);
+            for (k, &c) in counts.iter().enumerate() {
+                assert!(c <= piece);
+                // A round's values start where the last round's ended.
+                assert_eq!(sent[k], (round * piece).min(lens[k]));
+                sent[k] += c;
+            }
+        }
+        assert_eq!(sent, lens);
+        assert_eq!(prefix_sums(&lens), vec![0, 10, 10]);
+        // MAX_COUNT values from each of 2,048 ranks still fit a 32-bit count per round.
+        let size = 2048;
+        assert!((MAX_COUNT / size) * size <= i32::MAX as usize);
+    }
+}
