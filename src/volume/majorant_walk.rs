@@ -202,7 +202,7 @@ impl<'a> ClusterWalk<'a> {
 impl Iterator for ClusterWalk<'_> {
     type Item = MajorantSegment;
 
-    #[inline]
+    #[inline(always)]
     fn next(&mut self) -> Option<MajorantSegment> {
         loop {
             if let Some(segment) = self.current.as_mut().and_then(|w| w.next()) {
