@@ -145,7 +145,7 @@ fn alpha_gradient_agrees_with_finite_differences_in_full_and_empty_voxels() {
     // Loss::Mean's adjoint is 1/(3·pixels) per channel: its gradient is that of the mean alpha.
     let adjoint = Loss::Mean.adjoint(&blank, None);
     let runs: Vec<_> = (0..6)
-        .map(|seed| gradient(&scene, &adjoint, &alpha_options(128, seed)).values())
+        .map(|seed| gradient(&scene, &adjoint, &alpha_options(1024, seed)).values())
         .collect();
     let eps = 0.02;
     for voxels in [&in_box, &empty] {
@@ -161,7 +161,7 @@ fn alpha_gradient_agrees_with_finite_differences_in_full_and_empty_voxels() {
             voxels.len()
         );
         assert!(
-            se < 0.05 * fd.abs(),
+            se < 0.02 * fd.abs(),
             "standard error {se} too large to test"
         );
     }

@@ -451,7 +451,6 @@ fn majorant_grid_tracks_more_efficiently_than_a_global_majorant() {
     };
     let (_, grid_stats) = render(&make(GRID4), &options(16, 64));
     let (_, global_stats) = render(&make(Majorant::global()), &options(16, 64));
-    assert!(grid_stats.tracking_efficiency() <= 1.0);
     assert!(
         grid_stats.tracking_efficiency() > 1.3 * global_stats.tracking_efficiency(),
         "{} vs {}",
@@ -493,6 +492,7 @@ fn one_light_nee_has_the_mean_of_all_light_nee() {
         z.abs() < 4.0,
         "all lights {ma} ± {sa}, one light {mo} ± {so}"
     );
-    // Not a vacuous check: the estimate is well resolved against the sun's share alone.
+    // Not a vacuous check: resolved to 2 %, far finer than either light's share (the sun and the
+    // sky are of comparable size), so a light dropped or a pick without its 1/P would fail.
     assert!(so < 0.02 * mo, "one light {mo} ± {so}");
 }

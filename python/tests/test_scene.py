@@ -106,8 +106,11 @@ def test_the_gradient_matches_finite_differences():
     """⟨grad, d⟩ for d = +x half of the ball (relative): against a central difference of the
     render with common random numbers, each the mean of four seeds, within 4 standard errors of
     their difference (one seed's spread is 6 % for the difference and 12 % for the gradient: a
-    single pair is no test). An array whose axes were swapped (x for z: the camera looks along z)
-    gives another number, which the same margin rejects."""
+    single pair is no test). This checks the binding (arrays, axes, weights), whose faults are
+    gross, not the estimator, which the Rust tests resolve to a few percent: the margin is
+    asserted below a third of the value, so that a factor of 2 or ½ fails. An array whose axes
+    were swapped (x for z: the camera looks along z) gives another number, which the same margin
+    rejects."""
     scene = small_scene()
     density, _ = scene.density
     weights = np.random.default_rng(3).uniform(0.5, 1.5, (24, 24, 3)).astype(np.float32)
@@ -131,6 +134,7 @@ def test_the_gradient_matches_finite_differences():
     swapped, _ = mean_se([float((g.transpose(2, 1, 0) * direction).sum()) for g in grads])
     margin = 4 * np.hypot(fd_se, ours_se)
     print(f"finite differences {fd:.5g} ± {fd_se:.2g}, gradient {ours:.5g} ± {ours_se:.2g}, axes swapped {swapped:.5g}")
+    assert margin < abs(fd) / 3, (fd, margin)
     assert abs(ours - fd) < margin, (ours, fd, margin)
     assert abs(swapped - fd) > margin, (swapped, fd, margin)
 
