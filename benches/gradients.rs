@@ -4,7 +4,8 @@
 //! - time of joint, drt and naive relative to a forward render (runs interleaved, best of
 //!   VOLGRAD_BENCH_ROUNDS, so that a noisy neighbour hurts every method alike);
 //! - VOLGRAD_BENCH_SUFFIX_PATHS sets the suffix paths per camera path (`grad --suffix-paths`);
-//! - per-voxel variance over VOLGRAD_BENCH_SEEDS seeds (mean over the voxels any run reached), and
+//! - per-voxel variance over VOLGRAD_BENCH_SEEDS seeds (mean over the voxels any estimator's run
+//!   reached, one count for all), and
 //!   variance × time of joint relative to drt (the figure that decides which to use).
 
 use std::path::PathBuf;
@@ -31,8 +32,8 @@ fn main() {
         .map(PathBuf::from)
         .unwrap_or(root.join("scenes/cloud.toml"));
     let spp = env("VOLGRAD_BENCH_SPP", 4) as u32;
-    let rounds = env("VOLGRAD_BENCH_ROUNDS", 3);
-    let seeds = env("VOLGRAD_BENCH_SEEDS", 6);
+    let rounds = env("VOLGRAD_BENCH_ROUNDS", 3).max(1);
+    let seeds = env("VOLGRAD_BENCH_SEEDS", 6).max(2); // a variance needs two
     let scene = Scene::load(&path).expect("bench scene loads");
     let (w, h) = (scene.camera.width, scene.camera.height);
     let adjoint = Loss::Mean.adjoint(&RgbImage::new(w, h), None);
@@ -81,6 +82,7 @@ fn main() {
 
     // Variance over seeds.
     let mut rows = Vec::new();
+    let mut reached = std::collections::HashSet::new();
     for (i, &e) in estimators.iter().enumerate() {
         let runs: Vec<GradientGrid<f32>> = (0..seeds)
             .map(|s| gradient(&scene, &adjoint, &options(e, 1000 + s)).values())
@@ -93,13 +95,15 @@ fn main() {
                 square.add(v, g * g / seeds as f64);
             }
         }
-        // Unbiased per-voxel variance: n/(n−1)·(E[g²] − E[g]²), averaged over voxels reached.
+        // Unbiased per-voxel variance: n/(n−1)·(E[g²] − E[g]²), summed here and averaged below
+        // over the voxels any estimator reached (one count for all: each estimator's own count
+        // would scale its figure by how many voxels it reached).
         let n = seeds as f64;
-        let (sum, count) = square.voxels().fold((0.0, 0usize), |(s, c), (v, g2)| {
+        let variance = square.voxels().fold(0.0, |sum, (v, g2)| {
+            reached.insert(v);
             let m = mean.get(v);
-            (s + (g2 - m * m).max(0.0) * n / (n - 1.0), c + 1)
+            sum + (g2 - m * m).max(0.0) * n / (n - 1.0)
         });
-        let variance = sum / count.max(1) as f64;
         let totals: Vec<f64> = runs.iter().map(|r| r.sum()).collect();
         let total_mean = totals.iter().sum::<f64>() / n;
         let total_se =
@@ -111,6 +115,10 @@ fn main() {
             variance,
             variance * best[i + 1].as_secs_f64(),
         ));
+    }
+    let voxels = reached.len().max(1) as f64;
+    for row in &mut rows {
+        (row.3, row.4) = (row.3 / voxels, row.4 / voxels);
     }
     let drt = rows[1].4;
     println!(

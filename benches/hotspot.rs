@@ -1,5 +1,5 @@
 //! `cargo bench --bench hotspot`: the cost of a hot spot. A 16³ block of ordinary density, rendered
-//! as it is and with one voxel 10³ and 10⁶ times its neighbours (and a 4³ block at 10⁶), at equal
+//! as it is and with one voxel 10³ and 10⁶ times its neighbours (and a 3³ block at 10⁶), at equal
 //! spp: wall time, density lookups per path and the null-collision ratio (tentative collisions
 //! that were not real), each relative to the block without the hot spot, measured in one run.
 //!
@@ -65,7 +65,7 @@ fn main() {
             Box::new(move |v| (v == centre).then_some(1e6)),
         ),
         (
-            "4³ block ×1e6",
+            "3³ block ×1e6",
             Box::new(move |v| (v - centre).abs().max_element().lt(&2).then_some(1e6)),
         ),
     ];

@@ -105,11 +105,14 @@ fn main() {
         .ok()
         .and_then(|s| s.parse().ok())
         .unwrap_or(4);
-    let factors: Vec<u32> = std::env::var("VOLGRAD_BENCH_FACTORS")
+    let mut factors: Vec<u32> = std::env::var("VOLGRAD_BENCH_FACTORS")
         .unwrap_or("1,2,4".into())
         .split(',')
-        .map(|s| s.trim().parse().expect("factors are integers"))
+        .map(|s| s.trim().parse().expect("factors are integers ≥ 1"))
+        .filter(|&f| f != 1)
         .collect();
+    // The 1/16 cloud is always measured, first: every ratio is against it.
+    factors.insert(0, 1);
     let template =
         std::fs::read_to_string(root.join("scenes/cloud.toml")).expect("cloud scene reads");
     let source = root.join("scenes/assets/wdas_cloud_sixteenth.vdb");

@@ -7,7 +7,7 @@
 //! this build's place (a profile-guided build, `scripts/build-pgo.sh`, against a plain one).
 //!
 //! Variance is measured from two seeds of the same command, E[(A − B)²]/2 per pixel or voxel,
-//! averaged; variance × time compares estimators at equal spp whatever their speed (below 1 is
+//! averaged over the pixels or summed over the voxels; variance × time compares estimators at equal spp whatever their speed (below 1 is
 //! better). `VOLGRAD_BENCH_ROUNDS` (default 2) sets how many times each command runs per seed: the
 //! fastest counts; `VOLGRAD_BENCH_ONLY=render` (or `joint`, `drt`) keeps the commands whose name
 //! holds it.
@@ -86,7 +86,19 @@ fn run(binary: &Path, args: &[String], out: &Path) -> Stats {
     }
 }
 
-/// Mean of E[(A − B)²]/2 over the pixels (EXR) or the voxels either grid holds (VDB).
+/// `VOLGRAD_BENCH_ROUNDS`: how many times each command (and the collision timing) runs; at
+/// least 1.
+fn rounds() -> usize {
+    std::env::var("VOLGRAD_BENCH_ROUNDS")
+        .ok()
+        .and_then(|s| s.parse().ok())
+        .unwrap_or(2)
+        .max(1)
+}
+
+/// Mean of E[(A − B)²]/2 over the pixels (EXR), or its sum over the voxels either grid holds
+/// (VDB): which voxels a gradient file holds depends on the run, and a mean over them would scale
+/// one build's figure against the other's by their counts.
 fn variance(a: &Path, b: &Path) -> f64 {
     let half_square = |x: f32, y: f32| f64::from(x - y).powi(2) / 2.0;
     if a.extension().is_some_and(|e| e == "exr") {
@@ -105,24 +117,24 @@ fn variance(a: &Path, b: &Path) -> f64 {
             voxels.insert(leaf.origin + local);
         }
     }
-    let sum: f64 = voxels
+    voxels
         .iter()
         .map(|&v| half_square(a.voxel(v), b.voxel(v)))
-        .sum();
-    sum / voxels.len().max(1) as f64
+        .sum()
 }
 
 /// `args` through each binary, interleaved: per binary, its best paths/s over the rounds and
 /// the variance between seeds 1 and 2.
 fn measure(binaries: &[&Path], args: &[String], ext: &str, dir: &Path) -> Vec<Measured> {
-    let rounds: usize = std::env::var("VOLGRAD_BENCH_ROUNDS")
-        .ok()
-        .and_then(|s| s.parse().ok())
-        .unwrap_or(2);
+    let rounds = rounds();
     let mut best = vec![0.0f64; binaries.len()];
     let mut lookups = vec![0.0f64; binaries.len()];
     for round in 0..rounds {
-        for (k, binary) in binaries.iter().enumerate() {
+        // Each build first in turn: whatever running first costs or gains falls on both.
+        let mut order: Vec<usize> = (0..binaries.len()).collect();
+        order.rotate_left(round % binaries.len());
+        for k in order {
+            let binary = binaries[k];
             for seed in [1, 2] {
                 let mut args = args.to_vec();
                 args.extend(["--seed".into(), seed.to_string()]);
@@ -248,7 +260,10 @@ fn main() {
     println!("|---|---:|---|---:|---:|---:|---:|");
     for (scene, measured) in one_thread_renders {
         let loaded = Scene::load(&root.join("scenes").join(scene)).expect("bench scene loads");
-        let collision = seconds_per_collision(&loaded);
+        // The fastest of the rounds, as for the renders: one timing wanders by 2× between runs.
+        let collision = (0..rounds())
+            .map(|_| seconds_per_collision(&loaded))
+            .fold(f64::INFINITY, f64::min);
         for ((paths_per_second, lookups), build) in measured.into_iter().zip(["this", "baseline"]) {
             let limit = 1.0 / (lookups * collision);
             println!(

@@ -1,7 +1,7 @@
 //! Writes a copy of a float grid filtered with [1 2 1]/4 per axis `PASSES` times (the filter of
 //! `smooth_gradient`; k passes blur by σ = √(k/2) voxels): e.g. the truth blurred by about a pixel
 //! of the cloud's 64² views (2 passes, σ = 1 voxel), to read with `haze_profile` how much haze a
-//! boundary placed only to within a pixel would leave (README, "The Disney cloud").
+//! boundary placed only to within a pixel would leave.
 //!
 //! ```sh
 //! cargo run --release --example blur_grid -- IN.vdb OUT.vdb PASSES

@@ -1,8 +1,7 @@
 //! Writes a copy of a float grid box-averaged to 1/2^K of its resolution per axis and resampled
 //! back to the original voxels the way an upsampling does (`optimize::resample`): the truth as
 //! well as an unknown at a coarser level could hold it, to read with `haze_profile` and a
-//! truth-start run (iteration 0) the haze and held-out PSNR each level's resolution allows
-//! (README, "The Disney cloud").
+//! truth-start run (iteration 0) the haze and held-out PSNR each level's resolution allows.
 //!
 //! ```sh
 //! cargo run --release --example coarsen_grid -- IN.vdb OUT.vdb K

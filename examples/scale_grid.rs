@@ -1,13 +1,13 @@
-//! Writes a copy of a float grid with every value (leaves and tiles) multiplied by a factor: e.g.
-//! the truth × 0.45, to start a run from it and read the held-out PSNR of a uniformly too thin
-//! cloud at iteration 0 (README, "The Disney cloud").
+//! Writes a copy of a density grid (background 0, as every density read refuses another) with
+//! every value (leaves and tiles) multiplied by a factor: e.g. the truth × 0.45, to start a run
+//! from it and read the held-out PSNR of a uniformly too thin cloud at iteration 0.
 //!
 //! ```sh
 //! cargo run --release --example scale_grid -- IN.vdb OUT.vdb FACTOR
 //! ```
 
 use anyhow::{bail, Context, Result};
-use volgrad::io::vdb::{read_grid, write_grids, GridSelector};
+use volgrad::io::vdb::{read_density, write_grids, GridSelector, LevelSet};
 use volgrad::volume::brickmap::{BrickMap, Leaf, Tile};
 
 fn main() {
@@ -27,7 +27,9 @@ fn run() -> Result<()> {
         .ok()
         .filter(|f: &f32| f.is_finite() && *f >= 0.0)
         .with_context(|| format!("FACTOR must be a finite number >= 0 (got '{factor}')"))?;
-    let mut grid = read_grid(input.as_ref(), &GridSelector::Default)?;
+    // A density, as the other grid examples read it: a level set's distances are no density to
+    // scale.
+    let mut grid = read_density(input.as_ref(), &GridSelector::Default, LevelSet::Refuse)?;
     let leaves = grid.bricks.leaves().iter().map(|l| Leaf {
         values: l.values.map(|x| x * factor),
         ..l.clone()
