@@ -240,7 +240,9 @@ mod tests {
         for (i, a) in boxes.iter().enumerate() {
             assert!(boxes[i + 1..].iter().all(|b| !a.intersects(b)));
         }
-        // Thousands of specks far apart are too many clusters: the blocks serve, found at once.
+        // Thousands of specks far apart are too many clusters: the blocks serve, found at once
+        // (milliseconds; the bound below guards against the minutes pairwise merging took, it is no
+        // speed target).
         let specks: Vec<IVec3> = (0..4096)
             .map(|k| IVec3::new(k % 16, (k / 16) % 16, k / 256) * 256)
             .collect();
