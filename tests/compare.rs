@@ -110,6 +110,11 @@ fn reference_agrees_with_fd_and_survives_a_vdb_round_trip() {
     );
     let back = compare::load_reference(&file, &scene).unwrap();
     assert_eq!((back.runs, back.spp_per_run), (12, 256));
+    // Its seeds are recorded, so that it can be built again: 12 consecutive ones from the
+    // study's seed (1) plus the offset that keeps them apart from the estimates' seeds.
+    let seeds: Vec<u64> = (1 + (1 << 20)..).take(12).collect();
+    let listed: Vec<u64> = back.seeds.split(',').map(|s| s.parse().unwrap()).collect();
+    assert_eq!(listed, seeds);
     assert!((back.sum_se - r.sum_se).abs() <= 1e-9 * r.sum_se);
     for (v, m) in r.mean.voxels() {
         assert!((back.mean.get(v) - m).abs() <= 1e-6 * m.abs().max(1e-9));

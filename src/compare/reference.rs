@@ -27,6 +27,9 @@ pub struct Reference {
     pub sum_se: f64,
     pub spp_per_run: u32,
     pub runs: u32,
+    /// The runs' seeds, comma-separated (joint's and drt's alternate), as `volgrad_seed` holds
+    /// them: a reference can be built again from its own file.
+    pub seeds: String,
 }
 
 #[derive(Debug, Clone, Copy)]
@@ -87,15 +90,19 @@ pub fn build_reference(scene: &Scene, o: &ReferenceOptions) -> Reference {
         sum_se: MeanAndError::of(&totals).se,
         spp_per_run: o.spp,
         runs,
+        seeds: (0..runs)
+            .map(|r| first_seed.wrapping_add(r as u64).to_string())
+            .collect::<Vec<_>>()
+            .join(","),
     }
 }
 
-/// What a reference of `runs` runs of `spp_per_run` on `scene` is the gradient of.
-fn reference_provenance(scene: &Scene, runs: u32, spp_per_run: u32) -> Provenance {
+/// What a reference of `runs` runs of `spp_per_run` with `seeds` on `scene` is the gradient of.
+fn reference_provenance(scene: &Scene, runs: u32, spp_per_run: u32, seeds: &str) -> Provenance {
     Provenance {
         estimator: "joint+drt".into(),
         spp: spp_per_run as u64 * runs as u64,
-        seed: format!("{runs} runs of {spp_per_run} spp"),
+        seed: seeds.into(),
         loss: Loss::Mean.to_string(),
         scene: scene.path.display().to_string(),
         scene_fingerprint: fingerprint::scene(scene),
@@ -109,7 +116,7 @@ fn reference_provenance(scene: &Scene, runs: u32, spp_per_run: u32) -> Provenanc
 
 /// Writes `grad_<grid>` (the mean) and `grad_<grid>_stderr` to one VDB.
 pub fn save_reference(path: &Path, scene: &Scene, r: &Reference, overwrite: bool) -> Result<()> {
-    let provenance = reference_provenance(scene, r.runs, r.spp_per_run);
+    let provenance = reference_provenance(scene, r.runs, r.spp_per_run, &r.seeds);
     let transform = scene.medium.transform;
     let extra = [
         meta("volgrad_sum_stderr", "string", r.sum_se),
@@ -162,7 +169,7 @@ pub fn load_reference(path: &Path, scene: &Scene) -> Result<Reference> {
     // The scene's content, the loss, the parameter, the domain and the depth: a reference of
     // another computation would score every estimator against the wrong answer.
     let found = Provenance::from_metadata(&mean.metadata, path)?;
-    let wanted = reference_provenance(scene, 1, 1).computation();
+    let wanted = reference_provenance(scene, 1, 1, "").computation();
     if let Some(((field, value), (_, want))) =
         (found.computation().into_iter().zip(wanted)).find(|(a, b)| a != b)
     {
@@ -209,6 +216,7 @@ pub fn load_reference(path: &Path, scene: &Scene) -> Result<Reference> {
         sum_se,
         spp_per_run,
         runs,
+        seeds: found.seed,
     })
 }
 
