@@ -5,7 +5,7 @@
 mod common;
 mod optimize_common;
 
-use common::{assert_clean_error, volgrad_in};
+use common::{assert_clean_error, ok, volgrad_in};
 use optimize_common::*;
 
 /// A held-out view that sees nothing but black (a camera looking away from the ball, under a sun
@@ -21,5 +21,80 @@ fn a_black_held_out_view_is_refused() {
     assert_clean_error(
         &volgrad_in(dir.path(), &["optimize", "run.toml", "--out", "out", "-q"]),
         &["holdout[0]", "black everywhere", "PSNR"],
+    );
+}
+
+/// More upsamplings than the box has voxels: the ball's 8 voxels a side at 1/64 leave the first
+/// level no voxel at all. The run exited 0 with an empty result.
+#[test]
+fn levels_that_leave_the_first_level_no_voxel_are_refused() {
+    let run = run_file("0.2", "iterations = 2").replace(
+        "start = 0.2",
+        "start = 0.2\nlevels = [0.1, 0.2, 0.3, 0.4, 0.5, 0.6]",
+    );
+    let dir = fixture(&run);
+    assert_clean_error(
+        &volgrad_in(dir.path(), &["optimize", "run.toml", "--out", "out", "-q"]),
+        &["unknown.levels", "6 upsamplings", "no voxel", "8 voxels"],
+    );
+}
+
+/// Views far from a small box: a pixel covers many voxels, and the derived upsamplings went down
+/// to a first level of no voxel (settings.toml then noted "inf" paths per first-level voxel).
+/// They stop at a first level of 4 voxels along the shortest edge: the ball's 8 allow one.
+#[test]
+fn derived_levels_leave_the_first_level_voxels() {
+    let run = run_file("0.2", "iterations = 2").replace("distance = 12", "distance = 360");
+    let dir = fixture(&run);
+    ok(volgrad_in(
+        dir.path(),
+        &[
+            "optimize",
+            "run.toml",
+            "--iterations",
+            "0",
+            "--out",
+            "out",
+            "-q",
+        ],
+    ));
+    let text = std::fs::read_to_string(dir.path().join("out/settings.toml")).unwrap();
+    let settings: toml::Value = toml::from_str(&text).unwrap();
+    let levels = settings["unknown"]["levels"].as_array().unwrap();
+    assert_eq!(levels.len(), 1, "{text}");
+    assert!(!text.contains("inf"), "{text}");
+}
+
+/// Each upsampling keeps what the finer level's lookups read, the box and one voxel around it:
+/// the coarse level's own apron (a coarse voxel past the box) stayed in the result at every
+/// finer level, never read and never fitted (two levels left density 4 voxels past the box).
+#[test]
+fn upsampled_density_stays_within_a_voxel_of_the_box() {
+    use glam::IVec3;
+    use volgrad::io::vdb::{read_grid, GridSelector};
+    let run = run_file("0.2", "iterations = 12")
+        .replace("start = 0.2", "start = 0.2\nlevels = [0.3, 0.6]");
+    let dir = fixture(&run);
+    ok(volgrad_in(
+        dir.path(),
+        &["optimize", "run.toml", "--out", "out", "-q"],
+    ));
+    let truth = read_grid(&dir.path().join("ball.vdb"), &GridSelector::Default).unwrap();
+    let (lo, hi) = truth.bricks.active_bounds().unwrap();
+    let result = read_grid(&dir.path().join("out/final.vdb"), &GridSelector::Default).unwrap();
+    let mut reached = (IVec3::MAX, IVec3::MIN);
+    for leaf in result.bricks.leaves() {
+        for (i, &v) in leaf.values.iter().enumerate() {
+            if v != 0.0 {
+                let p = leaf.origin
+                    + IVec3::new((i >> 6) as i32, ((i >> 3) & 7) as i32, (i & 7) as i32);
+                reached = (reached.0.min(p), reached.1.max(p));
+            }
+        }
+    }
+    assert!(reached.0.x <= reached.1.x, "an empty result");
+    assert!(
+        reached.0.cmpge(lo - 1).all() && reached.1.cmple(hi + 1).all(),
+        "density over {reached:?}, the box {lo}..{hi}"
     );
 }

@@ -98,6 +98,11 @@ fn what_is_not_a_pinhole_or_not_colmap_is_refused_naming_the_line() {
         ("1 PINHOLE 8 8 0 10 4 4\n", pose, "fx"),
         ("1 PINHOLE 8 8 nan 10 4 4\n", pose, "not a finite number"),
         (
+            "1 PINHOLE 8 8 1 1 1e20 1e20\n",
+            pose,
+            "focal lengths from the view direction",
+        ),
+        (
             "1 PINHOLE 8 8 10 10 4 4\n1 PINHOLE 8 8 10 10 4 4\n",
             pose,
             "defined twice",

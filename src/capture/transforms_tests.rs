@@ -125,6 +125,11 @@ fn what_a_pinhole_cannot_be_is_refused_naming_the_key() {
         (with(r#""camera_angle_y": 4,"#), "camera_angle_y"),
         (with(r#""fl_y": 0,"#), "fy"),
         (with(r#""cx": 1e40,"#), "principal point"),
+        // Finite, but every ray's direction overflowed to the zero vector.
+        (
+            with(r#""cx": 1e20,"#),
+            "focal lengths from the view direction",
+        ),
         (with(r#""scale": 0,"#), "scale"),
         (with(r#""frobnicate": 1,"#), "unknown key \"frobnicate\""),
         // serde_json would keep the second.

@@ -2,16 +2,13 @@
 //! relative RMSE against their targets), and, when the truth is known, the volume's error and how
 //! much density sits where the truth is empty ("haze").
 
-use std::path::Path;
-
-use anyhow::Result;
 use glam::IVec3;
 use rayon::prelude::*;
 
 use crate::cluster::images::render_shared;
 use crate::cluster::Cluster;
-use crate::io::images::{self, RgbImage};
-use crate::optimize::problem::{Problem, View};
+use crate::io::images::RgbImage;
+use crate::optimize::problem::Problem;
 use crate::optimize::run_file::EvalSpp;
 use crate::render::image::RenderOptions;
 use crate::render::scene::Scene;
@@ -259,88 +256,6 @@ fn volume_error(
     (rmse, haze)
 }
 
-/// One row per held-out view: target | render | |render − target| × 4, tonemapped as the scene's
-/// PNGs are (`display_exposure`, render.exposure); small views are enlarged (pixel copies) to at
-/// least `MIN_PANEL` pixels high. Each target is taken at its capture's exposure (`exposures`,
-/// fitted or 1), as the evaluation compares it.
-pub fn write_holdout_picture(
-    path: &Path,
-    views: &[View],
-    renders: &[RgbImage],
-    exposures: &[f32],
-    display_exposure: f32,
-) -> Result<()> {
-    let rows: Vec<RgbImage> = views
-        .iter()
-        .zip(renders)
-        .map(|(view, image)| {
-            let t = view.target_at(exposures[view.capture]);
-            let mut difference = image.clone();
-            for (d, &t) in difference.pixels.iter_mut().zip(&t.pixels) {
-                *d = (*d - t).abs() * 4.0;
-            }
-            enlarged(&side_by_side(&[&t, image, &difference]))
-        })
-        .collect();
-    images::write_png(
-        path,
-        &stacked(&rows),
-        display_exposure.max(f32::MIN_POSITIVE),
-    )
-}
-
-/// Panels smaller than this are enlarged in the held-out pictures.
-const MIN_PANEL: u32 = 128;
-
-/// A picture of small panels enlarged (pixel copies) to at least `MIN_PANEL` pixels high.
-pub fn enlarged(image: &RgbImage) -> RgbImage {
-    let f = (MIN_PANEL / image.height.max(1)).max(1);
-    let mut out = RgbImage::new(image.width * f, image.height * f);
-    for y in 0..out.height {
-        for x in 0..out.width {
-            out.pixels[(y * out.width + x) as usize] =
-                image.pixels[((y / f) * image.width + x / f) as usize];
-        }
-    }
-    out
-}
-
-/// Images one above the other, left-aligned.
-fn stacked(images: &[RgbImage]) -> RgbImage {
-    let width = images.iter().map(|i| i.width).max().unwrap_or(1).max(1);
-    let height = images.iter().map(|i| i.height).sum::<u32>().max(1);
-    let mut out = RgbImage::new(width, height);
-    let mut top = 0;
-    for image in images {
-        for y in 0..image.height {
-            let row = ((top + y) * width) as usize;
-            let source = (y * image.width) as usize;
-            out.pixels[row..row + image.width as usize]
-                .copy_from_slice(&image.pixels[source..source + image.width as usize]);
-        }
-        top += image.height;
-    }
-    out
-}
-
-/// Images side by side, top-aligned.
-pub fn side_by_side(images: &[&RgbImage]) -> RgbImage {
-    let width = images.iter().map(|i| i.width).sum::<u32>().max(1);
-    let height = images.iter().map(|i| i.height).max().unwrap_or(1);
-    let mut out = RgbImage::new(width, height);
-    let mut left = 0;
-    for image in images {
-        for y in 0..image.height {
-            for x in 0..image.width {
-                out.pixels[(y * width + left + x) as usize] =
-                    image.pixels[(y * image.width + x) as usize];
-            }
-        }
-        left += image.width;
-    }
-    out
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -374,43 +289,5 @@ mod tests {
             (new_noise / new_error - AUTO_NOISE_SHARE).abs() < 1e-3,
             "{n} spp per half: noise {new_noise} of error {new_error}"
         );
-    }
-
-    /// A held-out picture shows each target at its capture's fitted exposure, as the evaluation
-    /// compares it: a render that matches the target of a capture twice as bright as the scene
-    /// says has no difference. (It took the scene's display exposure: a difference where there
-    /// was none.)
-    #[test]
-    fn the_holdout_picture_compares_at_each_captures_exposure() {
-        use crate::render::camera::Camera;
-        let grey = |v: f32| RgbImage {
-            width: 1,
-            height: 1,
-            pixels: vec![Vec3::splat(v)],
-        };
-        let view = View {
-            camera: Camera::new(Vec3::Z, Vec3::ZERO, Vec3::Y, 40.0, 1, 1),
-            light_set: 0,
-            relit: false,
-            target: grey(0.5),
-            alpha: None,
-            background: Some(grey(0.25)),
-            capture: 1,
-        };
-        let render = view.target_at(2.0).into_owned();
-        assert_eq!(render.pixels[0], Vec3::splat(0.75));
-        let dir = tempfile::tempdir().unwrap();
-        let path = dir.path().join("holdout.png");
-        write_holdout_picture(&path, &[view], &[render], &[1.0, 2.0], 1.0).unwrap();
-        let picture = crate::io::images::read_rgb(&path).unwrap();
-        assert_eq!((picture.width, picture.height), (3 * MIN_PANEL, MIN_PANEL));
-        let at =
-            |panel: u32| picture.pixels[(64 * picture.width + panel * MIN_PANEL + 64) as usize];
-        assert!(
-            (at(0) - Vec3::splat(0.75)).abs().max_element() < 0.01,
-            "target {}",
-            at(0)
-        );
-        assert!(at(2).max_element() < 0.01, "difference {}", at(2));
     }
 }

@@ -116,6 +116,11 @@ impl LogRow {
         table.csv()
     }
 
+    /// The header line of `csv`: the column names.
+    pub fn header() -> String {
+        Self::csv(&[]).trim_end().to_string()
+    }
+
     /// The rows without the header (what a checkpoint keeps).
     pub fn csv_rows(rows: &[LogRow]) -> String {
         let csv = Self::csv(rows);

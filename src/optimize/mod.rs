@@ -10,6 +10,7 @@ pub mod checkpoint;
 pub mod descent;
 pub mod evaluate;
 pub mod exposure;
+pub mod holdout_picture;
 pub mod hull;
 pub mod iteration;
 pub mod log;

@@ -139,12 +139,13 @@ impl Problem {
         let centre = (world_box.0 + world_box.1) / 2.0;
         let voxel = domain.transform.voxel_size().min_element();
         let footprint = scene_units::footprint(&cameras, centre) / voxel;
-        let levels = file
-            .unknown
-            .levels
-            .clone()
-            .unwrap_or_else(|| scene_units::level_starts(scene_units::level_count(footprint)));
+        let levels = file.unknown.levels.clone().unwrap_or_else(|| {
+            let count = scene_units::level_count(footprint)
+                .min(scene_units::levels_the_box_allows(domain.shortest_edge()));
+            scene_units::level_starts(count)
+        });
         domain.levels = levels.len();
+        domain.check_first_level()?;
         file.unknown
             .check_levels_reach(levels.len(), domain.transform.voxel_size().max_element())?;
         file.unknown.levels = Some(levels);

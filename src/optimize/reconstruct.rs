@@ -28,6 +28,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
 
 use anyhow::{anyhow, Context, Result};
+use glam::IVec3;
 
 use crate::cluster::sparse_sum::Traffic;
 use crate::cluster::Cluster;
@@ -39,8 +40,9 @@ use crate::io::vdb::meta;
 use crate::optimize::adam::Adam;
 use crate::optimize::brick_gradient::BrickGradient;
 use crate::optimize::checkpoint::{self, Position};
-use crate::optimize::evaluate::{evaluate, spp_range, write_holdout_picture, Evaluation};
+use crate::optimize::evaluate::{evaluate, spp_range, Evaluation};
 use crate::optimize::exposure::{factors, Exposure};
+use crate::optimize::holdout_picture::write_holdout_picture;
 use crate::optimize::iteration::images_gradient;
 use crate::optimize::log::LogRow;
 use crate::optimize::parameters::Parameters;
@@ -328,11 +330,18 @@ impl<'a> Run<'a> {
     fn advance_levels(&mut self, fraction: f32) -> Result<()> {
         let (domain, s) = (&self.problem.domain, &self.problem.settings);
         let mut level = self.position.level as usize;
-        // An emission unknown's field ends at its box (the density's reaches half a voxel
-        // past it, where the medium's bounds let its lookups read).
-        let emission = self.problem.unknown == UnknownGrid::Emission;
+        // Only what the next level's lookups can read is kept. An emission unknown's field ends
+        // at its box; the density's reaches half a voxel past it (the medium's bounds), where
+        // lookups read one voxel beyond. Kept further out, the coarse level's own apron (a
+        // coarse voxel past the box) would stay in the result at every finer level, never read
+        // and never fitted: six levels left density 24 final voxels outside a 24³ box.
+        let apron = match self.problem.unknown {
+            UnknownGrid::Emission => IVec3::ZERO,
+            UnknownGrid::Density => IVec3::ONE,
+        };
         while level < domain.levels && fraction >= s.level_starts[level] {
-            let keep = emission.then(|| domain.voxel_box(level + 1));
+            let (lo, hi) = domain.voxel_box(level + 1);
+            let keep = Some((lo - apron, hi + apron));
             let transform = domain.transform(level);
             let upsampled = upsample(&self.parameters, &transform, s.moments, keep);
             self.parameters = self.options.cluster.agree(upsampled)?.0;

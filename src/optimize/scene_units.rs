@@ -173,6 +173,21 @@ pub fn level_count(footprint_voxels: f64) -> usize {
 /// How far above a power of two a footprint may be and still count as it (`level_count`).
 const FOOTPRINT_ROUNDING: f64 = 1.05;
 
+/// The fewest voxels a derived first level has along the box's shortest edge: views far from a
+/// small box would otherwise derive upsamplings down to a first level of no voxel at all.
+pub const MIN_FIRST_LEVEL_VOXELS: u64 = 4;
+
+/// The most upsamplings a box whose shortest edge is `edge_voxels` final voxels takes when the
+/// count is derived: a first level of at least `MIN_FIRST_LEVEL_VOXELS` along that edge.
+pub fn levels_the_box_allows(edge_voxels: u64) -> usize {
+    let ratio = edge_voxels / MIN_FIRST_LEVEL_VOXELS;
+    if ratio == 0 {
+        0
+    } else {
+        (ratio.ilog2() as usize).min(MAX_LEVELS)
+    }
+}
+
 /// When each of `count` levels begins, as fractions of the run: the coarsest gets the first 40 %
 /// (the views pin it down best and its steps are the cheapest), the others begin evenly up to
 /// 95 % (the finest level adds detail finer than a pixel, which the views see least).

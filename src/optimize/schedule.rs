@@ -44,15 +44,22 @@ impl Stop {
     pub fn replay_log(path: &Path) -> Result<Stop> {
         let text = crate::io::input::read_text(path)
             .with_context(|| format!("--schedule-from: cannot read '{}'", path.display()))?;
-        let rows = text
-            .split_once('\n')
-            .map_or(Ok(Vec::new()), |(_, rows)| LogRow::parse_all(rows))
-            .with_context(|| {
-                format!(
-                    "--schedule-from: '{}' is not a volgrad log.csv",
-                    path.display()
-                )
-            })?;
+        let (header, rows) = text.split_once('\n').unwrap_or((&text, ""));
+        // Rows are read by position: a header that names other columns is another file's.
+        let columns = LogRow::header();
+        if header.trim_end() != columns {
+            bail!(
+                "--schedule-from: '{}' is not a volgrad log.csv: its header is '{}', this volgrad's '{columns}'",
+                path.display(),
+                header.trim_end()
+            );
+        }
+        let rows = LogRow::parse_all(rows).with_context(|| {
+            format!(
+                "--schedule-from: '{}' is not a volgrad log.csv",
+                path.display()
+            )
+        })?;
         let fractions: Vec<f32> = rows.iter().skip(1).map(|r| r.fraction).collect();
         let consecutive = rows
             .iter()
@@ -127,6 +134,40 @@ mod tests {
             assert_eq!(Stop::parse(&stop.to_text()).unwrap(), stop);
         }
         assert!(Stop::parse("forever 3").is_err());
+    }
+
+    /// A log's schedule replays; a file whose header names other columns is refused (its rows
+    /// were read by position whatever the header said).
+    #[test]
+    fn a_log_with_another_header_is_refused() {
+        let rows: Vec<LogRow> = [0.0, 0.25, 0.5]
+            .into_iter()
+            .enumerate()
+            .map(|(i, fraction)| LogRow {
+                iteration: i as u64,
+                fraction,
+                ..LogRow::default()
+            })
+            .collect();
+        let csv = LogRow::csv(&rows);
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("log.csv");
+        std::fs::write(&path, &csv).unwrap();
+        assert_eq!(
+            Stop::replay_log(&path).unwrap(),
+            Stop::Replay(vec![0.25, 0.5])
+        );
+        let (header, body) = csv.split_once('\n').unwrap();
+        let fewer = header.rsplit_once(',').unwrap().0;
+        for other in [
+            fewer.to_string(),
+            header.replace("fraction", "share"),
+            "a,b".into(),
+        ] {
+            std::fs::write(&path, format!("{other}\n{body}")).unwrap();
+            let e = Stop::replay_log(&path).err().unwrap().to_string();
+            assert!(e.contains("is not a volgrad log.csv: its header"), "{e}");
+        }
     }
 
     #[test]

@@ -13,7 +13,8 @@ use crate::gradient::adjoint::Estimator;
 use crate::io::chart::{self, Chart, Scale, Series};
 use crate::io::images;
 use crate::io::table::{Align, Table};
-use crate::optimize::evaluate::{enlarged, side_by_side, Evaluation};
+use crate::optimize::evaluate::Evaluation;
+use crate::optimize::holdout_picture::{panel, side_by_side};
 use crate::optimize::log::LogRow;
 use crate::optimize::problem::Problem;
 use crate::optimize::reconstruct::{reconstruct, RunOptions};
@@ -159,11 +160,15 @@ fn write_outputs(problem: &Problem, runs: &[StudyRun], out: &Path) -> Result<()>
     write("inverse.svg", chart::to_svg(&chart)?)?;
     chart::write_png(&chart, &out.join("inverse.png"))?;
     if let Some(view) = problem.holdouts.first() {
-        let mut images = vec![&view.target];
-        images.extend(runs.iter().filter_map(|r| r.evaluation.renders.first()));
+        let mut panels = vec![panel(&view.target)];
+        panels.extend(
+            runs.iter()
+                .filter_map(|r| r.evaluation.renders.first())
+                .map(panel),
+        );
         images::write_png(
             &out.join("renders.png"),
-            &enlarged(&side_by_side(&images)),
+            &side_by_side(&panels.iter().collect::<Vec<_>>()),
             problem.scene.settings.exposure,
         )?;
     }

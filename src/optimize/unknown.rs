@@ -90,6 +90,23 @@ impl Domain {
         (voxels * self.transform.voxel_size()).max_element()
     }
 
+    /// Final voxels along the box's shortest edge.
+    pub fn shortest_edge(&self) -> u64 {
+        (self.hi - self.lo + IVec3::ONE).min_element().max(0) as u64
+    }
+
+    /// An error unless the first level has a voxel across every edge of the box.
+    pub fn check_first_level(&self) -> anyhow::Result<()> {
+        if self.voxel_count_at(0) == 0 {
+            anyhow::bail!(
+                "unknown.levels: {} upsamplings leave the first level no voxel across the box's shortest edge ({} voxels); give fewer levels, or a larger box or voxel",
+                self.levels,
+                self.shortest_edge()
+            );
+        }
+        Ok(())
+    }
+
     /// Voxels in the final box.
     pub fn voxel_count(&self) -> u64 {
         box_voxels(self.lo, self.hi)

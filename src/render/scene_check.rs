@@ -13,10 +13,8 @@ use crate::render::scene_file::{
 use crate::volume::emission::EmissionKind;
 use crate::volume::majorant::MajorantMode;
 
-/// Largest |coordinate| of camera.position and camera.target. The renderer traces in f32: beyond
-/// this, squared distances (up to ~1e31) approach f32::MAX (3.4e38) once scaled into index space,
-/// and a ray origin's rounding error (|p| × 6e-8) exceeds any reasonable voxel.
-pub const MAX_COORDINATE: f32 = 1e15;
+/// Largest |coordinate| of camera.position and camera.target (and of a grid's transform).
+pub use crate::volume::transform::MAX_COORDINATE;
 /// Largest light value (radiance, irradiance, an envmap texel × scale): sums over millions of
 /// samples stay finite in f32.
 pub const MAX_LIGHT: f32 = 1e30;
@@ -78,7 +76,8 @@ pub fn image_size(width_key: &str, height_key: &str, width: u32, height: u32) ->
 }
 
 /// A pinhole's intrinsics and image size: a size in range, finite positive focal lengths whose
-/// field of view is under 180° (as `fov_deg`'s), a finite principal point.
+/// field of view is under 180° (as `fov_deg`'s), a finite principal point that leaves every ray
+/// under 90° from the view direction.
 pub fn intrinsics(k: Intrinsics, width: u32, height: u32) -> Result<()> {
     image_size("width", "height", width, height)?;
     for (key, focal, pixels) in [("fx", k.fx, width), ("fy", k.fy, height)] {
@@ -97,8 +96,22 @@ pub fn intrinsics(k: Intrinsics, width: u32, height: u32) -> Result<()> {
             k.cy
         );
     }
+    for (key, centre, focal, pixels) in [("cx", k.cx, k.fx, width), ("cy", k.cy, k.fy, height)] {
+        let farthest = f64::from(centre).max(f64::from(pixels) - f64::from(centre));
+        if farthest / f64::from(focal) > MAX_RAY_TANGENT {
+            bail!(
+                "the image's edge lies {:e} focal lengths from the view direction ({key} = {centre}, focal length {focal} pixels, {pixels} pixels): a pinhole's rays are under 90° from it, at most {MAX_RAY_TANGENT:e} focal lengths out",
+                farthest / f64::from(focal)
+            );
+        }
+    }
     Ok(())
 }
+
+/// The farthest a pinhole's image reaches from its view direction, as the tangent of a ray's
+/// angle to it: 10⁶ is 89.99994°. A principal point far off the image (1e20 pixels) passed the
+/// other checks and overflowed every ray's direction to the zero vector.
+const MAX_RAY_TANGENT: f64 = 1e6;
 
 /// A camera given by its frame and intrinsics (a calibrated camera: `transforms.json`, COLMAP),
 /// passed through the checks a listed camera passes, in f64 before anything is rounded to f32:

@@ -12,6 +12,12 @@ use glam::{DAffine3, DMat3, DVec3, Vec3};
 /// under 10⁻⁵ could be made and computed with but never saved; 10⁻⁴ leaves a margin.
 pub const MIN_VOXEL_SIZE: f32 = 1e-4;
 
+/// The farthest from the origin a scene places anything (a camera, a grid's voxels), in world
+/// units and in a grid's index space alike. The renderer traces in f32: beyond this, squared
+/// distances (up to ~1e31) approach f32::MAX (3.4e38) once scaled into index space, and a ray
+/// origin's rounding error (|p| × 6e-8) exceeds any reasonable voxel.
+pub const MAX_COORDINATE: f32 = 1e15;
+
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct IndexTransform {
     index_to_world: DAffine3,
@@ -36,9 +42,25 @@ impl IndexTransform {
         if !det.is_finite() || det.abs() < 1e-300 || !index_to_world.translation.is_finite() {
             anyhow::bail!("the grid's index-to-world transform is singular or not finite");
         }
+        let world_to_index = index_to_world.inverse();
+        // Both maps are applied in f32: a translation of 1e300 is finite in f64 and infinite in
+        // f32, and rendered nothing without a word.
+        let largest = |m: &DAffine3| {
+            (m.matrix3.abs().to_cols_array().into_iter())
+                .chain(m.translation.abs().to_array())
+                .fold(0.0, f64::max)
+        };
+        let limit = f64::from(MAX_COORDINATE);
+        if largest(&index_to_world) > limit || largest(&world_to_index) > limit {
+            anyhow::bail!(
+                "the grid's index-to-world transform places or scales its voxels beyond what f32 positions resolve (its largest entry {:e}, its inverse's {:e}; each at most {limit:e})",
+                largest(&index_to_world),
+                largest(&world_to_index)
+            );
+        }
         Ok(Self {
             index_to_world,
-            world_to_index: index_to_world.inverse(),
+            world_to_index,
         })
     }
 
@@ -127,5 +149,22 @@ mod tests {
         let mut rows = [0.0; 16];
         rows[15] = 1.0;
         assert!(IndexTransform::from_rows(&rows).is_err());
+    }
+
+    /// A map finite in f64 but beyond f32's reach is refused: a translation of 1e300 (a file the
+    /// fuzzer made from the sphere rendered an empty image without a word) or voxels of 1e20.
+    #[test]
+    fn maps_beyond_f32_positions_are_errors() {
+        let ok = IndexTransform::uniform(0.25, DVec3::new(1e14, 0.0, -3.0)).to_rows();
+        assert!(IndexTransform::from_rows(&ok).is_ok());
+        for (entry, value) in [(3, 1e300), (7, -2e15), (0, 1e20), (10, 1e-16)] {
+            let mut rows = ok;
+            rows[entry] = value;
+            let e = IndexTransform::from_rows(&rows).err().unwrap().to_string();
+            assert!(
+                e.contains("beyond what f32 positions resolve"),
+                "{entry}: {e}"
+            );
+        }
     }
 }
