@@ -67,7 +67,7 @@ fn derived_levels_leave_the_first_level_voxels() {
 
 /// Each upsampling keeps what the finer level's lookups read, the box and one voxel around it:
 /// the coarse level's own apron (a coarse voxel past the box) stayed in the result at every
-/// finer level, never read and never fitted (two levels left density 4 voxels past the box).
+/// finer level, never read and never fitted (two levels left density up to 7 voxels past the box).
 #[test]
 fn upsampled_density_stays_within_a_voxel_of_the_box() {
     use glam::IVec3;
@@ -96,5 +96,23 @@ fn upsampled_density_stays_within_a_voxel_of_the_box() {
     assert!(
         reached.0.cmpge(lo - 1).all() && reached.1.cmple(hi + 1).all(),
         "density over {reached:?}, the box {lo}..{hi}"
+    );
+}
+
+/// A voxel size beyond what f32 positions place (1e20 world units) is refused naming the keys;
+/// it was taken without a word, and then a panic once transforms were checked.
+#[test]
+fn a_voxel_beyond_f32s_reach_is_refused() {
+    let run = run_file("0.2", "iterations = 2").replace(
+        "bounds = \"truth\"",
+        "bounds = { min = [-3, -3, -3], max = [3, 3, 3] }\nvoxel_size = 1e20",
+    );
+    let dir = fixture(&run);
+    assert_clean_error(
+        &volgrad_in(dir.path(), &["optimize", "run.toml", "--out", "out", "-q"]),
+        &[
+            "unknown.bounds / unknown.voxel_size",
+            "beyond what f32 positions resolve",
+        ],
     );
 }

@@ -5,7 +5,7 @@
 use std::path::Path;
 
 use anyhow::{bail, Context, Result};
-use glam::{DVec3, IVec3};
+use glam::{DAffine3, DMat3, DVec3, IVec3};
 
 use crate::cluster::Cluster;
 use crate::gradient::loss::Loss;
@@ -145,7 +145,7 @@ impl Problem {
             scene_units::level_starts(count)
         });
         domain.levels = levels.len();
-        domain.check_first_level()?;
+        domain.check_levels()?;
         file.unknown
             .check_levels_reach(levels.len(), domain.transform.voxel_size().max_element())?;
         file.unknown.levels = Some(levels);
@@ -478,7 +478,10 @@ fn final_domain(file: &RunFile, grids: &KnownGrids) -> Result<Domain> {
             if n.max_element() > i32::MAX as f64 / 2.0 {
                 bail!("unknown.bounds / unknown.voxel_size: {n} voxels per axis is too many");
             }
-            let transform = IndexTransform::uniform(voxel, min + voxel / 2.0);
+            let linear = DMat3::from_diagonal(DVec3::splat(voxel));
+            let transform =
+                IndexTransform::new(DAffine3::from_mat3_translation(linear, min + voxel / 2.0))
+                    .context("unknown.bounds / unknown.voxel_size")?;
             (transform, IVec3::ZERO, n.as_ivec3() - IVec3::ONE)
         }
     };

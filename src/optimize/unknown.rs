@@ -36,8 +36,13 @@ impl Domain {
         f64::from(1u32 << (self.levels - level.min(self.levels)))
     }
 
-    /// Level `level`'s index → world transform.
+    /// Level `level`'s index → world transform (`check_levels` has made sure it is one).
     pub fn transform(&self, level: usize) -> IndexTransform {
+        self.level_transform(level)
+            .expect("check_levels: every level's transform is within f32's reach")
+    }
+
+    fn level_transform(&self, level: usize) -> Result<IndexTransform> {
         let s = self.scale(level);
         let coarse_to_fine = DAffine3::from_scale_rotation_translation(
             DVec3::splat(s),
@@ -45,7 +50,6 @@ impl Domain {
             DVec3::splat((s - 1.0) / 2.0),
         );
         IndexTransform::new(self.transform.index_to_world() * coarse_to_fine)
-            .expect("a scaled invertible transform stays invertible")
     }
 
     /// A final-level continuous index in level `level`'s index space.
@@ -95,15 +99,22 @@ impl Domain {
         (self.hi - self.lo + IVec3::ONE).min_element().max(0) as u64
     }
 
-    /// An error unless the first level has a voxel across every edge of the box.
-    pub fn check_first_level(&self) -> anyhow::Result<()> {
+    /// An error unless the first level has a voxel across every edge of the box and its voxels,
+    /// the largest, are within f32's reach (the levels between lie between it and the final's).
+    pub fn check_levels(&self) -> Result<()> {
         if self.voxel_count_at(0) == 0 {
-            anyhow::bail!(
+            bail!(
                 "unknown.levels: {} upsamplings leave the first level no voxel across the box's shortest edge ({} voxels); give fewer levels, or a larger box or voxel",
                 self.levels,
                 self.shortest_edge()
             );
         }
+        self.level_transform(0).map_err(|e| {
+            anyhow::anyhow!(
+                "unknown.levels: the first level's voxels, 2^{} final ones: {e}",
+                self.levels
+            )
+        })?;
         Ok(())
     }
 
@@ -294,4 +305,35 @@ pub fn in_final_index_space(truth: vdb::Grid, domain: &Domain) -> Result<BrickMa
         }
     }
     Ok(b.build())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A box of 8 voxels of `voxel` world units a side, with `levels` upsamplings.
+    fn domain(voxel: f64, levels: usize) -> Domain {
+        Domain {
+            transform: IndexTransform::uniform(voxel, DVec3::ZERO),
+            lo: IVec3::ZERO,
+            hi: IVec3::splat(7),
+            levels,
+        }
+    }
+
+    /// The first level needs a voxel across the box and voxels f32 can place: final voxels of
+    /// 3·10¹⁴ are, their first level's 2⁴ times larger are not (it panicked when asked for
+    /// that level's transform).
+    #[test]
+    fn levels_are_checked_for_voxels_and_reach() {
+        assert!(domain(1.0, 3).check_levels().is_ok());
+        let e = domain(1.0, 5).check_levels().unwrap_err().to_string();
+        assert!(e.contains("no voxel"), "{e}");
+        assert!(domain(3e14, 1).check_levels().is_ok());
+        let e = domain(3e14, 3).check_levels().unwrap_err().to_string();
+        assert!(
+            e.contains("first level's voxels") && e.contains("f32"),
+            "{e}"
+        );
+    }
 }

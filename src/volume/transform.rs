@@ -70,7 +70,8 @@ impl IndexTransform {
         Self::new(DAffine3::from_mat3_translation(linear, -(linear * centre)))
     }
 
-    /// Uniform voxels of edge `voxel_size`, voxel (0,0,0) centred at `origin`.
+    /// Uniform voxels of edge `voxel_size`, voxel (0,0,0) centred at `origin`: for constants (a
+    /// voxel size or origin beyond `MAX_COORDINATE` panics; a user's go through `new`).
     pub fn uniform(voxel_size: f64, origin: DVec3) -> Self {
         Self::new(DAffine3::from_mat3_translation(
             DMat3::from_diagonal(DVec3::splat(voxel_size)),
