@@ -100,7 +100,7 @@ pub fn intrinsics(k: Intrinsics, width: u32, height: u32) -> Result<()> {
         let farthest = f64::from(centre).max(f64::from(pixels) - f64::from(centre));
         if farthest / f64::from(focal) > MAX_RAY_TANGENT {
             bail!(
-                "the image's edge lies {:e} focal lengths from the view direction ({key} = {centre}, focal length {focal} pixels, {pixels} pixels): a pinhole's rays are under 90° from it, at most {MAX_RAY_TANGENT:e} focal lengths out",
+                "the image's edge lies {:.3e} focal lengths from the view direction ({key} = {centre:?}, focal length {focal:?} pixels, {pixels} pixels): a pinhole's rays are under 90° from it, at most {MAX_RAY_TANGENT:e} focal lengths out",
                 farthest / f64::from(focal)
             );
         }

@@ -53,7 +53,7 @@ impl IndexTransform {
         let limit = f64::from(MAX_COORDINATE);
         if largest(&index_to_world) > limit || largest(&world_to_index) > limit {
             anyhow::bail!(
-                "the grid's index-to-world transform places or scales its voxels beyond what f32 positions resolve (its largest entry {:e}, its inverse's {:e}; each at most {limit:e})",
+                "the grid's index-to-world transform places or scales its voxels beyond what f32 positions resolve (its largest entry {:.3e}, its inverse's {:.3e}; each at most {MAX_COORDINATE:e})",
                 largest(&index_to_world),
                 largest(&world_to_index)
             );
