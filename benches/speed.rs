@@ -7,10 +7,10 @@
 //! this build's place (a profile-guided build, `scripts/build-pgo.sh`, against a plain one).
 //!
 //! Variance is measured from two seeds of the same command, E[(A − B)²]/2 per pixel or voxel,
-//! averaged over the pixels or summed over the voxels; variance × time compares estimators at equal spp whatever their speed (below 1 is
-//! better). `VOLGRAD_BENCH_ROUNDS` (default 2) sets how many times each command runs per seed: the
-//! fastest counts; `VOLGRAD_BENCH_ONLY=render` (or `joint`, `drt`) keeps the commands whose name
-//! holds it.
+//! averaged over the pixels or summed over the voxels; variance × time compares estimators at
+//! equal spp whatever their speed (below 1 is better). `VOLGRAD_BENCH_ROUNDS` (default 2) sets how
+//! many times each command runs per seed: the fastest counts; `VOLGRAD_BENCH_ONLY=render` (or
+//! `joint`, `drt`) keeps the commands whose name holds it.
 //!
 //! Then the physical limit: the work no tracker avoids per tentative collision (one trilinear
 //! density read at a random point of the grid's leaves, one exponential sample, one uniform draw),

@@ -1,7 +1,7 @@
 //! The held-out picture a checkpoint writes (target | render | difference ×4, a row per held-out
 //! view) and the panels it is made of, sized for a person to look at whatever the views' size: a
 //! 24² view enlarged, an 800² one reduced, a strip one pixel high not made 128 times its width,
-//! and at most `MAX_VIEWS` rows however many views a set holds.
+//! and at most `MAX_SHOWN_VIEWS` rows however many views a set holds.
 
 use std::path::Path;
 
@@ -10,12 +10,12 @@ use crate::optimize::problem::View;
 use anyhow::Result;
 
 /// Panels lower than this are enlarged (pixel copies), up to `MAX_PANEL` wide.
-pub const MIN_PANEL: u32 = 128;
+const MIN_PANEL: u32 = 128;
 /// Panels wider or higher than this are reduced (the mean of blocks of pixels).
-pub const MAX_PANEL: u32 = 384;
+const MAX_PANEL: u32 = 384;
 /// The most held-out views a picture shows, spread evenly over the list (the first and the last
 /// among them): a hundred 800² views would otherwise make a picture of gigabytes.
-pub const MAX_VIEWS: usize = 16;
+const MAX_SHOWN_VIEWS: usize = 16;
 
 /// One row per held-out view (`shown_views` of them): target | render | |render − target| × 4,
 /// tonemapped as the scene's PNGs are (`display_exposure`, render.exposure), each panel sized by
@@ -47,14 +47,14 @@ pub fn write_holdout_picture(
     )
 }
 
-/// The indices of the views a picture of `count` shows: all of them, or `MAX_VIEWS` spread
+/// The indices of the views a picture of `count` shows: all of them, or `MAX_SHOWN_VIEWS` spread
 /// evenly from the first to the last.
-pub fn shown_views(count: usize) -> Vec<usize> {
-    if count <= MAX_VIEWS {
+fn shown_views(count: usize) -> Vec<usize> {
+    if count <= MAX_SHOWN_VIEWS {
         return (0..count).collect();
     }
-    (0..MAX_VIEWS)
-        .map(|i| i * (count - 1) / (MAX_VIEWS - 1))
+    (0..MAX_SHOWN_VIEWS)
+        .map(|i| i * (count - 1) / (MAX_SHOWN_VIEWS - 1))
         .collect()
 }
 
@@ -214,14 +214,15 @@ mod tests {
         assert_eq!(values, [0.5, 2.5, 4.0]);
     }
 
-    /// Many held-out views show `MAX_VIEWS` of them, the first and the last included, each once.
+    /// Many held-out views show `MAX_SHOWN_VIEWS` of them, the first and the last included, each
+    /// once.
     #[test]
     fn a_picture_shows_at_most_max_views() {
         assert_eq!(shown_views(3), [0, 1, 2]);
-        for count in [MAX_VIEWS + 1, 100, 200] {
+        for count in [MAX_SHOWN_VIEWS + 1, 100, 200] {
             let shown = shown_views(count);
-            assert_eq!(shown.len(), MAX_VIEWS);
-            assert_eq!((shown[0], shown[MAX_VIEWS - 1]), (0, count - 1));
+            assert_eq!(shown.len(), MAX_SHOWN_VIEWS);
+            assert_eq!((shown[0], shown[MAX_SHOWN_VIEWS - 1]), (0, count - 1));
             assert!(shown.windows(2).all(|w| w[0] < w[1]), "{shown:?}");
         }
         let views: Vec<View> = (0..40).map(|_| view(8, 8, 0.5)).collect();
@@ -230,6 +231,6 @@ mod tests {
         let path = dir.path().join("holdout.png");
         write_holdout_picture(&path, &views, &renders, &[1.0, 1.0], 1.0).unwrap();
         let picture = images::read_rgb(&path).unwrap();
-        assert_eq!(picture.height, MAX_VIEWS as u32 * MIN_PANEL);
+        assert_eq!(picture.height, MAX_SHOWN_VIEWS as u32 * MIN_PANEL);
     }
 }
