@@ -149,7 +149,11 @@ ImageData read_image(rust::Str path_str) {
     std::vector<float> window;
     if (!whole) window.resize(size_t(stored) * size_t(channels));
     float* into = whole ? img.pixels.data() : window.data();
-    if (!in->read_image(0, 0, 0, spec.nchannels, OIIO::TypeDesc::FLOAT, into)) {
+    // A reader may fill what it could not decode and still report success, keeping the error for
+    // whoever asks: a JPEG cut short or with damaged data comes back with its lower part grey, a
+    // TIFF cut short with it black. Either is a picture the file does not hold.
+    if (!in->read_image(0, 0, 0, spec.nchannels, OIIO::TypeDesc::FLOAT, into) ||
+        in->has_error()) {
         const std::string silent = "its pixels could not be read (is it truncated or corrupt?)";
         fail("cannot read image " + quoted(path) + ": " + oiio_error(in->geterror(), silent));
     }

@@ -1,5 +1,5 @@
 //! Images in and out through OpenImageIO: linear EXR (half or float) and 8-bit sRGB PNG out; in,
-//! any format OpenImageIO reads, decoded to linear radiance from the colour space it is encoded
+//! any format OpenImageIO reads (PNG through `png_input`, in Rust), decoded to linear radiance from the colour space it is encoded
 //! in, alpha kept.
 //!
 //! Which decoding applies: the caller's override (a view set's `color_space`) when given;
@@ -21,6 +21,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::io::bridge::ImageData;
 use crate::io::bridge::{bridge_error, bridge_path, ffi};
+use crate::io::png_input::{is_png, png_size, read_png};
 
 /// A linear RGB image, rows top to bottom.
 #[derive(Debug, Clone, PartialEq)]
@@ -265,13 +266,20 @@ const ALPHA_OVERSHOOT: f32 = 0.01;
 /// The size (width, height) of the image `read_picture` would read, from its file's header alone:
 /// no pixel is decoded.
 pub fn image_size(path: &Path) -> Result<(u32, u32)> {
+    if is_png(path) {
+        return png_size(path);
+    }
     let size = ffi::read_image_size(bridge_path(path)?).map_err(bridge_error)?;
     Ok((size.width, size.height))
 }
 
 /// Reads a picture: colour decoded to linear (see the module's documentation) and alpha.
 pub fn read_picture(path: &Path, override_space: Option<ColorSpace>) -> Result<Picture> {
-    let data = ffi::read_image(bridge_path(path)?).map_err(bridge_error)?;
+    let data = if is_png(path) {
+        read_png(path)?
+    } else {
+        ffi::read_image(bridge_path(path)?).map_err(bridge_error)?
+    };
     let c = data.channels as usize;
     if c == 0 {
         bail!("'{}' has no channels", path.display());

@@ -12,6 +12,7 @@ pub mod input;
 pub mod json;
 pub mod make_grid;
 pub mod output;
+pub mod png_input;
 pub mod progress;
 pub mod table;
 pub mod vdb;

@@ -1,0 +1,275 @@
+//! Pictures as they arrive from elsewhere, through `images::read_picture`: a PNG's own chunks
+//! deciding its decoding (written by hand here, so that no encoder's choice hides in the test),
+//! and damaged files of each format refused by name rather than read with a part filled in, with
+//! volgrad's message the only one on stderr.
+
+mod bridge_common;
+mod common;
+
+use std::path::{Path, PathBuf};
+
+use bridge_common::*;
+use common::{png_chunk, sphere_vdb, stderr, volgrad_in};
+use volgrad::io::bridge::ffi::{self, ImageData};
+use volgrad::io::images::{image_size, read_picture, srgb_decode, ColorSpace};
+
+/// A PNG of `width` × 1 pixels, colour type `color_type` at 8 bits, whose one row of samples is
+/// `row`, with `chunks` between its header and its data. The data is one stored (uncompressed)
+/// deflate block, so that the file's bytes are all spelled out here.
+fn png(width: u32, color_type: u8, row: &[u8], chunks: &[Vec<u8>]) -> Vec<u8> {
+    let ihdr = [
+        &width.to_be_bytes()[..],
+        &1u32.to_be_bytes(),
+        &[8, color_type, 0, 0, 0],
+    ]
+    .concat();
+    let scanline = [&[0u8][..], row].concat(); // filter 0 (none)
+    let len = scanline.len() as u16;
+    let (mut a, mut b) = (1u32, 0u32);
+    for &byte in &scanline {
+        a = (a + byte as u32) % 65521;
+        b = (b + a) % 65521;
+    }
+    let zlib = [
+        &[0x78, 0x01, 0x01][..],
+        &len.to_le_bytes(),
+        &(!len).to_le_bytes(),
+        &scanline,
+        &((b << 16) | a).to_be_bytes(),
+    ]
+    .concat();
+    let mut file = vec![0x89, b'P', b'N', b'G', b'\r', b'\n', 0x1a, b'\n'];
+    file.extend(png_chunk(b"IHDR", &ihdr));
+    for c in chunks {
+        file.extend(c);
+    }
+    file.extend(png_chunk(b"IDAT", &zlib));
+    file.extend(png_chunk(b"IEND", &[]));
+    file
+}
+
+/// A PNG chunk of big-endian u32 values (gAMA, cHRM: 100,000 per unit).
+fn scaled_chunk(kind: &[u8], values: &[f64]) -> Vec<u8> {
+    let data: Vec<u8> = (values.iter())
+        .flat_map(|v| ((v * 100_000.0).round() as u32).to_be_bytes())
+        .collect();
+    png_chunk(kind, &data)
+}
+
+fn write(dir: &Path, name: &str, bytes: &[u8]) -> PathBuf {
+    let path = dir.join(name);
+    std::fs::write(&path, bytes).unwrap();
+    path
+}
+
+fn error_of(path: &Path) -> String {
+    match read_picture(path, None) {
+        Ok(_) => panic!("'{}' was read", path.display()),
+        Err(e) => format!("{e:#}"),
+    }
+}
+
+/// The first pixel's red, read with the file's own decoding.
+fn red(path: &Path) -> f32 {
+    read_picture(path, None).unwrap().color.pixels[0].x
+}
+
+/// A PNG's chunks decide how its values become radiance: none, or an sRGB chunk, is sRGB; a gAMA
+/// of 1 is linear, another gamma g decodes as v^(1/g); a cHRM of other primaries (Display P3) is
+/// refused unless an sRGB chunk says the file is sRGB after all (the PNG rule), or the caller says
+/// how to take it; a palette's tRNS and a grey file's alpha are alpha.
+#[test]
+fn a_pngs_chunks_decide_its_decoding() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let v = 100u8;
+    let stored = v as f32 / 255.0;
+    let rgb = [v, 50, 200];
+    let srgb = png_chunk(b"sRGB", &[0]);
+    let p3 = [0.68, 0.32, 0.265, 0.69, 0.15, 0.06];
+    // cHRM stores white first: white x, y, then red, green, blue.
+    let p3_chunk = scaled_chunk(b"cHRM", &[&[0.3127, 0.329][..], &p3].concat());
+    let rec709_chunk = scaled_chunk(
+        b"cHRM",
+        &[0.3127, 0.329, 0.64, 0.33, 0.30, 0.60, 0.15, 0.06],
+    );
+    let close = |a: f32, b: f32| (a - b).abs() < 1e-5 * b.max(1e-3);
+
+    let plain = write(d, "plain.png", &png(1, 2, &rgb, &[]));
+    assert!(close(red(&plain), srgb_decode(stored)));
+    let tagged = write(d, "srgb.png", &png(1, 2, &rgb, std::slice::from_ref(&srgb)));
+    assert!(close(red(&tagged), srgb_decode(stored)));
+    let linear = write(
+        d,
+        "linear.png",
+        &png(1, 2, &rgb, &[scaled_chunk(b"gAMA", &[1.0])]),
+    );
+    assert!(close(red(&linear), stored));
+    let gamma = write(
+        d,
+        "gamma.png",
+        &png(1, 2, &rgb, &[scaled_chunk(b"gAMA", &[0.55556])]),
+    );
+    assert!(
+        close(red(&gamma), stored.powf(1.0 / 0.55556)),
+        "{}",
+        red(&gamma)
+    );
+    let rec709 = write(d, "rec709.png", &png(1, 2, &rgb, &[rec709_chunk]));
+    assert!(close(red(&rec709), srgb_decode(stored)));
+
+    let wide = write(
+        d,
+        "p3.png",
+        &png(1, 2, &rgb, std::slice::from_ref(&p3_chunk)),
+    );
+    let e = error_of(&wide);
+    assert!(e.contains("p3.png") && e.contains("primaries"), "{e}");
+    let taken = read_picture(&wide, Some(ColorSpace::Srgb)).unwrap();
+    assert!(close(taken.color.pixels[0].x, srgb_decode(stored)));
+    let declared = write(d, "p3-srgb.png", &png(1, 2, &rgb, &[p3_chunk, srgb]));
+    assert!(close(red(&declared), srgb_decode(stored)));
+
+    // A palette of two entries, the second half transparent (tRNS), pixels 0 and 1.
+    let palette = png_chunk(b"PLTE", &[v, 0, 0, 0, v, 0]);
+    let trns = png_chunk(b"tRNS", &[255, 128]);
+    let indexed = write(d, "palette.png", &png(2, 3, &[0, 1], &[palette, trns]));
+    let picture = read_picture(&indexed, None).unwrap();
+    let alpha = picture.alpha.expect("tRNS is alpha");
+    assert!(
+        close(alpha[0], 1.0) && close(alpha[1], 128.0 / 255.0),
+        "{alpha:?}"
+    );
+    let premultiplied = picture.color.pixels[1].y;
+    assert!(close(premultiplied, srgb_decode(stored) * 128.0 / 255.0));
+
+    let grey = write(d, "grey-alpha.png", &png(1, 4, &[v, 255], &[]));
+    let picture = read_picture(&grey, None).unwrap();
+    assert!(picture.alpha.is_some());
+    assert!(close(picture.color.pixels[0].x, srgb_decode(stored)));
+    assert_eq!(
+        picture.color.pixels[0],
+        glam::Vec3::splat(picture.color.pixels[0].x)
+    );
+    assert_eq!(image_size(&grey).unwrap(), (1, 1));
+}
+
+/// A header that declares more pixels than volgrad reads is refused with its size named, before a
+/// buffer for them is asked for (the file holds a header and nothing else).
+#[test]
+fn a_png_header_declaring_too_many_pixels_is_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let side = 20_000u32;
+    let ihdr = [
+        &side.to_be_bytes()[..],
+        &side.to_be_bytes(),
+        &[8, 6, 0, 0, 0],
+    ]
+    .concat();
+    let mut bytes = vec![0x89, b'P', b'N', b'G', b'\r', b'\n', 0x1a, b'\n'];
+    bytes.extend(png_chunk(b"IHDR", &ihdr));
+    bytes.extend(png_chunk(b"IEND", &[]));
+    let bomb = write(dir.path(), "bomb.png", &bytes);
+    let e = error_of(&bomb);
+    assert!(e.contains("bomb.png") && e.contains("20000x20000"), "{e}");
+}
+
+/// `data` (an 8-bit RGB image OpenImageIO writes) as `name` in `dir`, and two damaged copies: cut
+/// to half its bytes, and with 64 bytes in its middle inverted.
+fn damaged_copies(dir: &Path, name: &str, data: &ImageData) -> [PathBuf; 2] {
+    let whole = dir.join(name);
+    ffi::write_image(path_str(&whole), data, "uint8").unwrap();
+    let bytes = std::fs::read(&whole).unwrap();
+    let mut flipped = bytes.clone();
+    let middle = bytes.len() / 2;
+    for b in &mut flipped[middle..middle + 64] {
+        *b = !*b;
+    }
+    [
+        write(dir, &format!("cut-{name}"), &bytes[..middle]),
+        write(dir, &format!("damaged-{name}"), &flipped),
+    ]
+}
+
+fn noise_image(size: u32) -> ImageData {
+    ImageData {
+        width: size,
+        height: size,
+        channels: 3,
+        pixels: (0..size * size * 3)
+            .map(|i| ((i as f32) * 0.618_034).fract())
+            .collect(),
+        color_space: String::new(),
+        stored_type: String::new(),
+        alpha_channel: -1,
+        alpha_unassociated: false,
+        channel_names: Vec::new(),
+        chromaticities: Vec::new(),
+    }
+}
+
+/// A picture cut short is refused naming its file, and so is a damaged PNG (its chunks carry
+/// checksums): OpenImageIO reads a cut JPEG or TIFF as a success with the rest of the picture grey
+/// or black, and only says so when asked. (Damaged bytes inside a JPEG's or an uncompressed TIFF's
+/// data are refused only where the decoder notices them: they may decode as other values.)
+#[test]
+fn damaged_pictures_are_refused_by_name() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let image = noise_image(64);
+    let [cut_png, damaged_png] = damaged_copies(d, "p.png", &image);
+    let [cut_jpeg, _] = damaged_copies(d, "p.jpg", &image);
+    let [cut_tiff, _] = damaged_copies(d, "p.tif", &image);
+    {
+        for path in [cut_png, damaged_png, cut_jpeg, cut_tiff] {
+            let e = error_of(&path);
+            let file = path.file_name().unwrap().to_str().unwrap();
+            assert!(
+                e.starts_with("cannot read image") && e.contains(file),
+                "{e}"
+            );
+            assert!(!e.contains('\n'), "{e}");
+        }
+    }
+    // The whole files are read, as they were written.
+    for name in ["p.png", "p.jpg", "p.tif"] {
+        let picture = read_picture(&d.join(name), Some(ColorSpace::Linear)).unwrap();
+        assert_eq!((picture.color.width, picture.color.height), (64, 64));
+        // JPEG keeps each block's mean, not its noise.
+        let tolerance = if name.ends_with("jpg") {
+            0.01
+        } else {
+            0.5 / 255.0
+        };
+        let mean = picture.color.mean().x;
+        let written = image.pixels.iter().step_by(3).sum::<f32>() / (64.0 * 64.0);
+        assert!(
+            (mean - written).abs() <= tolerance,
+            "{name}: {mean} {written}"
+        );
+    }
+}
+
+/// On the command line a damaged PNG (here a scene's environment map) gives volgrad's one error
+/// line and nothing else: OpenImageIO's PNG reader let libpng print "libpng error: …" before it.
+#[test]
+fn a_damaged_png_prints_only_volgrads_error() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    sphere_vdb(d);
+    let [cut, damaged] = damaged_copies(d, "sky.png", &noise_image(32));
+    for sky in [cut, damaged] {
+        let scene = format!(
+            "[camera]\nposition = [0.0, 0.0, 20.0]\ntarget = [0.0, 0.0, 0.0]\nfov_deg = 40\nwidth = 8\nheight = 8\n\n[medium]\nvdb = \"sphere.vdb\"\n\n[[light]]\ntype = \"envmap\"\nfile = \"{}\"\n",
+            sky.file_name().unwrap().to_str().unwrap()
+        );
+        std::fs::write(d.join("scene.toml"), scene).unwrap();
+        let out = volgrad_in(d, &["render", "scene.toml", "-o", "x.exr", "-q"]);
+        let err = stderr(&out);
+        assert_eq!(out.status.code(), Some(1), "{err}");
+        assert!(
+            err.lines().count() == 1 && err.starts_with("error: light[0].file: cannot read image"),
+            "{err}"
+        );
+    }
+}
