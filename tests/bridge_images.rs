@@ -13,31 +13,6 @@ use volgrad::io::bridge::ffi::{self, ImageData};
 // ------------------------------------------------------------------------------------------------
 // Images
 
-fn test_image(width: u32, height: u32, channels: u32, unit: bool) -> ImageData {
-    let pixels = (0..width * height * channels)
-        .map(|i| {
-            let v = (i as f32 * 0.618_034).fract();
-            if unit {
-                v
-            } else {
-                (v - 0.3) * 7.5
-            }
-        })
-        .collect();
-    ImageData {
-        width,
-        height,
-        channels,
-        pixels,
-        color_space: String::new(),
-        stored_type: String::new(),
-        alpha_channel: -1,
-        alpha_unassociated: false,
-        channel_names: Vec::new(),
-        chromaticities: Vec::new(),
-    }
-}
-
 /// Reads an RGBA EXR with the pure-Rust `exr` crate: (width, height, interleaved RGBA).
 fn exr_rgba(path: &Path) -> (usize, usize, Vec<f32>) {
     let image = exr::prelude::read_first_rgba_layer_from_file(

@@ -191,23 +191,6 @@ fn damaged_copies(dir: &Path, name: &str, data: &ImageData) -> [PathBuf; 2] {
     ]
 }
 
-fn noise_image(size: u32) -> ImageData {
-    ImageData {
-        width: size,
-        height: size,
-        channels: 3,
-        pixels: (0..size * size * 3)
-            .map(|i| ((i as f32) * 0.618_034).fract())
-            .collect(),
-        color_space: String::new(),
-        stored_type: String::new(),
-        alpha_channel: -1,
-        alpha_unassociated: false,
-        channel_names: Vec::new(),
-        chromaticities: Vec::new(),
-    }
-}
-
 /// A picture cut short is refused naming its file, and so is a damaged PNG (its chunks carry
 /// checksums): OpenImageIO reads a cut JPEG or TIFF as a success with the rest of the picture grey
 /// or black, and only says so when asked. (Damaged bytes inside a JPEG's or an uncompressed TIFF's
@@ -216,7 +199,7 @@ fn noise_image(size: u32) -> ImageData {
 fn damaged_pictures_are_refused_by_name() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
-    let image = noise_image(64);
+    let image = test_image(64, 64, 3, true);
     let [cut_png, damaged_png] = damaged_copies(d, "p.png", &image);
     let [cut_jpeg, _] = damaged_copies(d, "p.jpg", &image);
     let [cut_tiff, _] = damaged_copies(d, "p.tif", &image);
@@ -257,7 +240,7 @@ fn a_damaged_png_prints_only_volgrads_error() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
     sphere_vdb(d);
-    let [cut, damaged] = damaged_copies(d, "sky.png", &noise_image(32));
+    let [cut, damaged] = damaged_copies(d, "sky.png", &test_image(32, 32, 3, true));
     for sky in [cut, damaged] {
         let scene = format!(
             "[camera]\nposition = [0.0, 0.0, 20.0]\ntarget = [0.0, 0.0, 0.0]\nfov_deg = 40\nwidth = 8\nheight = 8\n\n[medium]\nvdb = \"sphere.vdb\"\n\n[[light]]\ntype = \"envmap\"\nfile = \"{}\"\n",

@@ -1,6 +1,6 @@
 //! Images in and out through OpenImageIO: linear EXR (half or float) and 8-bit sRGB PNG out; in,
-//! any format OpenImageIO reads (PNG through `png_input`, in Rust), decoded to linear radiance from the colour space it is encoded
-//! in, alpha kept.
+//! any format OpenImageIO reads (PNG through `png_input`, in Rust), decoded to linear radiance
+//! from the colour space it is encoded in, alpha kept.
 //!
 //! Which decoding applies: the caller's override (a view set's `color_space`) when given;
 //! otherwise what the file declares (OpenImageIO's `oiio:ColorSpace`: sRGB, linear, or a gamma;

@@ -80,7 +80,6 @@ pub fn read_png(path: &Path) -> Result<ImageData> {
     }
     let mut reader = decoder.read_info().map_err(|e| cannot_read(path, e))?;
     let (color_type, depth) = reader.output_color_type();
-    let channels = color_type.samples() as u64;
     let color_space = declared_space(reader.info());
     let chromaticities = match (&reader.info().srgb, &reader.info().chrm_chunk) {
         (None, Some(c)) => [c.red, c.green, c.blue, c.white]
@@ -119,7 +118,7 @@ pub fn read_png(path: &Path) -> Result<ImageData> {
     Ok(ImageData {
         width,
         height,
-        channels: channels as u32,
+        channels: names.len() as u32,
         pixels: values,
         color_space,
         stored_type: stored_type.into(),

@@ -6,7 +6,7 @@ use std::collections::BTreeMap;
 use std::path::Path;
 
 use exr::prelude::f16;
-use volgrad::io::bridge::ffi::{self, FloatGridData, GridSummary, LeafData, MetaEntry};
+use volgrad::io::bridge::ffi::{self, FloatGridData, GridSummary, ImageData, LeafData, MetaEntry};
 
 pub fn asset(name: &str) -> String {
     format!("{}/scenes/assets/{}", env!("CARGO_MANIFEST_DIR"), name)
@@ -197,5 +197,32 @@ pub fn hand_built() -> FloatGridData {
             entry("file_voxel_count", "int64", "999"),
             entry("name", "string", "ignored"),
         ],
+    }
+}
+
+/// An image of `channels` interleaved values per pixel from a fixed sequence: in [0, 1) with
+/// `unit`, else spread over [−2.25, 5.25).
+pub fn test_image(width: u32, height: u32, channels: u32, unit: bool) -> ImageData {
+    let pixels = (0..width * height * channels)
+        .map(|i| {
+            let v = (i as f32 * 0.618_034).fract();
+            if unit {
+                v
+            } else {
+                (v - 0.3) * 7.5
+            }
+        })
+        .collect();
+    ImageData {
+        width,
+        height,
+        channels,
+        pixels,
+        color_space: String::new(),
+        stored_type: String::new(),
+        alpha_channel: -1,
+        alpha_unassociated: false,
+        channel_names: Vec::new(),
+        chromaticities: Vec::new(),
     }
 }
