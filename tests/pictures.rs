@@ -233,20 +233,25 @@ fn damaged_pictures_are_refused_by_name() {
     }
 }
 
+/// A scene in `dir` (the sphere of `sphere_vdb`, 8² pixels) lit by the environment map `sky`.
+fn write_envmap_scene(dir: &Path, sky: &Path) {
+    let scene = format!(
+        "[camera]\nposition = [0.0, 0.0, 20.0]\ntarget = [0.0, 0.0, 0.0]\nfov_deg = 40\nwidth = 8\nheight = 8\n\n[medium]\nvdb = \"sphere.vdb\"\n\n[[light]]\ntype = \"envmap\"\nfile = \"{}\"\n",
+        sky.file_name().unwrap().to_str().unwrap()
+    );
+    std::fs::write(dir.join("scene.toml"), scene).unwrap();
+    sphere_vdb(dir);
+}
+
 /// On the command line a damaged PNG (here a scene's environment map) gives volgrad's one error
 /// line and nothing else: OpenImageIO's PNG reader let libpng print "libpng error: …" before it.
 #[test]
 fn a_damaged_png_prints_only_volgrads_error() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
-    sphere_vdb(d);
     let [cut, damaged] = damaged_copies(d, "sky.png", &test_image(32, 32, 3, true));
     for sky in [cut, damaged] {
-        let scene = format!(
-            "[camera]\nposition = [0.0, 0.0, 20.0]\ntarget = [0.0, 0.0, 0.0]\nfov_deg = 40\nwidth = 8\nheight = 8\n\n[medium]\nvdb = \"sphere.vdb\"\n\n[[light]]\ntype = \"envmap\"\nfile = \"{}\"\n",
-            sky.file_name().unwrap().to_str().unwrap()
-        );
-        std::fs::write(d.join("scene.toml"), scene).unwrap();
+        write_envmap_scene(d, &sky);
         let out = volgrad_in(d, &["render", "scene.toml", "-o", "x.exr", "-q"]);
         let err = stderr(&out);
         assert_eq!(out.status.code(), Some(1), "{err}");
@@ -255,6 +260,43 @@ fn a_damaged_png_prints_only_volgrads_error() {
             "{err}"
         );
     }
+}
+
+/// A PNG's ICC profile, a chunk volgrad does not use, that is a megabyte on disk and inflates to
+/// half a gigabyte is not inflated: rendering with it as the environment map peaks at a render's
+/// memory (about 150 MB), where the decoder that parsed the chunk peaked 512 MB higher.
+#[test]
+fn a_pngs_unused_chunks_are_not_inflated() {
+    use flate2::{write::ZlibEncoder, Compression};
+    use std::io::Write;
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let mut bomb = ZlibEncoder::new(Vec::new(), Compression::best());
+    let zeros = vec![0u8; 1 << 20];
+    for _ in 0..512 {
+        bomb.write_all(&zeros).unwrap();
+    }
+    let profile = [&b"bomb\0\0"[..], &bomb.finish().unwrap()].concat();
+    let chunk = png_chunk(b"iCCP", &profile);
+    let sky = write(d, "sky.png", &png(1, 2, &[100, 50, 200], &[chunk]));
+    write_envmap_scene(d, &sky);
+    #[allow(clippy::zombie_processes)] // reaped by wait4 below, which gives its peak memory too
+    let child = std::process::Command::new(env!("CARGO_BIN_EXE_volgrad"))
+        .current_dir(d)
+        .args(["render", "scene.toml", "-o", "x.exr", "-q"])
+        .stderr(std::process::Stdio::null())
+        .spawn()
+        .unwrap();
+    // This child's own peak, not the largest of every child the tests ran (getrusage).
+    let (mut status, mut usage) = (0, unsafe { std::mem::zeroed::<libc::rusage>() });
+    let pid = unsafe { libc::wait4(child.id() as i32, &mut status, 0, &mut usage) };
+    assert_eq!(pid, child.id() as i32);
+    assert!(
+        libc::WIFEXITED(status) && libc::WEXITSTATUS(status) == 0,
+        "{status}"
+    );
+    let peak_mb = usage.ru_maxrss as f64 / 1024.0; // kilobytes on Linux
+    assert!(peak_mb < 400.0, "peak {peak_mb:.0} MB");
 }
 
 /// volgrad's PNG decoder gives what OpenImageIO's gave, to the bit: the same channels, alpha,

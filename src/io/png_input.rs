@@ -47,6 +47,10 @@ fn decoder(path: &Path) -> Result<Decoder<BufReader<File>>> {
     // 1-, 2- and 4-bit samples to 8, a palette to RGB, a tRNS chunk to alpha (as libpng's
     // png_set_expand, which OpenImageIO asks for); 16-bit samples stay 16-bit.
     decoder.set_transformations(Transformations::EXPAND);
+    // Neither is used, and each is compressed: an ICC profile of a megabyte on disk can inflate
+    // to a gigabyte, which the crate would allocate as it parses the chunk.
+    decoder.set_ignore_iccp_chunk(true);
+    decoder.set_ignore_text_chunk(true);
     Ok(decoder)
 }
 
