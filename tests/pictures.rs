@@ -203,17 +203,28 @@ fn damaged_pictures_are_refused_by_name() {
     let [cut_png, damaged_png] = damaged_copies(d, "p.png", &image);
     let [cut_jpeg, _] = damaged_copies(d, "p.jpg", &image);
     let [cut_tiff, _] = damaged_copies(d, "p.tif", &image);
-    {
-        for path in [cut_png, damaged_png, cut_jpeg, cut_tiff] {
-            let e = error_of(&path);
-            let file = path.file_name().unwrap().to_str().unwrap();
-            assert!(
-                e.starts_with("cannot read image") && e.contains(file),
-                "{e}"
-            );
-            assert!(!e.contains('\n'), "{e}");
-        }
+    // One byte of the data chunk's checksum changed (IDAT's CRC ends 12 bytes before the file).
+    let mut bytes = png(1, 2, &[1, 2, 3], &[]);
+    let crc_end = bytes.len() - 12;
+    bytes[crc_end - 1] ^= 1;
+    let bad_crc = write(d, "crc.png", &bytes);
+    let says = [
+        (&cut_png, "cut short"),
+        (&damaged_png, "damaged"),
+        (&bad_crc, "CRC error"),
+        (&cut_jpeg, "Premature end"),
+        (&cut_tiff, "Read error"),
+    ];
+    for (path, what) in says {
+        let e = error_of(path);
+        let file = path.file_name().unwrap().to_str().unwrap();
+        assert!(
+            e.starts_with("cannot read image") && e.contains(file) && e.contains(what),
+            "{e}"
+        );
+        assert!(!e.contains('\n') && !e.contains("ChunkType {"), "{e}");
     }
+    assert!(error_of(&bad_crc).contains("IDAT"));
     // The whole files are read, as they were written.
     for name in ["p.png", "p.jpg", "p.tif"] {
         let picture = read_picture(&d.join(name), Some(ColorSpace::Linear)).unwrap();

@@ -15,7 +15,7 @@ use std::io::{BufReader, Read};
 use std::path::Path;
 
 use anyhow::{bail, Result};
-use png::{BitDepth, ColorType, Decoder, Limits, Transformations};
+use png::{BitDepth, ColorType, Decoder, DecodingError, Limits, Transformations};
 
 use crate::io::bridge::ImageData;
 
@@ -58,12 +58,36 @@ fn cannot_read(path: &Path, e: impl std::fmt::Display) -> anyhow::Error {
     anyhow::anyhow!("cannot read image '{}': {e}", path.display())
 }
 
+/// What the decoder found wrong, for a reader of the error: the crate prints a chunk's type in
+/// its debugging form ("ChunkType { type: IDAT, critical: true, … }"), here just its name, and a
+/// file that ends early says so.
+fn decoding_error(path: &Path, e: DecodingError) -> anyhow::Error {
+    const CHUNK: &str = "ChunkType { type: ";
+    let text = e.to_string();
+    let (mut said, mut rest) = (String::new(), text.as_str());
+    while let Some(at) = rest.find(CHUNK) {
+        said.push_str(&rest[..at]);
+        let after = &rest[at + CHUNK.len()..];
+        said.push_str(&after[..after.find(',').unwrap_or(after.len())]);
+        rest = after.find('}').map_or("", |end| &after[end + 1..]);
+    }
+    said.push_str(rest);
+    let said = said.trim_end_matches('.');
+    match e {
+        DecodingError::IoError(io) if io.kind() == std::io::ErrorKind::UnexpectedEof => {
+            cannot_read(path, "it ends before its image does (is it cut short?)")
+        }
+        DecodingError::Format(_) => cannot_read(path, format!("it is damaged ({said})")),
+        _ => cannot_read(path, said),
+    }
+}
+
 /// The size a PNG declares, from its header alone.
 pub fn png_size(path: &Path) -> Result<(u32, u32)> {
     let mut decoder = decoder(path)?;
     let info = decoder
         .read_header_info()
-        .map_err(|e| cannot_read(path, e))?;
+        .map_err(|e| decoding_error(path, e))?;
     Ok((info.width, info.height))
 }
 
@@ -72,7 +96,7 @@ pub fn read_png(path: &Path) -> Result<ImageData> {
     let mut decoder = decoder(path)?;
     let header = decoder
         .read_header_info()
-        .map_err(|e| cannot_read(path, e))?;
+        .map_err(|e| decoding_error(path, e))?;
     let (width, height) = (header.width, header.height);
     // At most 4 (RGBA), whatever the colour type: checked before anything past the header is read.
     let pixels = width as u64 * height as u64;
@@ -82,7 +106,7 @@ pub fn read_png(path: &Path) -> Result<ImageData> {
             path.display()
         );
     }
-    let mut reader = decoder.read_info().map_err(|e| cannot_read(path, e))?;
+    let mut reader = decoder.read_info().map_err(|e| decoding_error(path, e))?;
     let (color_type, depth) = reader.output_color_type();
     let color_space = declared_space(reader.info());
     let chromaticities = match (&reader.info().srgb, &reader.info().chrm_chunk) {
@@ -99,7 +123,7 @@ pub fn read_png(path: &Path) -> Result<ImageData> {
     reader
         .next_frame(&mut bytes)
         .and_then(|_| reader.finish())
-        .map_err(|e| cannot_read(path, e))?;
+        .map_err(|e| decoding_error(path, e))?;
     // Times the reciprocal, as OpenImageIO converts: the same bits as the pictures read before.
     let (values, stored_type) = match depth {
         BitDepth::Sixteen => (
