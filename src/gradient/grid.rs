@@ -49,6 +49,11 @@ fn offset_voxel(o: usize) -> IVec3 {
 /// A value a gradient grid accumulates: quanta for a pass's splats, f32 or f64 for results.
 pub trait Accumulator: Copy + Default + AddAssign + Send + Sync + 'static {
     fn from_f32(v: f32) -> Self;
+    /// `v` with a dither `u` in [0, 1) for a type that rounds it (`Quanta`); others ignore `u`.
+    #[inline]
+    fn from_f32_dithered(v: f32, _u: f32) -> Self {
+        Self::from_f32(v)
+    }
     fn from_f64(v: f64) -> Self;
     fn to_f64(self) -> f64;
 }
@@ -97,12 +102,46 @@ impl Accumulator for Quanta {
     fn from_f32(v: f32) -> Self {
         Quanta(v.round() as i64)
     }
+    /// ⌊v + u⌋, whose mean over a uniform u is v exactly: a pass's samples are rounded this way,
+    /// so that samples far below a quantum (the pixels beside one whose adjoint is 10⁶ times
+    /// theirs, which sets the quantum) still add up to their sum instead of rounding to 0.
+    #[inline]
+    fn from_f32_dithered(v: f32, u: f32) -> Self {
+        Quanta((v + u).floor() as i64)
+    }
     fn from_f64(v: f64) -> Self {
         Quanta(v.round() as i64)
     }
     fn to_f64(self) -> f64 {
         self.0 as f64
     }
+}
+
+/// Uniform dithers in [0, 1) for rounding a pass's samples to quanta, one stream per pixel of a
+/// pass (SplitMix64 on a counter): like the paths' own numbers they depend on the pixel, never on
+/// the thread or process, so the sum stays the same bits on any number of either.
+pub struct Dither(u64);
+
+impl Dither {
+    pub fn new(seed: u64, pixel: u64) -> Self {
+        Dither(seed ^ 0x5851_F42D_4C95_7F2D ^ pixel.wrapping_mul(0xD1B5_4A32_D192_ED03))
+    }
+
+    #[inline]
+    pub fn draw(&mut self) -> f32 {
+        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
+        let mut z = self.0;
+        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+        ((z ^ (z >> 31)) >> 40) as f32 * (1.0 / (1u32 << 24) as f32)
+    }
+}
+
+/// The dither of corner k of a cell whose sample drew `u`: u + k/φ (mod 1), uniform for each
+/// corner, which is all each rounding's mean needs.
+#[inline]
+pub fn corner_dither(u: f32, k: usize) -> f32 {
+    (u + k as f32 * 0.618_034).fract()
 }
 
 #[derive(Clone)]
@@ -218,10 +257,11 @@ impl<T: Accumulator> GradientGrid<T> {
         }
     }
 
-    /// Adds `weights[k] · value` to corner k of the trilinear cell at `base`, resolving the block
-    /// once when the cell does not straddle blocks.
+    /// Adds `weights[k] · value` to corner k of the trilinear cell at `base` (rounded with the
+    /// dither `corner_dither(dither, k)`), resolving the block once when the cell does not
+    /// straddle blocks.
     #[inline]
-    pub fn add_cell(&mut self, base: IVec3, weights: &[f32; 8], value: f32) {
+    pub fn add_cell(&mut self, base: IVec3, weights: &[f32; 8], value: f32, dither: f32) {
         let local = base & BLOCK_MASK;
         if local.cmplt(IVec3::splat(BLOCK_MASK)).all() {
             let Some(values) = self.block_mut(base) else {
@@ -229,12 +269,14 @@ impl<T: Accumulator> GradientGrid<T> {
             };
             let o = block_offset(local);
             for (k, &w) in weights.iter().enumerate() {
-                values[o + block_offset(corner(k))] += T::from_f32(w * value);
+                values[o + block_offset(corner(k))] +=
+                    T::from_f32_dithered(w * value, corner_dither(dither, k));
             }
         } else {
             for (k, &w) in weights.iter().enumerate() {
                 if w > 0.0 {
-                    self.add(base + corner(k), T::from_f32(w * value));
+                    let value = T::from_f32_dithered(w * value, corner_dither(dither, k));
+                    self.add(base + corner(k), value);
                 }
             }
         }
@@ -403,7 +445,7 @@ mod tests {
         let weights = [0.1, 0.2, 0.05, 0.15, 0.1, 0.1, 0.2, 0.1];
         for base in [IVec3::new(1, 2, 3), IVec3::new(7, 7, 7)] {
             let mut a = g.empty_like();
-            a.add_cell(base, &weights, 2.0);
+            a.add_cell(base, &weights, 2.0, 0.0);
             for (k, &w) in weights.iter().enumerate() {
                 assert!((a.get(base + corner(k)) - 2.0 * w as f64).abs() < 1e-7);
             }

@@ -9,7 +9,7 @@ use rayon::prelude::*;
 
 use crate::gradient::adjoint::{GradientSink, Replay, Scratch};
 use crate::gradient::alpha_gradient::alpha_gradient_sample;
-use crate::gradient::grid::{Accumulator, GradientGrid, Quanta};
+use crate::gradient::grid::{corner_dither, Accumulator, Dither, GradientGrid, Quanta};
 use crate::gradient::in_order::InOrder;
 pub use crate::gradient::options::{GradOptions, Measured, Parameter};
 use crate::io::images::RgbImage;
@@ -26,8 +26,8 @@ use crate::volume::tracking::TrackingStats;
 /// The quantum of a gradient pass with adjoint images `deltas` at `spp`, each with the scale of
 /// its samples' d_pixel (`sample_scale`): the power of two just above the largest |δ|·scale / spp,
 /// over 2³². A sample δ/spp · d_pixel is then at most 2³²·|d_pixel|/scale quanta, and a voxel's
-/// sum has 2²⁹ such samples' headroom before i64 saturates; samples below 2⁻³³ of the largest
-/// round to 0 (an f32 sum keeps 2⁻²⁴ of its total).
+/// sum has 2²⁹ such samples' headroom before i64 saturates. Samples are rounded with a dither
+/// (`Quanta::from_f32_dithered`), so that those far below a quantum keep their mean.
 pub fn quantum_for<'a>(deltas: impl IntoIterator<Item = (&'a [Vec3], f64)>, spp: u32) -> f64 {
     // Over the finite values only: one infinite δ would make the quantum 1 and round every other
     // sample to 0 (its own samples are dropped and counted by the pass).
@@ -104,6 +104,8 @@ struct Splat {
     base: IVec3,
     weights: [f32; 8],
     value: f32,
+    /// The dither its corners are rounded to quanta with (`grid::corner_dither`).
+    dither: f32,
 }
 
 /// Records a unit's gradient samples in order (see `over_pixels`), weighted by the pixel's
@@ -114,6 +116,8 @@ struct SplatSink<'a> {
     splats: &'a mut Vec<Splat>,
     /// δ / (spp · quantum) for the current pixel.
     weight: Vec3,
+    /// The current pixel's dithers.
+    dither: Dither,
     /// Non-finite samples dropped.
     dropped: u64,
 }
@@ -130,6 +134,7 @@ impl SplatSink<'_> {
                 base,
                 weights,
                 value,
+                dither: self.dither.draw(),
             });
         } else {
             self.dropped += 1;
@@ -155,12 +160,14 @@ impl GradientSink for SplatSink<'_> {
 fn apply(grid: &mut GradientGrid<Quanta>, splats: &[Splat], active: Option<&BrickMap>) {
     for s in splats {
         match active {
-            None => grid.add_cell(s.base, &s.weights, s.value),
+            None => grid.add_cell(s.base, &s.weights, s.value, s.dither),
             Some(map) => {
                 for (k, &w) in s.weights.iter().enumerate() {
                     let voxel = s.base + corner(k);
                     if w > 0.0 && map.is_active(voxel) {
-                        grid.add(voxel, Quanta::from_f32(w * s.value));
+                        let value =
+                            Quanta::from_f32_dithered(w * s.value, corner_dither(s.dither, k));
+                        grid.add(voxel, value);
                     }
                 }
             }
@@ -453,6 +460,7 @@ pub fn add_gradient_of(
                 splats,
                 // In f64: for a tiny δ, 1/quantum exceeds f32's range though δ/quantum does not.
                 weight: (delta.as_dvec3() * (1.0 / (divisor * quantum))).as_vec3(),
+                dither: Dither::new(seed, index as u64),
                 dropped: 0,
             };
             let mut sum = Vec3::ZERO;
