@@ -150,18 +150,29 @@ pub fn check_values(values: &ArrayView3<f32>, argument: &str, signed: bool) -> R
     Ok(())
 }
 
+/// The most voxels the bricks of an array's box may hold: twice `MAX_DENSE_VOXELS`, so that
+/// every array within that limit and at least a brick thick passes wherever its corner lies.
+const MAX_BRICK_VOXELS: u64 = 2 * MAX_DENSE_VOXELS;
+
 /// The voxels of `values` (placed at `origin`) as a brick map that stores only the 8³ bricks
-/// holding a non-zero value; the non-zero voxels are active.
-pub fn to_brickmap(values: &ArrayView3<f32>, origin: IVec3) -> BrickMap {
+/// holding a non-zero value; the non-zero voxels are active. Refused (naming `argument`) where
+/// the bricks its box spans would hold more than `MAX_BRICK_VOXELS`: an array one voxel thin
+/// takes 64 times its own memory as bricks, so the voxel limit alone does not bound it.
+pub fn to_brickmap(values: &ArrayView3<f32>, origin: IVec3, argument: &str) -> Result<BrickMap> {
     let (nx, ny, nz) = values.dim();
     let place = VoxelBox {
         origin,
         shape: [nx, ny, nz],
     };
     if place.is_empty() {
-        return BrickMap::new(Vec::new(), Vec::new());
+        return Ok(BrickMap::new(Vec::new(), Vec::new()));
     }
     let (first, last): (IVec3, IVec3) = (origin >> 3i32, place.last() >> 3i32);
+    let spanned = (last.as_i64vec3() - first.as_i64vec3() + 1).as_u64vec3();
+    let brick_voxels = spanned.x * spanned.y * spanned.z * BRICK_VOXELS as u64;
+    if brick_voxels > MAX_BRICK_VOXELS {
+        bail!("{argument}: an array of {nx} × {ny} × {nz} voxels spans {} bricks of 8³ voxels, whose {brick_voxels} voxels are more than volgrad stores (at most 2^31); an array this thin takes far more memory as bricks than as an array", brick_voxels / BRICK_VOXELS as u64);
+    }
     let bricks: Vec<IVec3> = (first.x..=last.x)
         .flat_map(|x| {
             (first.y..=last.y)
@@ -198,7 +209,7 @@ pub fn to_brickmap(values: &ArrayView3<f32>, origin: IVec3) -> BrickMap {
             any.then_some(leaf)
         })
         .collect();
-    BrickMap::new(leaves, Vec::new())
+    Ok(BrickMap::new(leaves, Vec::new()))
 }
 
 /// The voxels of `grid` in `place`, dense; refused (naming `what`) when `place` is too large.

@@ -76,7 +76,7 @@ pub fn write_grid(
     let values = array.as_array();
     detached::run(py, None, || {
         arrays::check_values(&values, "array", true)?;
-        let bricks = arrays::to_brickmap(&values, glam::IVec3::ZERO);
+        let bricks = arrays::to_brickmap(&values, glam::IVec3::ZERO, "array")?;
         let grid_class = if bricks.min_value() < 0.0 {
             "unknown"
         } else {

@@ -40,7 +40,7 @@ pub fn density_grid(
     argument: &str,
 ) -> anyhow::Result<BrickMap> {
     arrays::check_values(values, argument, false)?;
-    let grid = arrays::to_brickmap(values, origin);
+    let grid = arrays::to_brickmap(values, origin, argument)?;
     let extinction = density_scale as f64 * grid.max_value() as f64;
     if extinction > MAX_EXTINCTION {
         anyhow::bail!("{argument}: density_scale × its largest value is {extinction:.3e}: too large to track (at most {MAX_EXTINCTION:e} per world unit)");
@@ -72,7 +72,7 @@ pub fn emission_grid(
     )?;
     let emission = Emission::new(
         "emission".into(),
-        arrays::to_brickmap(values, place.origin),
+        arrays::to_brickmap(values, place.origin, "emission")?,
         transform,
         kind,
         filter,
@@ -104,7 +104,7 @@ pub fn albedo_grid(
                 1 => values.view().into_dimensionality::<Ix3>(),
                 _ => values.index_axis(Axis(3), c).into_dimensionality::<Ix3>(),
             }?;
-            Ok(arrays::to_brickmap(&channel, place.origin))
+            arrays::to_brickmap(&channel, place.origin, "albedo")
         })
         .collect::<anyhow::Result<Vec<_>>>()?;
     Ok(Albedo::Grid(Box::new(AlbedoGrid::new(

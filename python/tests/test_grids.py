@@ -122,3 +122,13 @@ def test_an_array_beyond_the_dense_limit_is_refused_before_it_is_scanned(tmp_pat
     huge = np.broadcast_to(np.float32(0.5), (20000, 20000, 20000))
     with pytest.raises(ValueError, match="more than volgrad takes"):
         volgrad.write_grid(tmp_path / "x.vdb", huge, voxel_map())
+
+
+def test_an_array_too_thin_for_its_bricks_is_refused():
+    """Within the voxel limit, a line of 2^26 voxels spans 2^23 bricks of 8³: 17 GiB of them,
+    which aborted the process when the allocation failed. Refused by name, before any brick."""
+    thin = np.broadcast_to(np.float32(1), (2**26, 1, 1))
+    with pytest.raises(ValueError, match=r"^array: .* spans 8388608 bricks"):
+        volgrad.write_grid("/tmp/never-written.vdb", thin, voxel_map())
+    with pytest.raises(ValueError, match=r"^density: .* spans 8388608 bricks"):
+        volgrad.Scene.from_parts(thin, voxel_map())

@@ -25,6 +25,24 @@ def test_jax_grad_is_the_vector_jacobian_product():
     np.testing.assert_array_equal(np.asarray(jitted(density, 7)), np.asarray(gradient))
 
 
+def test_a_density_replaced_between_the_render_and_its_gradient_is_refused():
+    """set_density after the render moves the box the values stand in (here by one world unit):
+    the gradient would be of the moved volume."""
+    scene = small_scene()
+    render = volgrad.jax.renderer(scene, spp=2, grad_spp=2)
+    values, index_to_world = scene.density
+    weights = jnp.ones((24, 24, 3))
+    _, vjp = jax.vjp(lambda d: render(d, 3), jnp.asarray(values))
+    index_to_world[:3, 3] += 1.0
+    scene.set_density(values, index_to_world)
+    # Raised inside JAX's callback, which keeps the message but not the type.
+    with pytest.raises(Exception, match="set_density"):
+        jax.block_until_ready(vjp(weights))
+    # A render after it is differentiated as the scene now is.
+    gradient = jax.grad(lambda d: jnp.sum(render(d, 3) * weights))(jnp.asarray(values))
+    np.testing.assert_array_equal(np.asarray(gradient), scene.grad(np.asarray(weights, np.float32), spp=2, seed=3))
+
+
 def test_vmap_over_seeds_renders_each():
     scene = small_scene()
     render = volgrad.jax.renderer(scene, scene.camera, spp=2, grad_spp=2)

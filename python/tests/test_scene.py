@@ -267,6 +267,8 @@ def bad_calls():
     yield lambda: small_scene(density_scale=1e-46), ValueError, r"density_scale must be .* 32-bit float's range.*got 1e-46"
     yield lambda: small_scene(phase_g=1e300), ValueError, "phase_g must be"
     yield lambda: volgrad.Camera((0, 0, 1), (0, 0, 0), fov_deg=1e-50), ValueError, r"fov_deg must be .*got 1e-50"
+    # Within f32's range, but a focal length beyond it.
+    yield lambda: volgrad.Camera((0, 0, 1), (0, 0, 0), fov_deg=1e-44), ValueError, "fov_deg = .* is too narrow"
     yield lambda: volgrad.Camera((0, 0, 1), (0, 0, 0), cx=1e39), ValueError, "cx must be"
     yield lambda: volgrad.Camera.orbit(1, 1e40), ValueError, "distance must be"
     # Inside the light dicts and emission_kind too: a sun of 1e-300 would be dark.

@@ -53,6 +53,15 @@ def test_each_grid_that_wants_a_gradient_gets_its_own():
     scene.set_density(ball() * 2)
     with pytest.raises(RuntimeError, match="set_density"):
         (images * weights).sum().backward()
+    # With the density as a tensor too: set_density may move the box its voxels stand in (here
+    # by one world unit), and the backward pass would differentiate the moved volume.
+    density = torch.from_numpy(ball()).requires_grad_(True)
+    images = volgrad.torch.render(density, scene, spp=2, seed=9)
+    values, index_to_world = scene.density
+    index_to_world[:3, 3] += 1.0
+    scene.set_density(values, index_to_world)
+    with pytest.raises(RuntimeError, match="set_density"):
+        (images * weights).sum().backward()
 
 
 def test_without_a_seed_each_call_draws_one_from_torch():
@@ -74,6 +83,8 @@ def test_a_contiguous_tensor_is_not_copied():
 
 def test_tensors_of_another_type_are_refused_by_name():
     scene = small_scene()
+    with pytest.raises(TypeError, match="^density must be a torch.Tensor"):
+        volgrad.torch.render(scene.density[0], scene)
     with pytest.raises(TypeError, match="density must be float32"):
         volgrad.torch.render(torch.zeros(16, 16, 16, dtype=torch.float64), scene)
     density = torch.from_numpy(scene.density[0])

@@ -78,24 +78,35 @@ def renderer(
             **{grid: np.asarray(values, np.float32)},
         )
 
-    def vjp(values, seed, adjoint):
+    def density_changes():
+        # How many times set_density has replaced the scene's density (mod 2³², a uint32 for
+        # JAX without x64): the gradient refuses a render of another volume.
+        return scene._density_changes % 2**32
+
+    def vjp(values, seed, changes, adjoint):
+        if int(changes) != density_changes():
+            raise RuntimeError(
+                "the scene's density was replaced (set_density) between this render and its "
+                "gradient, which would differentiate another volume: take the gradient first"
+            )
         return scene.grad(
             np.asarray(adjoint, np.float32), cams, estimator=estimator, parameter=parameter,
             spp=grad_spp, seed=int(seed), max_depth=max_depth, threads=threads,
             **{grid: np.asarray(values, np.float32)},
         )
 
-    def call(function, shape, dtype, *args):
-        def typed(*values):
+    def call(function, out, *args):
+        def one_at_a_time(*values):
             # XLA may run independent callbacks at once, and a Scene takes one call at a time.
             with _ONE_AT_A_TIME:
-                return np.asarray(function(*values), dtype)
+                return function(*values)
 
-        out = jax.ShapeDtypeStruct(shape, dtype)
-        return jax.pure_callback(typed, out, *args, vmap_method="sequential")
+        return jax.pure_callback(one_at_a_time, out, *args, vmap_method="sequential")
 
-    @jax.custom_vjp
-    def render(values, seed):
+    def typed(function, dtype):
+        return lambda *values: np.asarray(function(*values), dtype)
+
+    def checked(values, seed):
         # Refused while tracing, as volgrad.torch refuses them, rather than cast in the callback.
         if values.dtype not in (jnp.float32, jnp.float64):
             raise TypeError(f"{grid} must be float32 or float64 (got {values.dtype})")
@@ -105,14 +116,26 @@ def renderer(
             raise TypeError(f"seed must be an integer (got {jnp.result_type(seed)})")
         if isinstance(seed, numbers.Integral):
             _checks.seed(seed)
-        return call(images, shape, values.dtype, values, seed)
+        return jax.ShapeDtypeStruct(shape, values.dtype)
+
+    @jax.custom_vjp
+    def render(values, seed):
+        out = checked(values, seed)
+        return call(typed(images, values.dtype), out, values, seed)
 
     def forward(values, seed):
-        return render(values, seed), (values, seed)
+        out = (checked(values, seed), jax.ShapeDtypeStruct((), jnp.uint32))
+
+        def render_and_count(v, s):
+            return np.asarray(images(v, s), values.dtype), np.uint32(density_changes())
+
+        image, changes = call(render_and_count, out, values, seed)
+        return image, (values, seed, changes)
 
     def backward(saved, adjoint):
-        values, seed = saved
-        return call(vjp, values.shape, values.dtype, values, seed, adjoint), None
+        values, seed, changes = saved
+        out = jax.ShapeDtypeStruct(values.shape, values.dtype)
+        return call(typed(vjp, values.dtype), out, values, seed, changes, adjoint), None
 
     render.defvjp(forward, backward)
     return render

@@ -33,6 +33,8 @@ _ESTIMATORS = ("joint", "drt", "naive")
 
 
 def _as_array(tensor: torch.Tensor, name: str) -> np.ndarray:
+    if not isinstance(tensor, torch.Tensor):
+        raise TypeError(f"{name} must be a torch.Tensor (got {type(tensor).__name__})")
     if tensor.layout != torch.strided:
         raise TypeError(f"{name} must be a dense tensor (got layout {tensor.layout})")
     if tensor.device.type != "cpu":
@@ -62,11 +64,12 @@ class _Render(torch.autograd.Function):
     @torch.autograd.function.once_differentiable
     def backward(ctx, grad_output):
         scene, cameras, estimator, spp, seed, max_depth, threads = ctx.settings
-        if ctx.saved_tensors[0] is None and scene._density_changes != ctx.density_changes:
+        # Even with the density as a tensor: set_density may have moved the box the tensor's
+        # voxels stand in, and the albedo and emission are rendered over that box too.
+        if scene._density_changes != ctx.density_changes:
             raise RuntimeError(
                 "the scene's density was replaced (set_density) between this render and its backward "
-                "pass, which would differentiate the new one: pass the density as a tensor, or call "
-                "backward before set_density"
+                "pass, which would differentiate another volume: call backward before set_density"
             )
         grids = _grids(ctx.saved_tensors)
         adjoint = _as_array(grad_output, "grad_output")
