@@ -63,27 +63,49 @@ fn an_output_in_a_missing_folder_is_refused_before_any_work() {
     assert_clean_error(&o, &["g.vdb", "missing", "does not exist"]);
 }
 
+/// `volgrad ARGS`, ended by `timeout` if a refusal regresses into a read that never returns.
+fn volgrad_within_a_minute(args: &[&str]) -> std::process::Output {
+    std::process::Command::new("timeout")
+        .args(["60", env!("CARGO_BIN_EXE_volgrad")])
+        .args(args)
+        .output()
+        .unwrap()
+}
+
 #[test]
 fn an_input_that_is_a_fifo_is_refused_not_read_forever() {
     let dir = tempfile::tempdir().unwrap();
-    let fifo = dir.path().join("f.toml");
-    assert!(std::process::Command::new("mkfifo")
-        .arg(&fifo)
-        .status()
-        .unwrap()
-        .success());
-    // `timeout` ends the test's wait if the refusal regresses into a read that never returns.
-    let o = std::process::Command::new("timeout")
-        .args([
-            "60",
-            env!("CARGO_BIN_EXE_volgrad"),
-            "render",
-            path(&fifo),
-            "-q",
-        ])
-        .output()
-        .unwrap();
+    let fifo = |name: &str| {
+        let fifo = dir.path().join(name);
+        assert!(std::process::Command::new("mkfifo")
+            .arg(&fifo)
+            .status()
+            .unwrap()
+            .success());
+        fifo
+    };
+    let toml = fifo("f.toml");
+    let o = volgrad_within_a_minute(&["render", path(&toml), "-q"]);
     assert_clean_error(&o, &["f.toml", "not a regular file"]);
+    // A picture, whatever its name: the PNG reader's look at the file's first bytes blocked on
+    // a FIFO, before the bridge's check could refuse it.
+    let scene = scene_in(dir.path(), "s.toml", 12.0, 2.0);
+    let out = dir.path().join("g.vdb");
+    for name in ["t.png", "t.exr"] {
+        let target = fifo(name);
+        let o = volgrad_within_a_minute(&[
+            "grad",
+            path(&scene),
+            "--loss",
+            "l2",
+            "--target",
+            path(&target),
+            "-o",
+            path(&out),
+            "-q",
+        ]);
+        assert_clean_error(&o, &[name, "not a regular file"]);
+    }
 }
 
 #[test]

@@ -76,8 +76,8 @@ fn data_lines(text: &str) -> impl Iterator<Item = (usize, &str)> {
 fn sensors(text: &str) -> Result<HashMap<u32, Sensor>> {
     let mut sensors = HashMap::new();
     for (number, line) in data_lines(text).filter(|(_, l)| !l.trim().is_empty()) {
+        let id = first_number(line).with_context(|| format!("line {number}"))?;
         let sensor = sensor(line).with_context(|| format!("line {number}"))?;
-        let id = first_number(line)?;
         if sensors.insert(id, sensor).is_some() {
             bail!("line {number}: camera {id} is defined twice");
         }
@@ -212,6 +212,17 @@ fn points_line(line: &str) -> Result<()> {
     Ok(())
 }
 
+/// What follows the first `n` words of `line`, as it stands there.
+fn after_words(line: &str, n: usize) -> &str {
+    let mut rest = line.trim_start();
+    for _ in 0..n {
+        rest = rest
+            .trim_start_matches(|c: char| !c.is_whitespace())
+            .trim_start();
+    }
+    rest.trim_end()
+}
+
 /// One pose line of `images.txt`.
 fn view(line: &str, sensors: &HashMap<u32, Sensor>, images: &Path) -> Result<CapturedView> {
     let words: Vec<&str> = line.split_whitespace().collect();
@@ -220,11 +231,13 @@ fn view(line: &str, sensors: &HashMap<u32, Sensor>, images: &Path) -> Result<Cap
     }
     let numbers = finite_numbers(&words[1..8])?;
     let q = DQuat::from_xyzw(numbers[1], numbers[2], numbers[3], numbers[0]);
-    let norm = q.length();
-    if norm <= 1e-12 {
+    // Scaled by its largest component first: the length of (1e200, 1e200, 0, 0) overflows, and
+    // a quaternion of length 1e-200 is a rotation all the same.
+    let largest = numbers[..4].iter().fold(0.0, |m: f64, v| m.max(v.abs()));
+    if largest == 0.0 {
         bail!("the rotation quaternion is zero");
     }
-    let world_to_camera = q / norm;
+    let world_to_camera = (q / largest).normalize();
     let t = DVec3::new(numbers[4], numbers[5], numbers[6]);
     let camera_to_world = world_to_camera.inverse();
     let position = -(camera_to_world * t);
@@ -234,8 +247,8 @@ fn view(line: &str, sensors: &HashMap<u32, Sensor>, images: &Path) -> Result<Cap
     let sensor = sensors
         .get(&id)
         .with_context(|| format!("camera {id} is not in cameras.txt"))?;
-    // A name may hold spaces: it is the rest of the line.
-    let name = words[9..].join(" ");
+    // A name may hold spaces, two in a row too: it is the rest of the line.
+    let name = after_words(line, 9);
     let camera = calibrated_camera(
         position,
         forward,

@@ -19,8 +19,9 @@ const HEADER: &str = "# Camera list with one line of data per camera:\n#   CAMER
 /// (0, 0, −5) looking along +z, its image's up along −y (OpenCV: +y is down the image).
 #[test]
 fn an_identity_pose_looks_along_plus_z_with_y_down() {
-    let cameras = format!("{HEADER}1 PINHOLE 20 10 100 50 12 3\n");
-    let images = "# Image list\n7 1 0 0 0 0 0 5 1 frame 7.png\n\n";
+    // A byte-order mark first (as some Windows tools write), and a name with two spaces.
+    let cameras = format!("\u{feff}{HEADER}1 PINHOLE 20 10 100 50 12 3\n");
+    let images = "# Image list\n7 1 0 0 0 0 0 5 1 frame  7.png\n\n";
     let views = read_model(&cameras, images).unwrap();
     let c = views[0].camera;
     assert_eq!(c.position, Vec3::new(0.0, 0.0, -5.0));
@@ -31,8 +32,14 @@ fn an_identity_pose_looks_along_plus_z_with_y_down() {
     assert!((right.x / right.z - 0.01).abs() < 1e-6, "{right}");
     assert_eq!(
         views[0].image.as_deref(),
-        Some(Path::new("images/frame 7.png"))
+        Some(Path::new("images/frame  7.png"))
     );
+    // The same rotation at any length: its length overflowed at 1e200, and 1e-200 was "zero".
+    for w in ["1e200", "1e-200"] {
+        let images = format!("7 {w} 0 0 0 0 0 5 1 a.png\n\n");
+        let same = read_model(&cameras, &images).unwrap()[0].camera;
+        assert_eq!(same.direction(12.0, 4.0), below, "{w}");
+    }
 }
 
 /// The same cameras written as COLMAP poses and as a transforms.json (OpenGL axes) see the same
@@ -92,6 +99,7 @@ fn what_is_not_a_pinhole_or_not_colmap_is_refused_naming_the_line() {
         ("1 FISHEYE 8 8 10 4 4\n", pose, "not one volgrad reads"),
         ("1 pinhole 8 8 10 10 4 4\n", pose, "in capitals"),
         ("1 PINHOLE 8 8 10 10 4\n", pose, "too few"),
+        ("-1 PINHOLE 8 8 10 10 4 4\n", pose, "'-1' is not an id"),
         ("1 PINHOLE 8 8 10 10 4 4 1\n", pose, "takes 4 parameters"),
         ("1 PINHOLE 0 8 10 10 4 4\n", pose, "at least 1"),
         ("1 PINHOLE 65536 65536 10 10 4 4\n", pose, "too large"),

@@ -106,6 +106,8 @@ impl Lens {
         let whole = |key: &str, v: f64| {
             if v.fract() == 0.0 && (1.0..=f64::from(u32::MAX)).contains(&v) {
                 Ok(v as u32)
+            } else if v.fract() == 0.0 && v > 1.0 {
+                bail!("{key} = {} pixels is too large", super::quoted_number(v))
             } else {
                 bail!(
                     "{key} = {} is not a whole number of pixels ≥ 1",
@@ -320,7 +322,9 @@ fn focal(axis: &str, fl: Option<f64>, angle: Option<f64>, size: u32) -> Result<O
         .transpose()?;
     match (fl, from_angle) {
         (Some(f), Some(a)) if (f - a).abs() > 1e-3 * a => bail!(
-            "fl_{axis} = {f} and camera_angle_{axis} (a focal length of {a:.3} pixels at this size) disagree: give one"
+            "fl_{axis} = {} and camera_angle_{axis} (a focal length of {} pixels at this size) disagree: give one",
+            super::quoted_number(f),
+            super::quoted_number((a * 1000.0).round() / 1000.0)
         ),
         (Some(f), _) => Ok(Some(f)),
         (None, a) => Ok(a),

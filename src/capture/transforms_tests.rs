@@ -239,6 +239,10 @@ fn sizes_are_whole_numbers_in_any_notation_and_come_in_pairs() {
     for (size, says) in [
         (r#""w": 20.5, "h": 10"#, "w = 20.5 is not a whole number"),
         (
+            r#""w": 1e10, "h": 10"#,
+            "w = 10000000000 pixels is too large",
+        ),
+        (
             r#""w": 20, "h": -10"#,
             "h = -10 is not a whole number of pixels ≥ 1",
         ),

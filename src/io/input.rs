@@ -17,10 +17,14 @@ pub fn open_regular(path: &Path) -> Result<File> {
     Ok(File::open(path)?)
 }
 
-/// The text of the regular file `path`.
+/// The text of the regular file `path`, without the byte-order mark some Windows tools write
+/// first (JSON and COLMAP's readers would take it for the first character of the data).
 pub fn read_text(path: &Path) -> Result<String> {
     let mut text = String::new();
     std::io::Read::read_to_string(&mut open_regular(path)?, &mut text)?;
+    if text.starts_with('\u{feff}') {
+        text.drain(..'\u{feff}'.len_utf8());
+    }
     Ok(text)
 }
 
@@ -51,5 +55,22 @@ mod tests {
         let kind = missing.downcast_ref::<std::io::Error>().map(|e| e.kind());
         assert_eq!(kind, Some(std::io::ErrorKind::NotFound));
         std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    #[test]
+    fn a_byte_order_mark_is_not_read_as_text() {
+        let file = tempfile::NamedTempFile::new().unwrap();
+        std::fs::write(
+            file.path(),
+            "\u{feff}# Camera list\n1 PINHOLE 8 8 9 9 4 4\n",
+        )
+        .unwrap();
+        assert_eq!(
+            read_text(file.path()).unwrap(),
+            "# Camera list\n1 PINHOLE 8 8 9 9 4 4\n"
+        );
+        // Only a first one: one inside the text is the text's.
+        std::fs::write(file.path(), "a\u{feff}").unwrap();
+        assert_eq!(read_text(file.path()).unwrap(), "a\u{feff}");
     }
 }

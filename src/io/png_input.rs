@@ -18,6 +18,7 @@ use anyhow::{bail, Result};
 use png::{BitDepth, ColorType, Decoder, DecodingError, Limits, Transformations};
 
 use crate::io::bridge::ImageData;
+use crate::io::input::open_regular;
 
 /// The largest picture read, as the bridge refuses it for other formats: 2^28 pixels, 2^30 values.
 const MAX_PIXELS: u64 = 1 << 28;
@@ -26,16 +27,15 @@ const MAX_VALUES: u64 = 1 << 30;
 const SIGNATURE: [u8; 8] = [0x89, b'P', b'N', b'G', b'\r', b'\n', 0x1a, b'\n'];
 
 /// Whether the file at `path` starts as a PNG does (whatever its name says). A file that cannot be
-/// opened is not: OpenImageIO's reader then says why, as for any other picture.
+/// opened, or is not a regular file (a FIFO would block the open until something wrote to it), is
+/// not: OpenImageIO's reader then says why, as for any other picture.
 pub fn is_png(path: &Path) -> bool {
     let mut head = [0u8; 8];
-    File::open(path)
-        .and_then(|mut f| f.read_exact(&mut head))
-        .is_ok_and(|_| head == SIGNATURE)
+    open_regular(path).is_ok_and(|mut f| f.read_exact(&mut head).is_ok() && head == SIGNATURE)
 }
 
 fn decoder(path: &Path) -> Result<Decoder<BufReader<File>>> {
-    let file = File::open(path).map_err(|e| cannot_read(path, e))?;
+    let file = open_regular(path).map_err(|e| cannot_read(path, e))?;
     let mut decoder = Decoder::new_with_limits(
         BufReader::new(file),
         // The sizes are checked against MAX_PIXELS and MAX_VALUES before any pixel is decoded;
