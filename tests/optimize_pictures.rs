@@ -261,7 +261,13 @@ fn pictures_alone_need_no_grid_and_give_their_own_box() {
         assert!(min[a] < -3.0 && min[a] > -11.0, "{min:?} {max:?}");
         assert!(max[a] > 3.0 && max[a] < 11.0, "{min:?} {max:?}");
     }
-    assert!(settings["unknown"]["voxel_size"].as_float().unwrap() > 0.0);
+    let voxel = settings["unknown"]["voxel_size"].as_float().unwrap();
+    assert!(voxel > 0.0);
+    // The box as its voxels cover it, a whole number of them (the box found is not).
+    for a in 0..3 {
+        let n = (max[a] - min[a]) / voxel;
+        assert!((n - n.round()).abs() < 1e-3, "{n} voxels along axis {a}");
+    }
     // The voxel is the finest pixel's footprint: no coarser level to start from.
     let levels = settings["unknown"]["levels"].as_array().unwrap();
     assert!(levels.is_empty(), "{levels:?}");

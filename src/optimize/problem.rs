@@ -5,7 +5,7 @@
 use std::path::Path;
 
 use anyhow::{bail, Context, Result};
-use glam::{DAffine3, DMat3, DVec3, IVec3};
+use glam::DVec3;
 
 use crate::cluster::Cluster;
 use crate::gradient::loss::Loss;
@@ -14,7 +14,7 @@ use crate::io::vdb::{self, GridSelector, LevelSet};
 use crate::optimize::adam::Adam;
 use crate::optimize::hull::{self, Hull};
 use crate::optimize::optimizer_file;
-use crate::optimize::parameters::{Parameters, MAX_VOXELS};
+use crate::optimize::parameters::Parameters;
 use crate::optimize::prior::Prior;
 use crate::optimize::resample::Moments;
 use crate::optimize::run_file::{BoundsFile, EvalSpp, RunFile, StartFile, UnknownGrid};
@@ -32,7 +32,7 @@ use crate::render::lights::Lights;
 use crate::render::scene::{Scene, SceneNeeds};
 use crate::render::scene_check::{MAX_EXTINCTION, MAX_LIGHT};
 use crate::volume::brickmap::BrickMap;
-use crate::volume::transform::{IndexTransform, MIN_VOXEL_SIZE};
+use crate::volume::transform::MIN_VOXEL_SIZE;
 
 pub use crate::optimize::targets::View;
 pub use crate::optimize::unknown::Domain;
@@ -382,7 +382,11 @@ impl Inputs {
             };
             file.unknown.voxel_size = Some(voxel as f32);
         }
-        let domain = final_domain(&file, &grids)?;
+        let (domain, covered) = final_domain(&file, &grids)?;
+        if let (BoundsFile::Box { max, .. }, Some(covered)) = (&mut file.unknown.bounds, covered) {
+            // The run goes on (and writes in settings.toml) with the box its voxels cover.
+            *max = covered.as_vec3().to_array();
+        }
         let world_box = Some(domain.world_box());
         let training = view_specs(run_path, "view", &file.view, &file.views, world_box)?;
         let held_out = view_specs(
@@ -450,9 +454,9 @@ impl KnownGrids {
 }
 
 /// The unknown's final level: its transform and voxel box, from `unknown.bounds` (the levels
-/// above it are decided later, from the views).
-fn final_domain(file: &RunFile, grids: &KnownGrids) -> Result<Domain> {
-    let (transform, lo, hi) = match &file.unknown.bounds {
+/// above it are decided later, from the views), and for a box, its max as the voxels cover it.
+fn final_domain(file: &RunFile, grids: &KnownGrids) -> Result<(Domain, Option<DVec3>)> {
+    let (domain, covered) = match &file.unknown.bounds {
         BoundsFile::Named(name) => {
             let grid = if name == "truth" {
                 grids.truth.as_ref()
@@ -466,41 +470,22 @@ fn final_domain(file: &RunFile, grids: &KnownGrids) -> Result<Domain> {
                     grid.name
                 );
             };
-            (grid.transform, lo, hi)
+            let domain = Domain {
+                transform: grid.transform,
+                lo,
+                hi,
+                levels: 0,
+            };
+            (domain, None)
         }
         BoundsFile::Box { min, max } => {
             let voxel = file.unknown.voxel_size.context("validated")? as f64;
-            let (min, max) = (
-                DVec3::from(min.map(f64::from)),
-                DVec3::from(max.map(f64::from)),
-            );
-            let n = ((max - min) / voxel).ceil();
-            if n.max_element() > i32::MAX as f64 / 2.0 {
-                bail!("unknown.bounds / unknown.voxel_size: {n} voxels per axis is too many");
-            }
-            let linear = DMat3::from_diagonal(DVec3::splat(voxel));
-            let transform =
-                IndexTransform::new(DAffine3::from_mat3_translation(linear, min + voxel / 2.0))
-                    .context("unknown.bounds / unknown.voxel_size")?;
-            (transform, IVec3::ZERO, n.as_ivec3() - IVec3::ONE)
+            let (min, max) = (min.map(f64::from).into(), max.map(f64::from).into());
+            let (domain, covered) = Domain::over_box(min, max, voxel)?;
+            (domain, Some(covered))
         }
     };
-    let domain = Domain {
-        transform,
-        lo,
-        hi,
-        levels: 0,
-    };
-    if domain.voxel_count() > MAX_VOXELS {
-        let count = match domain.voxel_count() {
-            u64::MAX => "more than 1.8e19".to_string(), // saturated
-            n => n.to_string(),
-        };
-        bail!(
-            "unknown.bounds: the unknown has {count} voxels at the final level; at most {MAX_VOXELS} (each is stored with Adam's two moments)"
-        );
-    }
-    Ok(domain)
+    Ok((domain.checked()?, covered))
 }
 
 impl Settings {

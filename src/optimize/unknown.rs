@@ -3,8 +3,8 @@
 //! in place — as the density (σt's grid, majorants built for it), or as the emission grid (flame
 //! tomography: the scene's density is known, and its `medium.emission` says what the values mean).
 
-use anyhow::{bail, Result};
-use glam::{DAffine3, DQuat, DVec3, IVec3, Vec3};
+use anyhow::{bail, Context, Result};
+use glam::{DAffine3, DMat3, DQuat, DVec3, IVec3, Vec3};
 
 use crate::gradient::passes::Parameter;
 use crate::io::vdb;
@@ -31,6 +31,42 @@ pub struct Domain {
 }
 
 impl Domain {
+    /// The final level over the world box from `min` to `max` in voxels of `voxel`, anchored at
+    /// `min`, and the box's max as those voxels cover it: one voxel past `max` where the box is
+    /// not a whole number of them (within 10⁻⁴ voxel, so that the box written back in f32 keeps
+    /// its count).
+    pub fn over_box(min: DVec3, max: DVec3, voxel: f64) -> Result<(Domain, DVec3)> {
+        let n = ((max - min) / voxel - 1e-4).ceil().max(DVec3::ONE);
+        if n.max_element() > i32::MAX as f64 / 2.0 {
+            bail!("unknown.bounds / unknown.voxel_size: {n} voxels per axis is too many");
+        }
+        let linear = DMat3::from_diagonal(DVec3::splat(voxel));
+        let transform =
+            IndexTransform::new(DAffine3::from_mat3_translation(linear, min + voxel / 2.0))
+                .context("unknown.bounds / unknown.voxel_size")?;
+        let domain = Domain {
+            transform,
+            lo: IVec3::ZERO,
+            hi: n.as_ivec3() - IVec3::ONE,
+            levels: 0,
+        };
+        Ok((domain, min + n * voxel))
+    }
+
+    /// Refused above `MAX_VOXELS` at the final level.
+    pub fn checked(self) -> Result<Domain> {
+        if self.voxel_count() > MAX_VOXELS {
+            let count = match self.voxel_count() {
+                u64::MAX => "more than 1.8e19".to_string(), // saturated
+                n => n.to_string(),
+            };
+            bail!(
+                "unknown.bounds: the unknown has {count} voxels at the final level; at most {MAX_VOXELS} (each is stored with Adam's two moments)"
+            );
+        }
+        Ok(self)
+    }
+
     /// Voxel size of level `level` over the final one.
     pub fn scale(&self, level: usize) -> f64 {
         f64::from(1u32 << (self.levels - level.min(self.levels)))
