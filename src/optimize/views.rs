@@ -7,7 +7,9 @@ use anyhow::{bail, Context, Result};
 use glam::{Quat, Vec3};
 
 use crate::render::camera::Camera;
-use crate::render::scene_check::{coordinates, image_size, unit, view_frame, MAX_COORDINATE};
+use crate::render::scene_check::{
+    coordinates, field_of_view, image_size, unit, view_frame, MAX_COORDINATE,
+};
 
 /// `[views.orbit]` of a run file.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -67,18 +69,13 @@ impl Orbit {
                 self.distance
             );
         }
-        if !(self.fov_deg > 0.0 && self.fov_deg < 180.0) {
-            bail!(
-                "views.orbit.fov_deg must be between 0 and 180 degrees, exclusive (got {})",
-                self.fov_deg
-            );
-        }
         image_size(
             "views.orbit.width",
             "views.orbit.height",
             self.width,
             self.height,
         )?;
+        field_of_view("views.orbit.fov_deg", self.fov_deg, self.width, self.height)?;
         let golden_angle = std::f32::consts::PI * (3.0 - 5f32.sqrt());
         let (s_lo, s_hi) = (lo.to_radians().sin(), hi.to_radians().sin());
         (0..self.count)

@@ -376,6 +376,11 @@ vdb = "x.vdb"
         for (from, to, key) in [
             ("width = 8", "width = 0", "camera.width"),
             ("fov_deg = 40", "fov_deg = 180", "camera.fov_deg"),
+            (
+                "fov_deg = 40",
+                "fov_deg = 1e-44",
+                "camera.fov_deg = 1e-44 is too narrow",
+            ),
             ("target = [0, 0, 0]", "target = [0, 0, 10]", "camera.target"),
         ] {
             let err = SceneFile::parse(&MINIMAL.replace(from, to), Path::new("t.toml"))

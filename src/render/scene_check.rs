@@ -51,14 +51,21 @@ impl CameraFile {
         coordinates("camera.position", c.position)?;
         coordinates("camera.target", c.target)?;
         view_frame(c.position, c.target, c.up)?;
-        if !(c.fov_deg > 0.0 && c.fov_deg < 180.0) {
-            bail!(
-                "camera.fov_deg must be between 0 and 180 degrees, exclusive (got {})",
-                c.fov_deg
-            );
-        }
-        image_size("camera.width", "camera.height", c.width, c.height)
+        image_size("camera.width", "camera.height", c.width, c.height)?;
+        field_of_view("camera.fov_deg", c.fov_deg, c.width, c.height)
     }
+}
+
+/// A horizontal field of view strictly between 0 and 180° over an image of `width` × `height`
+/// (checked first), whose focal length a float holds (at 10⁻⁴⁴° it does not).
+pub fn field_of_view(key: &str, fov_deg: f32, width: u32, height: u32) -> Result<()> {
+    if !(fov_deg > 0.0 && fov_deg < 180.0) {
+        bail!("{key} must be between 0 and 180 degrees, exclusive (got {fov_deg})");
+    }
+    if !Intrinsics::from_fov(fov_deg, width, height).fx.is_finite() {
+        bail!("{key} = {fov_deg:e} is too narrow: its focal length is beyond what a float holds");
+    }
+    Ok(())
 }
 
 /// An image size of at least one pixel and at most `MAX_PIXELS`; errors name the two keys.
