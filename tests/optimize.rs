@@ -467,39 +467,40 @@ fn the_seed_leaves_the_targets_as_they_are() {
     assert_ne!(targets(Some(1)), one, "target_seed changes the targets");
 }
 
-/// Ctrl-C stops the run after the current iteration with a checkpoint and says how to resume.
+/// Ctrl-C stops the run after the current iteration with a checkpoint and says how to resume;
+/// so does SIGTERM (`timeout`, a batch job's time limit), which ended it mid-write.
 #[test]
 fn an_interrupted_run_writes_a_checkpoint() {
     let dir = fixture(&run_file("0.2", "spp = 1\niterations = 100000"));
     let d = dir.path();
-    let child = std::process::Command::new(env!("CARGO_BIN_EXE_volgrad"))
-        .current_dir(d)
-        .args(["optimize", "run.toml", "--out", "o", "-q"])
-        .stderr(std::process::Stdio::piped())
-        .spawn()
-        .unwrap();
-    let started = std::time::Instant::now();
-    while log_rows(&d.join("o")) < 3 {
-        assert!(started.elapsed().as_secs() < 120, "no progress");
-        std::thread::sleep(std::time::Duration::from_millis(50));
+    for (signal, o) in [("-INT", "o"), ("-TERM", "p")] {
+        let child = std::process::Command::new(env!("CARGO_BIN_EXE_volgrad"))
+            .current_dir(d)
+            .args(["optimize", "run.toml", "--out", o, "--seed", "5", "-q"])
+            .stderr(std::process::Stdio::piped())
+            .spawn()
+            .unwrap();
+        let started = std::time::Instant::now();
+        while log_rows(&d.join(o)) < 3 {
+            assert!(started.elapsed().as_secs() < 120, "no progress");
+            std::thread::sleep(std::time::Duration::from_millis(50));
+        }
+        let pid = child.id().to_string();
+        ok(std::process::Command::new("kill")
+            .args([signal, &pid])
+            .output()
+            .unwrap());
+        let output = child.wait_with_output().unwrap();
+        // The hint names the flags the checkpoint's fingerprint holds: without --seed it failed.
+        let hint = format!("--resume {o} --seed 5`");
+        assert_clean_error(&output, &["interrupted at iteration", &hint]);
+        let files: Vec<String> = (std::fs::read_dir(d.join(o)).unwrap())
+            .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+            .collect();
+        let states = files.iter().filter(|n| n.ends_with(".state")).count();
+        assert_eq!(states, 1, "{signal}: {files:?}");
+        assert!(!files.iter().any(|n| n.ends_with(".tmp")), "{files:?}");
     }
-    ok(std::process::Command::new("kill")
-        .args(["-INT", &child.id().to_string()])
-        .output()
-        .unwrap());
-    let output = child.wait_with_output().unwrap();
-    assert_clean_error(&output, &["interrupted at iteration", "--resume"]);
-    let states = std::fs::read_dir(d.join("o"))
-        .unwrap()
-        .filter(|e| {
-            e.as_ref()
-                .unwrap()
-                .file_name()
-                .to_string_lossy()
-                .ends_with(".state")
-        })
-        .count();
-    assert_eq!(states, 1, "{}", stderr(&output));
 }
 
 /// A run whose stderr is a file (a batch job's log: no progress bar is drawn there) still says

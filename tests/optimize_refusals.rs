@@ -116,3 +116,101 @@ fn a_voxel_beyond_f32s_reach_is_refused() {
         ],
     );
 }
+
+/// Settings each valid alone that give the optimiser no step: a `step_optical_depth` whose rate in
+/// grid units is 0 (or beyond f32), a prior weight whose pull squared overflows Adam's second
+/// moment. Both runs exited 0, having stood still (or flown to the clamp), and their settings.toml
+/// did not load again.
+#[test]
+fn settings_that_leave_no_step_are_refused() {
+    for (optimizer, says) in [
+        (
+            "step_optical_depth = 1e-45",
+            &["optimizer.step_optical_depth", "learning rate of 0"][..],
+        ),
+        (
+            "prior = { kind = \"l1\", weight = 1e25 }",
+            &["optimizer.prior[0].weight", "too large"][..],
+        ),
+    ] {
+        let run = run_file("0.2", optimizer).replace("lr = 0.1\n", "");
+        let dir = fixture(&run);
+        assert_clean_error(
+            &volgrad_in(dir.path(), &["optimize", "run.toml", "--out", "out", "-q"]),
+            says,
+        );
+    }
+}
+
+/// `--force` replaces an earlier run's checkpoints only once the new run has loaded: a run file
+/// that fails to load leaves the earlier run whole, still to be resumed. Its checkpoints were
+/// gone before the run file was read.
+#[test]
+fn a_forced_run_that_fails_to_load_leaves_the_earlier_one() {
+    let run = run_file("0.2", "spp = 1").replace("checkpoint_every = 50", "checkpoint_every = 2");
+    let dir = fixture(&run);
+    let d = dir.path();
+    ok(volgrad_in(
+        d,
+        &[
+            "optimize",
+            "run.toml",
+            "--iterations",
+            "2",
+            "--out",
+            "o",
+            "-q",
+        ],
+    ));
+    let before: Vec<_> = std::fs::read_dir(d.join("o")).unwrap().collect();
+    std::fs::write(d.join("bad.toml"), run.replace("lr = 0.1", "lr = -1")).unwrap();
+    assert_clean_error(
+        &volgrad_in(d, &["optimize", "bad.toml", "--out", "o", "--force", "-q"]),
+        &["lr must be a positive number"],
+    );
+    assert_eq!(
+        std::fs::read_dir(d.join("o")).unwrap().count(),
+        before.len()
+    );
+    assert!(d.join("o/checkpoint-0002.state").is_file());
+}
+
+/// A run resumed past the stop it is given has nothing to do, whether the stop is a count of
+/// iterations or a replayed schedule shorter than the checkpoint's iteration (which was accepted
+/// and wrote the checkpoint as final.vdb).
+#[test]
+fn a_schedule_shorter_than_the_resumed_run_is_refused() {
+    let run = run_file("0.2", "spp = 1").replace("checkpoint_every = 50", "checkpoint_every = 2");
+    let dir = fixture(&run);
+    let d = dir.path();
+    for (iterations, out) in [("4", "long"), ("2", "short")] {
+        ok(volgrad_in(
+            d,
+            &[
+                "optimize",
+                "run.toml",
+                "--iterations",
+                iterations,
+                "--out",
+                out,
+                "-q",
+            ],
+        ));
+    }
+    let args = [
+        "optimize",
+        "run.toml",
+        "--resume",
+        "long",
+        "--schedule-from",
+        "short/log.csv",
+    ];
+    assert_clean_error(
+        &volgrad_in(d, &[&args[..], &["-q"]].concat()),
+        &[
+            "at iteration 4",
+            "past the 2 steps --schedule-from replays",
+            "nothing to do",
+        ],
+    );
+}

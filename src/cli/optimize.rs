@@ -72,10 +72,11 @@ pub struct Args {
 /// Set by Ctrl-C (or SIGUSR1); the loop stops after the current iteration and writes a checkpoint.
 static INTERRUPTED: AtomicBool = AtomicBool::new(false);
 
-/// SIGUSR1 stops the run as Ctrl-C does. Under MPI it is the signal that reaches the ranks:
-/// OpenMPI's mpirun answers SIGINT by killing them, but forwards SIGUSR1 (and Slurm delivers it
-/// with `scancel --signal=USR1`).
-fn stop_on_sigusr1() {
+/// SIGUSR1 and SIGTERM stop the run as Ctrl-C does. Under MPI SIGUSR1 is the signal that
+/// reaches the ranks: OpenMPI's mpirun answers SIGINT by killing them, but forwards SIGUSR1 (and
+/// Slurm delivers it with `scancel --signal=USR1`). SIGTERM is what `timeout` and a batch job's
+/// time limit send: the run ends with a checkpoint instead of half-written temporary files.
+fn stop_on_signals() {
     extern "C" fn on_signal(_: libc::c_int) {
         // Only an atomic store: async-signal-safe.
         INTERRUPTED.store(true, Ordering::SeqCst);
@@ -83,7 +84,9 @@ fn stop_on_sigusr1() {
     #[cfg(unix)]
     // SAFETY: the handler only stores to an atomic, which is async-signal-safe.
     unsafe {
-        libc::signal(libc::SIGUSR1, on_signal as *const () as libc::sighandler_t);
+        for signal in [libc::SIGUSR1, libc::SIGTERM] {
+            libc::signal(signal, on_signal as *const () as libc::sighandler_t);
+        }
     }
 }
 
@@ -104,7 +107,7 @@ fn check_flags(args: &Args) -> Result<()> {
 pub fn run(args: &Args, cluster: &Cluster) -> Result<()> {
     // Installed first: a cluster run is stopped with SIGUSR1 while it loads too (it stops after
     // its first iteration), where the signal's default action would end every rank unannounced.
-    stop_on_sigusr1();
+    stop_on_signals();
     // Every rank is given the same flags: one error, printed once.
     cluster.agree(set_threads(args.threads).and_then(|_| check_flags(args)))?;
     if cluster.size() > 1 {
@@ -125,20 +128,9 @@ pub fn run(args: &Args, cluster: &Cluster) -> Result<()> {
         .resume
         .as_ref()
         .is_some_and(|dir| same_folder(dir, &out));
-    cluster.agree(cluster.on_root(|| {
-        match (args.force, resuming_in_place) {
-            (_, true) => Ok(()),
-            (false, false) => refuse_non_empty(&out),
-            // A study's runs write into a folder per estimator.
-            (true, false) => std::iter::once(out.clone())
-                .chain(
-                    Estimator::value_variants()
-                        .iter()
-                        .map(|e| out.join(e.to_string())),
-                )
-                .try_for_each(|dir| checkpoint::remove_earlier_run(&dir)),
-        }
-    }))?;
+    if !args.force && !resuming_in_place {
+        cluster.agree(cluster.on_root(|| refuse_non_empty(&out)))?;
+    }
     let stop = match (args.iterations, args.budget, &args.schedule_from) {
         (Some(n), ..) => Some(Stop::Iterations(n)),
         (_, Some(b), _) => Some(Stop::Budget(b)),
@@ -183,9 +175,32 @@ pub fn run(args: &Args, cluster: &Cluster) -> Result<()> {
     // (the problem's fingerprint holds them) may also have come from a target cache of each
     // machine's own.
     check_same_job(cluster, || vec![problem.fingerprint.clone()])?;
+    if args.force && !resuming_in_place {
+        // Only now that the run has loaded: a run file that fails to load leaves the earlier
+        // run whole, its checkpoints too. A study's runs write into a folder per estimator.
+        cluster.agree(cluster.on_root(|| {
+            std::iter::once(out.clone())
+                .chain(
+                    Estimator::value_variants()
+                        .iter()
+                        .map(|e| out.join(e.to_string())),
+                )
+                .try_for_each(|dir| checkpoint::remove_earlier_run(&dir))
+        }))?;
+    }
     cluster.agree(
-        ctrlc::set_handler(|| INTERRUPTED.store(true, Ordering::SeqCst))
-            .context("cannot install the Ctrl-C handler"),
+        ctrlc::set_handler(|| {
+            // A second Ctrl-C does not wait for a long iteration to end (files being written
+            // are left as they were: each is renamed into place whole).
+            if INTERRUPTED.swap(true, Ordering::SeqCst) {
+                eprintln!("error: interrupted twice: stopped without a checkpoint");
+                // _exit, as main's panic hook ends the process: at once, whatever the workers
+                // hold (std::process::exit, which the project denies, would run atexit handlers).
+                // SAFETY: _exit takes no locks; nothing runs after it.
+                unsafe { libc::_exit(130) }
+            }
+        })
+        .context("cannot install the Ctrl-C handler"),
     )?;
     let options = RunOptions {
         estimator: args.estimator,
@@ -212,8 +227,14 @@ pub fn run(args: &Args, cluster: &Cluster) -> Result<()> {
     let p = &outcome.position;
     if outcome.interrupted {
         // Every rank stops at the same iteration (they agree on it): one message, from rank 0.
+        // The flags the checkpoint's fingerprint holds, so that the command resumes it.
+        let seed = args.seed.map_or(String::new(), |s| format!(" --seed {s}"));
+        let estimator = match args.estimator {
+            Estimator::Joint => String::new(),
+            e => format!(" --estimator {e}"),
+        };
         return Err(AgreedError(format!(
-            "interrupted at iteration {}: checkpoint written; continue with `volgrad optimize {} --resume {}`",
+            "interrupted at iteration {}: checkpoint written; continue with `volgrad optimize {} --resume {}{seed}{estimator}`",
             p.iteration,
             args.run.display(),
             out.display()

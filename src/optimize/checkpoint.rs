@@ -60,7 +60,8 @@ pub fn paths(dir: &Path, iteration: u64) -> (PathBuf, PathBuf) {
 }
 
 /// Removes the numbered files an earlier run left in `dir`: its checkpoints
-/// (`checkpoint-NNNN.vdb`, `.state`) and held-out pictures (`holdout-NNNN.png`). A fresh run
+/// (`checkpoint-NNNN.vdb`, `.state`), held-out pictures (`holdout-NNNN.png`) and the temporary
+/// files (`.NAME.PID.tmp`) a run killed while writing leaves. A fresh run
 /// given `--force` replaces that run, whose checkpoints `--resume` (which takes the latest it
 /// finds) would otherwise mistake for this one's. Nothing else in `dir` is touched; a missing
 /// `dir` has nothing to remove.
@@ -75,9 +76,18 @@ pub fn remove_earlier_run(dir: &Path) -> Result<()> {
                 .and_then(|r| r.strip_suffix(suffix))
                 .is_some_and(|n| !n.is_empty() && n.bytes().all(|b| b.is_ascii_digit()))
         };
+        // A file being written whole is `.NAME.PID.tmp` until it is renamed: one a killed run
+        // left behind (SIGKILL) is the earlier run's too.
+        let left_behind = name.starts_with('.')
+            && name.strip_suffix(".tmp").is_some_and(|rest| {
+                rest.rsplit_once('.').is_some_and(|(_, pid)| {
+                    !pid.is_empty() && pid.bytes().all(|b| b.is_ascii_digit())
+                })
+            });
         let earlier = numbered("checkpoint-", ".vdb")
             || numbered("checkpoint-", ".state")
-            || numbered("holdout-", ".png");
+            || numbered("holdout-", ".png")
+            || left_behind;
         if earlier && entry.path().is_file() {
             std::fs::remove_file(entry.path()).with_context(|| {
                 format!(
@@ -395,6 +405,36 @@ mod tests {
     use super::*;
     use crate::optimize::adam::Adam;
     use crate::optimize::brick_gradient::BrickGradient;
+
+    #[test]
+    fn an_earlier_runs_numbered_and_temporary_files_are_removed_and_nothing_else() {
+        let dir = tempfile::tempdir().unwrap();
+        let earlier = [
+            "checkpoint-0002.vdb",
+            "checkpoint-0002.state",
+            "holdout-0002.png",
+            ".checkpoint-0004.vdb.11580.tmp",
+            ".progress.svg.3397.tmp",
+        ];
+        let others = [
+            "notes.txt",
+            "checkpoint-.vdb",
+            ".hidden.tmp",
+            "log.csv",
+            "x.tmp",
+        ];
+        for name in earlier.iter().chain(&others) {
+            std::fs::write(dir.path().join(name), "x").unwrap();
+        }
+        remove_earlier_run(dir.path()).unwrap();
+        let mut left: Vec<String> = (std::fs::read_dir(dir.path()).unwrap())
+            .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+            .collect();
+        left.sort();
+        let mut expected = others.map(String::from).to_vec();
+        expected.sort();
+        assert_eq!(left, expected);
+    }
 
     #[test]
     fn state_round_trips_bit_for_bit_and_refuses_other_runs() {

@@ -218,6 +218,10 @@ where
         .collect()
 }
 
+/// The largest prior weight per unit of θ: a voxel's pull from it (a few times this for total
+/// variation's six neighbours) squared stays far inside f32.
+const MAX_PRIOR_WEIGHT: f32 = 1e18;
+
 impl OptimizerFile {
     pub fn validate(&self) -> Result<()> {
         if self.step_optical_depth.is_some() && self.lr.is_some() {
@@ -354,9 +358,18 @@ impl OptimizerFile {
         view_pixels: &[u64],
         first_level_voxels: u64,
         extinction: bool,
-    ) {
+    ) -> Result<()> {
+        let lr = self.learning_rate(units);
+        if !(lr > 0.0 && lr.is_finite()) {
+            // Checked as given, a step_optical_depth can still give a rate beyond f32 (or 0)
+            // over the scene's units: a run at it would fly to the clamp (or stand still).
+            bail!(
+                "optimizer.step_optical_depth = {} gives a learning rate of {lr} grid units, which is no step: give a smaller (or larger) one, or lr",
+                self.step_optical_depth.unwrap_or(scene_units::STEP_OPTICAL_DEPTH)
+            );
+        }
         // settings.toml gives the learning rate as `lr` alone: with both, it would not load.
-        self.lr = Some(self.learning_rate(units));
+        self.lr = Some(lr);
         self.step_optical_depth = None;
         if self.batch.is_none() && self.batch_pixels.is_none() {
             let views = view_pixels.len().min(8);
@@ -375,6 +388,7 @@ impl OptimizerFile {
             Some(self.first_level_smoothing.unwrap_or_else(|| {
                 first_level_smoothing_for(paths, first_level_voxels, extinction)
             }));
+        Ok(())
     }
 
     /// The gradient pass's paths in one step once the batch is resolved: its pixels (a batch of
@@ -436,14 +450,15 @@ impl OptimizerFile {
         }
     }
 
-    /// The priors in grid units; an error if a weight is too large to be one there (its penalty
-    /// would be infinite).
+    /// The priors in grid units; an error if a weight is too large to be one there: its pull on
+    /// a voxel beyond `MAX_PRIOR_WEIGHT`, whose square Adam's second moment would not hold (every
+    /// step then 0: the run stood still), or its penalty infinite.
     pub fn priors(&self, units: &SceneUnits) -> Result<Vec<Prior>> {
         let prior = |(i, p): (usize, &PriorFile)| {
             let prior = units.prior(p.kind, p.weight, p.scale);
-            if !prior.weight.is_finite() {
+            if !prior.weight.is_finite() || prior.weight > MAX_PRIOR_WEIGHT {
                 bail!(
-                    "optimizer.prior[{i}].weight {:e} is too large: relative to these images and this box it is {:e} per unit of θ, beyond f32",
+                    "optimizer.prior[{i}].weight {:e} is too large: relative to these images and this box it is {:e} per unit of θ, above {MAX_PRIOR_WEIGHT:e}, whose square the optimiser holds",
                     p.weight,
                     f64::from(p.weight) * units.image_power / units.theta_per_optical_depth
                 );
@@ -468,7 +483,7 @@ mod tests {
                 batch,
                 ..OptimizerFile::default()
             };
-            o.resolve(&units, views, 1, true);
+            o.resolve(&units, views, 1, true).unwrap();
             (o.batch, o.batch_pixels)
         };
         assert_eq!(resolved(&[64 * 64; 20], None), (Some(8), None));
@@ -494,7 +509,7 @@ mod tests {
                 first_level_smoothing: given,
                 ..OptimizerFile::default()
             };
-            o.resolve(&units, views, voxels, extinction);
+            o.resolve(&units, views, voxels, extinction).unwrap();
             o.first_level_smoothing
         };
         for views in [&[64 * 64; 16][..], &[96 * 96; 24][..]] {

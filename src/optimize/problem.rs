@@ -226,7 +226,7 @@ impl Problem {
             &view_pixels,
             domain.voxel_count_at(0),
             unknown == UnknownGrid::Density,
-        );
+        )?;
         let with_alpha = views.iter().filter(|v| v.alpha.is_some()).count();
         (file.optimizer).resolve_alpha(with_alpha, views.len(), unknown == UnknownGrid::Density)?;
         let start_file = file.unknown.start.clone().unwrap_or(StartFile::Constant(

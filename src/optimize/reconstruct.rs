@@ -147,16 +147,14 @@ impl<'a> Run<'a> {
             .or_else(|| position.stop.clone())
             .unwrap_or(Stop::Iterations(problem.settings.iterations.into()));
         position.stop = Some(stop.clone());
-        // A budget's last step ends past it, so only a count of iterations can be passed.
-        if let (Some(state), Some(Stop::Iterations(asked))) = (&options.resume, &options.stop) {
-            cluster.agree(match position.iteration > *asked {
-                true => Err(anyhow!(
-                    "'{}' is at iteration {}, past --iterations {asked}: nothing to do; ask for more to go on",
+        if let (Some(state), Some(stop)) = (&options.resume, &options.stop) {
+            cluster.agree(stop.not_past(position.iteration).with_context(|| {
+                format!(
+                    "'{}' is at iteration {}",
                     state.display(),
                     position.iteration
-                )),
-                false => Ok(()),
-            })?;
+                )
+            }))?;
         }
         cluster.agree(cluster.on_root(|| {
             std::fs::create_dir_all(&options.out).with_context(|| {

@@ -25,6 +25,24 @@ pub enum Stop {
 }
 
 impl Stop {
+    /// An error if a run resumed at `iteration` is past this stop, asked for on the command line.
+    /// A budget's last step ends past it, so only a count of iterations (or a replayed
+    /// schedule's) can be.
+    pub fn not_past(&self, iteration: u64) -> Result<()> {
+        let (asked, what) = match self {
+            Stop::Iterations(n) => (*n, format!("--iterations {n}")),
+            Stop::Replay(steps) => (
+                steps.len() as u64,
+                format!("the {} steps --schedule-from replays", steps.len()),
+            ),
+            Stop::Budget(_) => return Ok(()),
+        };
+        if iteration > asked {
+            bail!("past {what}: nothing to do; ask for more to go on");
+        }
+        Ok(())
+    }
+
     /// How far the run is after `iteration` iterations and `seconds` of optimisation, in [0, 1]
     /// (≥ 1: done).
     pub fn fraction(&self, iteration: u64, seconds: f64) -> f64 {
