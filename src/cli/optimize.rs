@@ -69,7 +69,8 @@ pub struct Args {
     pub quiet: bool,
 }
 
-/// Set by Ctrl-C (or SIGUSR1); the loop stops after the current iteration and writes a checkpoint.
+/// Set by Ctrl-C (or SIGUSR1, SIGTERM); the loop stops after the current iteration and writes a
+/// checkpoint.
 static INTERRUPTED: AtomicBool = AtomicBool::new(false);
 
 /// SIGUSR1 and SIGTERM stop the run as Ctrl-C does. Under MPI SIGUSR1 is the signal that
