@@ -103,37 +103,18 @@ impl Accumulator for Quanta {
         Quanta(v.round() as i64)
     }
     /// ⌊v + u⌋, whose mean over a uniform u is v exactly: a pass's samples are rounded this way,
-    /// so that samples far below a quantum (the pixels beside one whose adjoint is 10⁶ times
+    /// so that samples far below a quantum (the pixels beside one whose adjoint is 10⁸ times
     /// theirs, which sets the quantum) still add up to their sum instead of rounding to 0.
     #[inline]
     fn from_f32_dithered(v: f32, u: f32) -> Self {
-        Quanta((v + u).floor() as i64)
+        // In f64: an f32 sum would round v + u to even above 2²², leaning the mean up.
+        Quanta((f64::from(v) + f64::from(u)).floor() as i64)
     }
     fn from_f64(v: f64) -> Self {
         Quanta(v.round() as i64)
     }
     fn to_f64(self) -> f64 {
         self.0 as f64
-    }
-}
-
-/// Uniform dithers in [0, 1) for rounding a pass's samples to quanta, one stream per pixel of a
-/// pass (SplitMix64 on a counter): like the paths' own numbers they depend on the pixel, never on
-/// the thread or process, so the sum stays the same bits on any number of either.
-pub struct Dither(u64);
-
-impl Dither {
-    pub fn new(seed: u64, pixel: u64) -> Self {
-        Dither(seed ^ 0x5851_F42D_4C95_7F2D ^ pixel.wrapping_mul(0xD1B5_4A32_D192_ED03))
-    }
-
-    #[inline]
-    pub fn draw(&mut self) -> f32 {
-        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-        ((z ^ (z >> 31)) >> 40) as f32 * (1.0 / (1u32 << 24) as f32)
     }
 }
 

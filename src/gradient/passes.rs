@@ -9,7 +9,7 @@ use rayon::prelude::*;
 
 use crate::gradient::adjoint::{GradientSink, Replay, Scratch};
 use crate::gradient::alpha_gradient::alpha_gradient_sample;
-use crate::gradient::grid::{corner_dither, Accumulator, Dither, GradientGrid, Quanta};
+use crate::gradient::grid::{corner_dither, Accumulator, GradientGrid, Quanta};
 use crate::gradient::in_order::InOrder;
 pub use crate::gradient::options::{GradOptions, Measured, Parameter};
 use crate::io::images::RgbImage;
@@ -17,7 +17,7 @@ use crate::render::alpha::alpha_sample;
 use crate::render::image::RenderStats;
 use crate::render::interrupt;
 use crate::render::pixel_set::PixelSet;
-use crate::render::sampling::{sample_rng, Pass};
+use crate::render::sampling::{mix64, sample_rng, Pass};
 use crate::render::scene::Scene;
 use crate::volume::albedo::{Albedo, AlbedoGrid};
 use crate::volume::brickmap::{corner, BrickMap};
@@ -106,6 +106,23 @@ struct Splat {
     value: f32,
     /// The dither its corners are rounded to quanta with (`grid::corner_dither`).
     dither: f32,
+}
+
+/// Uniform dithers in [0, 1) for rounding a pass's samples to quanta, one stream per pixel of a
+/// pass (SplitMix64 on a counter): like the paths' own numbers they depend on the pixel, never on
+/// the thread or process, so the sum stays the same bits on any number of either.
+struct Dither(u64);
+
+impl Dither {
+    fn new(seed: u64, pixel: u64) -> Self {
+        Dither(seed ^ 0x5851_F42D_4C95_7F2D ^ pixel.wrapping_mul(0xD1B5_4A32_D192_ED03))
+    }
+
+    #[inline]
+    fn draw(&mut self) -> f32 {
+        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
+        (mix64(self.0) >> 40) as f32 * (1.0 / (1u32 << 24) as f32)
+    }
 }
 
 /// Records a unit's gradient samples in order (see `over_pixels`), weighted by the pixel's

@@ -5,7 +5,6 @@
 use std::path::Path;
 
 use anyhow::{bail, Context, Result};
-use glam::DVec3;
 
 use crate::cluster::Cluster;
 use crate::gradient::loss::Loss;
@@ -385,7 +384,7 @@ impl Inputs {
         let (domain, covered) = final_domain(&file, &grids)?;
         if let (BoundsFile::Box { max, .. }, Some(covered)) = (&mut file.unknown.bounds, covered) {
             // The run goes on (and writes in settings.toml) with the box its voxels cover.
-            *max = covered.as_vec3().to_array();
+            *max = covered;
         }
         let world_box = Some(domain.world_box());
         let training = view_specs(run_path, "view", &file.view, &file.views, world_box)?;
@@ -455,7 +454,7 @@ impl KnownGrids {
 
 /// The unknown's final level: its transform and voxel box, from `unknown.bounds` (the levels
 /// above it are decided later, from the views), and for a box, its max as the voxels cover it.
-fn final_domain(file: &RunFile, grids: &KnownGrids) -> Result<(Domain, Option<DVec3>)> {
+fn final_domain(file: &RunFile, grids: &KnownGrids) -> Result<(Domain, Option<[f32; 3]>)> {
     let (domain, covered) = match &file.unknown.bounds {
         BoundsFile::Named(name) => {
             let grid = if name == "truth" {

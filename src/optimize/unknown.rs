@@ -33,9 +33,9 @@ pub struct Domain {
 impl Domain {
     /// The final level over the world box from `min` to `max` in voxels of `voxel`, anchored at
     /// `min`, and the box's max as those voxels cover it: one voxel past `max` where the box is
-    /// not a whole number of them (within 10⁻⁴ voxel, so that the box written back in f32 keeps
-    /// its count).
-    pub fn over_box(min: DVec3, max: DVec3, voxel: f64) -> Result<(Domain, DVec3)> {
+    /// not a whole number of them (within 10⁻⁴ voxel). The max is rounded down to f32, as a run
+    /// file holds it, so that the box written back keeps its count of voxels.
+    pub fn over_box(min: DVec3, max: DVec3, voxel: f64) -> Result<(Domain, [f32; 3])> {
         let n = ((max - min) / voxel - 1e-4).ceil().max(DVec3::ONE);
         if n.max_element() > i32::MAX as f64 / 2.0 {
             bail!("unknown.bounds / unknown.voxel_size: {n} voxels per axis is too many");
@@ -50,7 +50,15 @@ impl Domain {
             hi: n.as_ivec3() - IVec3::ONE,
             levels: 0,
         };
-        Ok((domain, min + n * voxel))
+        let covered = (min + n * voxel).to_array().map(|c| {
+            let f = c as f32;
+            if f64::from(f) > c {
+                f.next_down()
+            } else {
+                f
+            }
+        });
+        Ok((domain, covered))
     }
 
     /// Refused above `MAX_VOXELS` at the final level.
@@ -346,6 +354,33 @@ pub fn in_final_index_space(truth: vdb::Grid, domain: &Domain) -> Result<BrickMa
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The box settings.toml writes (the max its voxels cover, in f32) gives the same voxels
+    /// read back: far from the origin, the covered max rounded to the nearest f32 (0.125 units
+    /// apart at 10⁶, 0.42 of these voxels) gave one voxel more in 6 of these 16 far boxes.
+    #[test]
+    fn the_box_a_run_writes_keeps_its_voxels() {
+        let far = (0..16).map(|k| (-1e6 + 0.3, 1.1e6 + 0.13 * k as f64, 0.3));
+        for (min, max, voxel) in [(-3.0, 3.0, 4.0), (-40.0, 25.0, 1.0), (0.1, 0.95, 0.05)]
+            .into_iter()
+            .chain(far)
+        {
+            // As a run file holds them: f32.
+            let [min, max] = [min, max].map(|c: f64| DVec3::splat(c as f32 as f64));
+            let (first, covered) = Domain::over_box(min, max, voxel).unwrap();
+            let written = DVec3::from(covered.map(f64::from));
+            assert!(
+                (written - (max + voxel)).max_element() < 0.0,
+                "{written} {max}"
+            );
+            let (again, _) = Domain::over_box(min, written, voxel).unwrap();
+            assert_eq!(
+                (again.lo, again.hi),
+                (first.lo, first.hi),
+                "{min} {max} {voxel}"
+            );
+        }
+    }
 
     /// A box of 8 voxels of `voxel` world units a side, with `levels` upsamplings.
     fn domain(voxel: f64, levels: usize) -> Domain {

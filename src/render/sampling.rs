@@ -14,13 +14,19 @@ pub const TARGET_SEED_SALT: u64 = 0x7a26_e7b1_d0c5_1a11;
 /// A random stream that depends only on (seed, pixel, stream), never on the thread that runs it:
 /// the same seed gives the same image for any thread count.
 pub fn pixel_rng(seed: u64, pixel: u64, stream: u64) -> SmallRng {
-    // SplitMix64-style mixing so nearby pixels get unrelated streams.
-    let mut z = seed
-        ^ pixel.wrapping_mul(0x9E37_79B9_7F4A_7C15)
-        ^ stream.wrapping_mul(0xD1B5_4A32_D192_ED03);
+    // Mixed so that nearby pixels get unrelated streams.
+    SmallRng::seed_from_u64(mix64(
+        seed ^ pixel.wrapping_mul(0x9E37_79B9_7F4A_7C15)
+            ^ stream.wrapping_mul(0xD1B5_4A32_D192_ED03),
+    ))
+}
+
+/// SplitMix64's finaliser: every bit of `z` moves about half the bits of the result.
+#[inline]
+pub fn mix64(mut z: u64) -> u64 {
     z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
     z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-    SmallRng::seed_from_u64(z ^ (z >> 31))
+    z ^ (z >> 31)
 }
 
 /// Which pass draws the numbers: the forward render and the adjoint pass use unrelated streams.
