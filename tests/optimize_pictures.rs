@@ -219,8 +219,9 @@ fn write_pictures(d: &Path, brightness: f32, optimizer: &str) {
     std::fs::write(d.join("constants.toml"), &constants).unwrap();
     let run = run_file("0.2", optimizer);
     let (top, rest) = run.split_at(run.find("[views.orbit]").unwrap());
+    // No truth: every target is a picture, so target_spp would be refused as idle too.
     let top = top.replace(
-        "scene = \"scene.toml\"\ntruth = \"ball.vdb\"\n",
+        "scene = \"scene.toml\"\ntruth = \"ball.vdb\"\ntarget_spp = 256\n",
         "scene = \"constants.toml\"\n",
     );
     let unknown =
@@ -230,7 +231,10 @@ fn write_pictures(d: &Path, brightness: f32, optimizer: &str) {
         "{top}[views]\ntransforms = \"transforms.json\"\n\n[[holdout]]\nposition = [{}, {}, {}]\ntarget = [{}, {}, {}]\nfov_deg = 40\nwidth = 24\nheight = 24\nimage = \"holdout.exr\"\n\n{unknown}",
         p.x, p.y, p.z, t.x, t.y, t.z
     );
-    assert!(!run.contains("truth ="), "{run}");
+    assert!(
+        !run.contains("truth =") && !run.contains("target_spp"),
+        "{run}"
+    );
     std::fs::write(d.join("images.toml"), run).unwrap();
 }
 

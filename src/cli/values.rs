@@ -13,9 +13,10 @@ const MAX_SECONDS: f64 = 1e9;
 /// "120s", "2m", "1.5h", "250ms", "90" (seconds).
 pub fn duration(text: &str) -> Result<Duration, String> {
     let t = text.trim();
-    let (number, unit) = match t.find(|c: char| c.is_ascii_alphabetic()) {
-        Some(i) => t.split_at(i),
-        None => (t, "s"),
+    // The unit is the trailing letters, so that a number may have an exponent ("1e-3s").
+    let (number, unit) = match t.trim_end_matches(|c: char| c.is_ascii_alphabetic()).len() {
+        i if i == t.len() => (t, "s"),
+        i => t.split_at(i),
     };
     let factor = match unit {
         "ms" => 1e-3,
@@ -30,7 +31,13 @@ pub fn duration(text: &str) -> Result<Duration, String> {
     };
     match number.trim().parse::<f64>() {
         Ok(v) if v.is_finite() && v >= 0.0 && v * factor <= MAX_SECONDS => {
-            Ok(Duration::from_secs_f64(v * factor))
+            match Duration::from_secs_f64(v * factor) {
+                // Not rounded to 0, which a budget would refuse as "must be above 0".
+                d if d.is_zero() && v > 0.0 => Err(format!(
+                    "'{text}' is shorter than a nanosecond, the clock's resolution"
+                )),
+                d => Ok(d),
+            }
         }
         Ok(v) if v * factor > MAX_SECONDS => Err(format!(
             "'{text}' is too long a duration (at most {MAX_SECONDS:e} s, about 30 years)"
@@ -121,6 +128,11 @@ mod tests {
             assert!(duration(bad).is_err(), "'{bad}' parsed");
         }
         assert!(duration("10d").unwrap_err().contains("unknown unit 'd'"));
+        assert!(duration("1e-10s")
+            .unwrap_err()
+            .contains("shorter than a nanosecond"));
+        assert_eq!(duration("2e-3s"), Ok(Duration::from_millis(2)));
+        assert_eq!(duration("1e2"), Ok(Duration::from_secs(100)));
     }
 
     #[test]

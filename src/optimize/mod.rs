@@ -12,6 +12,7 @@ pub mod evaluate;
 pub mod exposure;
 pub mod holdout_picture;
 pub mod hull;
+pub mod idle_keys;
 pub mod iteration;
 pub mod log;
 pub mod optimizer_file;

@@ -9,6 +9,7 @@ use std::path::{Path, PathBuf};
 use anyhow::{bail, Context, Result};
 use serde::{Deserialize, Serialize};
 
+use crate::optimize::idle_keys;
 use crate::optimize::optimizer_file::OptimizerFile;
 use crate::optimize::resample::Moments;
 use crate::optimize::scene_units::MAX_LEVELS;
@@ -206,6 +207,7 @@ impl RunFile {
             }
         })?;
         (crate::io::exact::within_f32(&text).and_then(|_| file.validate()))
+            .and_then(|_| idle_keys::refuse_given(&file, toml::from_str(&text)?))
             .with_context(|| format!("invalid run file '{}'", path.display()))?;
         Ok(file)
     }
@@ -213,6 +215,12 @@ impl RunFile {
     /// A path named in the run file, relative to it.
     pub fn resolve(run_path: &Path, name: &str) -> PathBuf {
         run_path.parent().unwrap_or(Path::new(".")).join(name)
+    }
+
+    /// Whether some view's target is rendered from the truth: a view without `image`, or an orbit.
+    pub fn renders_from_truth(&self) -> bool {
+        (self.view.iter().chain(&self.holdout)).any(|v| v.image.is_none())
+            || (self.views.iter().chain(&self.holdouts)).any(|set| !set.orbit.is_empty())
     }
 
     /// The checks that need no file: numbers in range, keys that go together.
@@ -237,13 +245,7 @@ impl RunFile {
                 bail!("{key} must be at least 1");
             }
         }
-        let needs_truth = self
-            .view
-            .iter()
-            .chain(&self.holdout)
-            .any(|v| v.image.is_none())
-            || (self.views.iter().chain(&self.holdouts)).any(|set| !set.orbit.is_empty());
-        if needs_truth && self.truth.is_none() {
+        if self.renders_from_truth() && self.truth.is_none() {
             bail!("truth: views without an image ([views.orbit], [holdouts.orbit], or a [[view]] without `image`) are rendered from a true grid; give `truth = \"file.vdb\"` or an image per view");
         }
         let mut sets = view_tables("view", &self.view, &self.views);

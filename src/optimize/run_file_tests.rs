@@ -272,3 +272,80 @@ fn levels_must_reach_the_final_voxel_size() {
         .to_string();
     assert!(err.contains("unknown.levels"), "{err}");
 }
+
+/// A key the rest of the file leaves without effect is refused, naming what idles it; the same key
+/// where it acts is accepted; settings.toml, which writes every key a run resolved, leaves the
+/// idle ones out and loads again.
+#[test]
+fn keys_without_effect_are_refused_and_left_out_of_settings() {
+    let read = |text: &str| -> Result<RunFile> {
+        let file = check(text)?;
+        crate::optimize::idle_keys::refuse_given(&file, toml::from_str(text)?)?;
+        Ok(file)
+    };
+    let optimizer = |lines: &str| format!("{GOOD}\n[optimizer]\n{lines}");
+    let no_levels = GOOD.replace("levels = [0.5]", "levels = []");
+    let camera = "position = [0, 0, 10]\ntarget = [0, 0, 0]\nfov_deg = 40\nwidth = 8\nheight = 8";
+    let by_pictures = format!(
+        "scene = \"s.toml\"\ntruth = \"t.vdb\"\ntarget_spp = 64\n[[view]]\nimage = \"a.png\"\n{camera}\n\
+         [[holdout]]\nimage = \"b.png\"\n{camera}\n[unknown]\nbounds = \"truth\"\nstart = 0.1"
+    );
+    let cases = [
+        (
+            optimizer("fit_brick_scales = false\nbrick_scale_lr = 2"),
+            "optimizer.brick_scale_lr",
+            "fit_brick_scales = false",
+        ),
+        (
+            optimizer("smooth_gradient = false\nfirst_level_smoothing = 2"),
+            "optimizer.first_level_smoothing",
+            "smooth_gradient = false",
+        ),
+        (
+            format!("{no_levels}\n[optimizer]\nlevel_lr = 0.7"),
+            "optimizer.level_lr",
+            "unknown.levels = []",
+        ),
+        (
+            no_levels.replace("start = 0.1", "start = 0.1\nmoments = \"reset\""),
+            "unknown.moments",
+            "unknown.levels = []",
+        ),
+        (
+            by_pictures.clone(),
+            "target_spp",
+            "every view has its picture",
+        ),
+    ];
+    for (text, key, because) in cases {
+        let err = format!("{:#}", read(&text).unwrap_err());
+        let named = err.contains(&format!("{key} has no effect here ("));
+        assert!(named && err.contains(because), "{err}");
+    }
+    for text in [
+        optimizer("brick_scale_lr = 2"),
+        optimizer("first_level_smoothing = 2"),
+        optimizer("level_lr = 0.7"),
+        GOOD.replace("start = 0.1", "start = 0.1\nmoments = \"reset\""),
+        format!("target_spp = 64\n{GOOD}"),
+        by_pictures.replace("target_spp = 64\n", ""),
+    ] {
+        read(&text).unwrap();
+    }
+    let mut file = read(&format!(
+        "{no_levels}\n[optimizer]\nfit_brick_scales = false\nsmooth_gradient = false"
+    ))
+    .unwrap();
+    file.optimizer.first_level_smoothing = Some(1); // as a run resolves it
+    let written = crate::optimize::settings_toml::resolved(&file, Path::new("/r/run.toml"), "");
+    let written = written.unwrap();
+    for key in [
+        "brick_scale_lr",
+        "first_level_smoothing",
+        "level_lr",
+        "moments",
+    ] {
+        assert!(!written.contains(key), "{key} written: {written}");
+    }
+    read(&written).unwrap();
+}

@@ -6,6 +6,7 @@ use std::path::Path;
 use anyhow::{Context, Result};
 
 use crate::gradient::adjoint::Estimator;
+use crate::optimize::idle_keys;
 use crate::optimize::run_file::{RunFile, StartFile};
 use crate::optimize::schedule::Stop;
 use crate::render::scene_file::LightFile;
@@ -43,6 +44,9 @@ pub fn resolved(run_file: &RunFile, run_path: &Path, notes: &str) -> Result<Stri
         file.unknown.start = Some(StartFile::Vdb(absolute(name)));
     }
     let mut value = toml::Value::try_from(&file).context("writing the resolved run file")?;
+    if let toml::Value::Table(table) = &mut value {
+        idle_keys::leave_out(&file, table);
+    }
     shortest_floats(&mut value);
     let text = toml::to_string(&value).context("writing the resolved run file")?;
     let notes: String = notes.lines().map(|l| format!("# {l}\n")).collect();
