@@ -25,27 +25,17 @@ fn idle_keys(file: &RunFile) -> Vec<IdleKey> {
     };
     let mut keys = Vec::new();
     if !o.fit_brick_scales {
-        keys.push(idle(
-            "optimizer",
-            "brick_scale_lr",
-            "optimizer.fit_brick_scales = false",
-        ));
+        let because = "optimizer.fit_brick_scales = false";
+        keys.push(idle("optimizer", "brick_scale_lr", because));
     }
     if !o.smooth_gradient {
         let because = "optimizer.smooth_gradient = false";
         keys.push(idle("optimizer", "first_level_smoothing", because));
     }
     if file.unknown.levels.as_deref() == Some(&[]) {
-        keys.push(idle(
-            "optimizer",
-            "level_lr",
-            "unknown.levels = []: no upsampling",
-        ));
-        keys.push(idle(
-            "unknown",
-            "moments",
-            "unknown.levels = []: no upsampling",
-        ));
+        let because = "unknown.levels = []: no upsampling";
+        keys.push(idle("optimizer", "level_lr", because));
+        keys.push(idle("unknown", "moments", because));
     }
     if !file.renders_from_truth() {
         let because = "every view has its picture: no target is rendered from a truth";
