@@ -98,6 +98,37 @@ Layout layout_of(const OIIO::ImageInput& in) {
     return {spec.full_width, spec.full_height, whole};
 }
 
+// A file of several images (an EXR's parts, a TIFF's pages, a GIF's frames) does not say which
+// is the picture: reading the first would fit whatever it holds (a black utility part).
+void refuse_several_images(OIIO::ImageInput& in, const std::string& path) {
+    if (in.seek_subimage(1, 0)) {
+        fail("cannot read image " + quoted(path) +
+             ": it holds several images (parts, pages or frames) and volgrad reads one: save the "
+             "picture alone");
+    }
+    // The failed seek leaves the first image current, and an error that is not the file's.
+    (void)in.geterror();
+}
+
+// An EXR's 32-bit unsigned channels hold ids or counts, not radiance; read as colour they would
+// come back divided by 2^32 - 1 (OpenImageIO's rule for integers), a picture near black.
+void refuse_integer_colour(const OIIO::ImageInput& in, const std::string& path) {
+    const OIIO::ImageSpec& spec = in.spec();
+    if (std::string(in.format_name()) != "openexr") return;
+    for (int c = 0; c < spec.nchannels; ++c) {
+        const std::string& name = spec.channelnames[c];
+        const size_t dot = name.rfind('.');
+        const std::string last = dot == std::string::npos ? name : name.substr(dot + 1);
+        const bool colour =
+            last == "R" || last == "G" || last == "B" || last == "Y" || last == "A";
+        if (colour && spec.channelformat(c).basetype == OIIO::TypeDesc::UINT) {
+            fail("cannot read image " + quoted(path) + ": its channel " + name +
+                 " holds 32-bit unsigned integers (an EXR's ids or counts), not radiance: store "
+                 "colour as half or float");
+        }
+    }
+}
+
 }  // namespace
 
 // ------------------------------------------------------------------------------------------------
@@ -113,6 +144,8 @@ ImageSize read_image_size(rust::Str path_str) {
 ImageData read_image(rust::Str path_str) {
     const std::string path = to_std(path_str);
     auto in = open_image(path);
+    refuse_several_images(*in, path);
+    refuse_integer_colour(*in, path);
     const OIIO::ImageSpec& spec = in->spec();
     const auto [width, height, whole] = layout_of(*in);
     // The largest image the renderer makes (scene_check::MAX_PIXELS), and at most 4 GiB of

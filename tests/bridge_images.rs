@@ -469,3 +469,91 @@ fn an_exr_header_declaring_too_many_values_is_refused() {
         "{e}"
     );
 }
+
+/// Files whose pixels are not one picture's radiance are refused, not read as if they were: an
+/// EXR of two parts (the first a black utility part; reading it fitted black), one whose colour
+/// channels are 32-bit unsigned integers (ids or counts, which OpenImageIO divides by 2³² − 1),
+/// and a PNG whose gAMA chunk is damaged (gAMA 1, a gamma of 10⁵, darkened every pixel to 10⁻⁶).
+#[test]
+fn pictures_that_are_not_one_radiance_image_are_refused() {
+    use exr::prelude::*;
+    use volgrad::io::images::read_picture;
+    let dir = tempfile::tempdir().unwrap();
+    let refused = |path: &Path, says: &str| {
+        let e = match read_picture(path, None) {
+            Ok(_) => panic!("'{}' was read", path.display()),
+            Err(e) => format!("{e:#}"),
+        };
+        assert!(e.contains(path_str(path)) && e.contains(says), "{e}");
+    };
+    let layer = |name: &str, value: f32| {
+        Layer::new(
+            (3, 2),
+            LayerAttributes::named(name),
+            Encoding::UNCOMPRESSED,
+            SpecificChannels::rgb(move |_: Vec2<usize>| (value, value, value)),
+        )
+    };
+    let parts = dir.path().join("parts.exr");
+    Image::from_layers(
+        ImageAttributes::new(IntegerBounds::from_dimensions((3, 2))),
+        vec![layer("mask", 0.0), layer("beauty", 0.5)],
+    )
+    .write()
+    .to_file(&parts)
+    .unwrap();
+    refused(&parts, "several images");
+    let ids = dir.path().join("ids.exr");
+    Image::from_layer(Layer::new(
+        (3, 2),
+        LayerAttributes::named(""),
+        Encoding::UNCOMPRESSED,
+        SpecificChannels::rgb(|_: Vec2<usize>| (700u32, 600u32, 500u32)),
+    ))
+    .write()
+    .to_file(&ids)
+    .unwrap();
+    refused(&ids, "32-bit unsigned integers");
+    // A PNG with a gAMA chunk (gamma × 10⁵, big-endian) after its header.
+    let with_gamma = |name: &str, gama: u32| {
+        let path = dir.path().join(name);
+        image::RgbImage::from_pixel(3, 2, image::Rgb([128, 128, 128]))
+            .save(&path)
+            .unwrap();
+        let png = std::fs::read(&path).unwrap();
+        let mut chunk = b"gAMA".to_vec();
+        chunk.extend_from_slice(&gama.to_be_bytes());
+        let crc = crc32(&chunk);
+        let mut out = png[..33].to_vec(); // the signature and IHDR
+        out.extend_from_slice(&4u32.to_be_bytes());
+        out.extend_from_slice(&chunk);
+        out.extend_from_slice(&crc.to_be_bytes());
+        out.extend_from_slice(&png[33..]);
+        std::fs::write(&path, out).unwrap();
+        path
+    };
+    refused(&with_gamma("damaged.png", 1), "gamma outside");
+    let gamma22 = read_picture(&with_gamma("gamma22.png", 45455), None).unwrap();
+    let expected = (128.0f32 / 255.0).powf(2.2);
+    assert!(
+        (gamma22.color.pixels[0].x - expected).abs() < 1e-3,
+        "{:?}",
+        gamma22.color.pixels[0]
+    );
+}
+
+/// PNG's CRC-32 (ISO 3309), bit by bit.
+fn crc32(bytes: &[u8]) -> u32 {
+    let mut crc = !0u32;
+    for &b in bytes {
+        crc ^= u32::from(b);
+        for _ in 0..8 {
+            crc = if crc & 1 != 0 {
+                (crc >> 1) ^ 0xEDB8_8320
+            } else {
+                crc >> 1
+            };
+        }
+    }
+    !crc
+}

@@ -142,6 +142,18 @@ fn render_writes_exr_and_srgb_png_that_independent_decoders_read() {
         "global",
     ]);
     assert!(forced.status.success(), "{}", stderr(&forced));
+    // A symbolic link to a file not yet there is the user's too: not replaced without --force.
+    let link = dir.path().join("link.exr");
+    std::os::unix::fs::symlink(dir.path().join("elsewhere.exr"), &link).unwrap();
+    let linked = volgrad(&[
+        "render",
+        scene.to_str().unwrap(),
+        "-o",
+        link.to_str().unwrap(),
+        "--quiet",
+    ]);
+    assert_clean_error(&linked, &["link.exr", "already exists", "--force"]);
+    assert!(link.symlink_metadata().unwrap().file_type().is_symlink());
 }
 
 #[test]

@@ -350,6 +350,11 @@ fn command_line_refuses_bad_input_without_panicking() {
         "mine"
     );
 
+    // No time at all: each estimator's run would be one pass, reported "at 0.00 s".
+    let (code, err) = run(&[scene, "--budget", "0s"]);
+    assert_eq!(code, Some(1), "{err}");
+    assert!(err.contains("--budget must be above 0"), "{err}");
+
     let (code, err) = run(&[scene, "--budget", "5x"]);
     assert_eq!(code, Some(2), "{err}");
     assert!(err.contains("unknown unit"), "{err}");

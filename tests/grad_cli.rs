@@ -152,6 +152,44 @@ fn an_l2_loss_toward_a_denser_target_asks_for_more_density() {
     );
 }
 
+/// Lights at the largest radiance a scene takes (10³⁰): an L2 loss's gradient, a product of two
+/// such radiances, goes beyond the f32 a VDB holds. Refused, with no file written, instead of a
+/// grid of infinities and NaN in the report.
+#[test]
+fn a_gradient_beyond_f32_is_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let bright = |name: &str, scale: f32| {
+        let path = scene(dir.path(), name, scale);
+        let text = std::fs::read_to_string(&path).unwrap();
+        let text = text
+            .replace("radiance = 0.5", "radiance = 1e30")
+            .replace("irradiance = 2", "irradiance = 1e30");
+        std::fs::write(&path, text).unwrap();
+        path
+    };
+    let (scene, target) = (bright("s.toml", 1.0), bright("target.toml", 3.0));
+    let out = dir.path().join("g.vdb");
+    assert_clean_error(
+        &volgrad(&[
+            "grad",
+            s(&scene),
+            "--loss",
+            "l2",
+            "--target-scene",
+            s(&target),
+            "--target-spp",
+            "4",
+            "--spp",
+            "2",
+            "-o",
+            s(&out),
+            "-q",
+        ]),
+        &["beyond a VDB's f32", "lights"],
+    );
+    assert!(!out.exists() && !dir.path().join("g.png").exists());
+}
+
 fn scene_path_with_scale(dir: &Path, scale: f32) -> PathBuf {
     scene(dir, "target.toml", scale)
 }

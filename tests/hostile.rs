@@ -279,3 +279,32 @@ fn an_infinite_adjoint_pixel_is_dropped_and_counted_not_spread() {
     assert!(voxels(&without).iter().any(|&(_, q)| q != 0));
     assert_eq!(voxels(&with), voxels(&without));
 }
+
+/// One pixel whose δ is 10⁹ times the others' (a firefly in a target, the sun in a photograph's
+/// sky) where the camera sees only sky: its paths add nothing, and the others' gradient keeps its
+/// digits. The quantum once followed the largest δ alone, and the others' samples, 10⁹ times
+/// smaller, were rounded with a quantum near their own size: ⟨g, 1⟩ came out 5 times off.
+#[test]
+fn a_hot_adjoint_pixel_that_sees_only_sky_leaves_the_others_their_digits() {
+    let mut scene = lumpy_block_scene(Filter::Trilinear, false, 0.5);
+    // 90° at distance 14: the 6-wide block fills the middle of the image, the corners are sky.
+    scene.camera = volgrad::render::camera::Camera::new(
+        Vec3::new(0.0, 0.0, 14.0),
+        Vec3::ZERO,
+        Vec3::Y,
+        90.0,
+        8,
+        8,
+    );
+    let mut adjoint = Loss::Mean.adjoint(&RgbImage::new(8, 8), None);
+    let options = GradOptions::new(Estimator::Joint, 4, 11, 16);
+    adjoint[0] = Vec3::ZERO;
+    let without = gradient(&scene, &adjoint, &options);
+    adjoint[0] = Vec3::splat(1e9 * adjoint[1].x);
+    let with = gradient(&scene, &adjoint, &options);
+    let (a, b) = (without.values().sum(), with.values().sum());
+    assert!(
+        a != 0.0 && ((b - a) / a).abs() < 0.01,
+        "⟨g, 1⟩ {a} without the hot pixel, {b} with it"
+    );
+}

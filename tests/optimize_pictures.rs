@@ -282,8 +282,57 @@ fn pictures_alone_need_no_grid_and_give_their_own_box() {
     );
 }
 
-/// A held-out picture that a training view also uses, however its path is written or whichever
-/// camera source names it, is refused: the held-out score would be of the training pictures.
+/// One hot pixel in a training picture's sky (a firefly; the sun in a photograph) does not clear
+/// the start: the background tolerance is a share of the pictures' brightness, which the pixel
+/// must not raise past the medium's (at 10⁴ among 24² views it counted every pixel as sky).
+#[test]
+fn a_hot_pixel_in_the_sky_does_not_clear_the_start() {
+    let dir = fixture(&run_file("0.2", ""));
+    let d = dir.path();
+    write_pictures(d, 1.0, "iterations = 1");
+    let active_at_start = |out: &str| {
+        ok(volgrad_in(
+            d,
+            &[
+                "optimize",
+                "images.toml",
+                "--iterations",
+                "0",
+                "--out",
+                out,
+                "-q",
+            ],
+        ));
+        number(&log(&d.join(out))[0], "active_voxels")
+    };
+    let clean = active_at_start("clean");
+    let path = d.join("view0.exr");
+    let image = exr::prelude::read_first_rgba_layer_from_file(
+        &path,
+        |size, _| (size.width(), vec![[0f32; 3]; size.width() * size.height()]),
+        |(w, px): &mut (usize, Vec<[f32; 3]>), pos, (r, g, b, _): (f32, f32, f32, f32)| {
+            px[pos.y() * *w + pos.x()] = [r, g, b];
+        },
+    )
+    .unwrap();
+    let (w, mut pixels) = image.layer_data.channel_data.pixels;
+    pixels[0] = [1e4; 3];
+    std::fs::remove_file(&path).unwrap();
+    exr::prelude::write_rgb_file(&path, w, pixels.len() / w, |x, y| {
+        let [r, g, b] = pixels[y * w + x];
+        (r, g, b)
+    })
+    .unwrap();
+    // Within a percent: the pixel, clipped, still moves the tolerance a little.
+    let hot = active_at_start("hot");
+    assert!(
+        clean > 0.0 && (hot - clean).abs() <= 0.01 * clean,
+        "{clean} {hot}"
+    );
+}
+
+/// A held-out picture that a training view also uses, however its path is written (a hard link
+/// included) or whichever camera source names it, is refused: the held-out score would be of the training pictures.
 #[test]
 fn a_training_picture_is_refused_as_a_held_out_one() {
     let dir = fixture(&run_file("0.2", ""));
@@ -296,6 +345,14 @@ fn a_training_picture_is_refused_as_a_held_out_one() {
     assert_clean_error(
         &volgrad_in(d, &["optimize", "listed.toml", "--out", "a", "-q"]),
         &["view0.exr", "no training view uses"],
+    );
+    // A hard link is the same file under another name (a symbolic link resolves to it).
+    std::fs::hard_link(d.join("view0.exr"), d.join("linked.exr")).unwrap();
+    let linked = run.replace("image = \"holdout.exr\"", "image = \"linked.exr\"");
+    std::fs::write(d.join("linked.toml"), linked).unwrap();
+    assert_clean_error(
+        &volgrad_in(d, &["optimize", "linked.toml", "--out", "c", "-q"]),
+        &["linked.exr", "no training view uses"],
     );
     let holdout = &run[run.find("[[holdout]]").unwrap()..run.find("[unknown]").unwrap()];
     let same_file = run.replace(holdout, "[holdouts]\ntransforms = \"transforms.json\"\n\n");

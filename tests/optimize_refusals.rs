@@ -214,3 +214,27 @@ fn a_schedule_shorter_than_the_resumed_run_is_refused() {
         ],
     );
 }
+
+/// Targets whose squares the optimiser cannot hold (lights of 10¹⁰: P near 10¹⁹) are refused as
+/// the run loads, naming the brightest pixel. They made a run's priors' weights infinite (a
+/// message about a weight the file never set), or its held-out PSNR, and then its chart, NaN.
+#[test]
+fn targets_too_bright_for_the_optimiser_are_refused() {
+    let dir = fixture(&run_file("0.2", "iterations = 1"));
+    let scene = std::fs::read_to_string(dir.path().join("scene.toml")).unwrap();
+    let bright = scene
+        .replace("radiance = [0.03, 0.04, 0.06]", "radiance = 1e10")
+        .replace("irradiance = 4.0", "irradiance = 1e10");
+    assert_ne!(bright, scene);
+    std::fs::write(dir.path().join("scene.toml"), bright).unwrap();
+    assert_clean_error(
+        &volgrad_in(dir.path(), &["optimize", "run.toml", "--out", "out", "-q"]),
+        &[
+            "mean squared value",
+            "brightest pixel",
+            "training view",
+            "scale the scene's lights",
+        ],
+    );
+    assert!(!dir.path().join("out").exists());
+}

@@ -3,7 +3,7 @@
 use std::path::PathBuf;
 
 use numpy::{IntoPyArray, PyArray2, PyArray3};
-use pyo3::exceptions::PyFileExistsError;
+use pyo3::exceptions::{PyFileExistsError, PyIsADirectoryError};
 use pyo3::prelude::*;
 use volgrad::io::vdb::{self, GridSelector};
 
@@ -64,7 +64,14 @@ pub fn write_grid(
     half: bool,
 ) -> PyResult<()> {
     check_path(&path, "path")?;
-    if path.exists() && !overwrite {
+    if path.is_dir() {
+        return Err(PyIsADirectoryError::new_err(format!(
+            "cannot write '{}': it is a folder",
+            path.display()
+        )));
+    }
+    // `symlink_metadata`: a link to a file not yet there is the user's too (`exists` follows it).
+    if path.symlink_metadata().is_ok() && !overwrite {
         // The command line's message would say --force.
         return Err(PyFileExistsError::new_err(format!(
             "'{}' already exists: pass overwrite=True to replace it",

@@ -56,6 +56,14 @@ def test_an_existing_file_is_kept_unless_asked(tmp_path):
     assert volgrad.read_grid(path)[0].max() == ball().max()
     volgrad.write_grid(path, ball() * 2, voxel_map(), overwrite=True)
     assert volgrad.read_grid(path)[0].max() == 2 * ball().max()
+    # A link to a file not yet there is the user's too; a folder is refused as one, overwrite or not.
+    link = tmp_path / "link.vdb"
+    link.symlink_to(tmp_path / "elsewhere.vdb")
+    with pytest.raises(FileExistsError, match="already exists"):
+        volgrad.write_grid(link, ball(), voxel_map())
+    assert link.is_symlink()
+    with pytest.raises(IsADirectoryError, match="it is a folder"):
+        volgrad.write_grid(tmp_path, ball(), voxel_map(), overwrite=True)
 
 
 @pytest.mark.parametrize(

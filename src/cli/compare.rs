@@ -109,6 +109,9 @@ pub fn run(args: &Args) -> Result<()> {
         (Suite::Stability, None) => stability(args, &estimators),
         (Suite::EqualTime, None) => bail!("give a scene file, or --suite stability"),
         (Suite::EqualTime, Some(path)) => {
+            if args.budget == Some(Duration::ZERO) {
+                bail!("--budget must be above 0 (each estimator's run takes that time)");
+            }
             let scene = Scene::load(path)?;
             let budget = args.budget.unwrap_or(Duration::from_secs(120));
             let name = path

@@ -369,6 +369,14 @@ pub fn run(args: &Args, cluster: &Cluster) -> Result<()> {
             .into_iter()
             .map(|run| run.gradient.converted(run.quantum))
             .collect();
+        // Every sample is finite; a sum can still exceed f32's range (lights near 1e30).
+        let beyond_f32 = channels
+            .iter()
+            .flat_map(|g| g.voxels())
+            .find(|(_, v)| !v.is_finite());
+        if let Some((voxel, v)) = beyond_f32 {
+            bail!("the gradient at voxel {voxel} is {v}, beyond a VDB's f32 values: scale the scene's lights (or emission) down");
+        }
         let (gradient_sum, gradient_blocks, gradient_bytes) = (
             channels.iter().map(|g| g.sum()).sum::<f64>(),
             channels[0].block_count(),

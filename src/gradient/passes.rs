@@ -24,14 +24,20 @@ use crate::volume::brickmap::{corner, BrickMap};
 use crate::volume::tracking::TrackingStats;
 
 /// The quantum of a gradient pass with adjoint images `deltas` at `spp`, each with the scale of
-/// its samples' d_pixel (`sample_scale`): the power of two just above the largest |δ|·scale / spp,
-/// over 2³². A sample δ/spp · d_pixel is then at most 2³²·|d_pixel|/scale quanta, and a voxel's
-/// sum has 2²⁹ such samples' headroom before i64 saturates. Samples are rounded with a dither
-/// (`Quanta::from_f32_dithered`), so that those far below a quantum keep their mean.
+/// its samples' d_pixel (`sample_scale`): the power of two just above the larger of
+/// - Σ|δ|·scale / 2⁵⁴: a voxel's sum, at most Σᵢ |δᵢ| times a path's d_pixel, keeps 2⁸ times
+///   `scale` of headroom below i64's 2⁶³ quanta, and its resolution follows the whole image's
+///   weight, not one pixel's: beside a hot pixel whose δ is 10⁹ times the others' (a firefly, the
+///   sun in a photograph, which the volume cannot change) the others' samples keep their digits;
+/// - the largest |δ|·scale / (spp · 2⁴⁴): one sample, at most |δ|/spp · d_pixel, keeps 2¹⁹ times
+///   `scale` of headroom (a peaked phase function's NEE is some 10³ times the light).
+///
+/// Samples are rounded with a dither (`Quanta::from_f32_dithered`), so that those far below a
+/// quantum keep their mean.
 pub fn quantum_for<'a>(deltas: impl IntoIterator<Item = (&'a [Vec3], f64)>, spp: u32) -> f64 {
     // Over the finite values only: one infinite δ would make the quantum 1 and round every other
     // sample to 0 (its own samples are dropped and counted by the pass).
-    let largest = deltas
+    let (largest, total) = deltas
         .into_iter()
         .flat_map(|(delta, scale)| {
             delta
@@ -39,10 +45,10 @@ pub fn quantum_for<'a>(deltas: impl IntoIterator<Item = (&'a [Vec3], f64)>, spp:
                 .map(move |d| d.abs().max_element() as f64 * scale)
         })
         .filter(|x| x.is_finite())
-        .fold(0.0f64, f64::max)
-        / spp.max(1) as f64;
-    if largest > 0.0 && largest.is_finite() {
-        2f64.powi(largest.log2().ceil() as i32 - 32)
+        .fold((0.0f64, 0.0f64), |(m, s), x| (m.max(x), s + x));
+    let bound = (total * 2f64.powi(-54)).max(largest / spp.max(1) as f64 * 2f64.powi(-44));
+    if bound > 0.0 && bound.is_finite() {
+        2f64.powi(bound.log2().ceil() as i32)
     } else {
         1.0
     }

@@ -212,6 +212,10 @@ const LINEAR_NAMES: [&str; 6] = [
 /// A file that declares other primaries (`chromaticities`, or a space such as ACEScg or Display
 /// P3) or a curve volgrad does not decode (a log encoding) is refused rather than read as if it
 /// were sRGB or linear Rec.709; an override takes its values as they are, whatever it declares.
+/// The gammas a "GammaN" colour space is decoded with.
+const MIN_GAMMA: f32 = 0.1;
+const MAX_GAMMA: f32 = 10.0;
+
 fn decoding(
     declared: &str,
     stored_type: &str,
@@ -254,6 +258,11 @@ fn decoding(
         .and_then(|g| g.trim().parse::<f32>().ok())
         .filter(|g| g.is_finite() && *g > 0.0)
     {
+        // A PNG's gAMA chunk becomes "GammaN"; a damaged one (gAMA 1, N = 100000) would
+        // darken or flatten every pixel. Displays' gammas lie near 1 to 3.
+        if !(MIN_GAMMA..=MAX_GAMMA).contains(&g) {
+            bail!("it declares the colour space \"{declared}\", a gamma outside {MIN_GAMMA}..{MAX_GAMMA} (a damaged gAMA chunk?): {convert}");
+        }
         return Ok(Decoding::Gamma(g));
     }
     bail!("it declares the colour space \"{declared}\", which volgrad does not decode (it reads sRGB, linear Rec.709 and GammaN): {convert}")

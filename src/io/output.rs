@@ -12,7 +12,8 @@ pub fn refuse_overwrite(path: &Path, overwrite: bool) -> Result<()> {
     if path.is_dir() {
         bail!("cannot write '{}': it is a folder", path.display());
     }
-    if path.exists() && !overwrite {
+    // `symlink_metadata`: a link to a file not yet there is the user's too (`exists` follows it).
+    if path.symlink_metadata().is_ok() && !overwrite {
         bail!(
             "'{}' already exists: pass --force to overwrite it",
             path.display()

@@ -37,7 +37,8 @@ fn mean_squared_error(image: &RgbImage, target: &RgbImage) -> f64 {
         .pixels
         .iter()
         .zip(&target.pixels)
-        .map(|(&a, &b)| (a - b).length_squared() as f64)
+        // In f64: a difference of 1e20 squares beyond f32.
+        .map(|(&a, &b)| (a.as_dvec3() - b.as_dvec3()).length_squared())
         .sum();
     sum / (3 * image.pixels.len().max(1)) as f64
 }
@@ -47,7 +48,7 @@ pub fn relative_rmse(image: &RgbImage, target: &RgbImage) -> f64 {
     let norm: f64 = target
         .pixels
         .iter()
-        .map(|c| c.length_squared() as f64)
+        .map(|c| c.as_dvec3().length_squared())
         .sum();
     (mean_squared_error(image, target) * (3 * image.pixels.len()) as f64 / norm.max(1e-30)).sqrt()
 }

@@ -212,9 +212,9 @@ impl Problem {
             UnknownGrid::Density => SceneUnits::new(
                 scene.medium.density_scale,
                 domain.longest_edge(),
-                image_power(&views),
+                image_power(&views)?,
             ),
-            UnknownGrid::Emission => SceneUnits::for_emission(&scene, image_power(&views))?,
+            UnknownGrid::Emission => SceneUnits::for_emission(&scene, image_power(&views)?)?,
         };
         let view_pixels: Vec<u64> = views
             .iter()
@@ -235,7 +235,7 @@ impl Problem {
             unknown == UnknownGrid::Density && matches!(start_file, StartFile::Constant(_)),
         );
         let hull = carve.then(|| {
-            let tolerance = hull::BACKGROUND_TOLERANCE * units.image_power.sqrt();
+            let tolerance = hull::BACKGROUND_TOLERANCE * hull::background_scale(&views);
             let (voxels, transform) = (domain.voxel_box(0), domain.transform(0));
             Hull::of(
                 voxels,

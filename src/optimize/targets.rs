@@ -123,15 +123,34 @@ pub fn view_specs(
     Ok(specs)
 }
 
+/// What makes two paths one file: the device and inode (so that hard links, symbolic links and
+/// `a/../b` agree), or the path where the file cannot be asked (it is then refused later).
+#[derive(PartialEq, Eq, Hash)]
+enum FileIdentity {
+    Inode(u64, u64),
+    Path(PathBuf),
+}
+
+impl FileIdentity {
+    fn of(path: &Path) -> Self {
+        #[cfg(unix)]
+        if let Ok(meta) = std::fs::metadata(path) {
+            use std::os::unix::fs::MetadataExt;
+            return FileIdentity::Inode(meta.dev(), meta.ino());
+        }
+        FileIdentity::Path(path.canonicalize().unwrap_or_else(|_| path.to_path_buf()))
+    }
+}
+
 /// An error if two views name one picture (as one file, however its path is written): a
 /// held-out view the fit was trained on scores the fit against its own targets, and a picture
 /// listed twice weighs twice (in the fit, or in the held-out score).
 pub fn refuse_shared_pictures(training: &[ViewSpec], held_out: &[ViewSpec]) -> Result<()> {
-    let mut seen: HashMap<PathBuf, (&str, bool)> = HashMap::new();
+    let mut seen: HashMap<FileIdentity, (&str, bool)> = HashMap::new();
     let views = (training.iter().map(|s| (s, true))).chain(held_out.iter().map(|s| (s, false)));
     for (spec, is_training) in views {
         let Some(image) = &spec.image else { continue };
-        let key = image.canonicalize().unwrap_or_else(|_| image.clone());
+        let key = FileIdentity::of(image);
         if let Some((first, first_is_training)) = seen.insert(key, (&spec.name, is_training)) {
             let why = match (first_is_training, is_training) {
                 (true, false) => " (a held-out view must be a picture no training view uses)",
@@ -527,17 +546,38 @@ fn read_target(
     })
 }
 
+/// The brightest training targets a reconstruction takes: P up to 10¹⁸, pixels near 10⁹ (a sky
+/// in cd/m² is near 10⁴). The priors' weights scale with P, and beyond it they, and then a step's
+/// gradient, outgrow what the optimiser holds of their squares: the run stood still or fitted
+/// nothing. The scale is the user's to choose: a reconstruction does not depend on it.
+const MAX_IMAGE_POWER: f64 = 1e18;
+
 /// The targets' mean squared pixel value per channel: the L2 loss of a black image (P of
-/// `scene_units`).
-pub fn image_power(views: &[View]) -> f64 {
+/// `scene_units`); an error beyond `MAX_IMAGE_POWER`.
+pub fn image_power(views: &[View]) -> Result<f64> {
     let (sum, count) = views.iter().fold((0.0, 0usize), |(s, n), v| {
         let power: f64 = v
             .target
             .pixels
             .iter()
-            .map(|c| f64::from(c.length_squared()))
+            // In f64: a channel of 1e20 squares beyond f32.
+            .map(|c| c.as_dvec3().length_squared())
             .sum();
         (s + power, n + 3 * v.target.pixels.len())
     });
-    sum / count.max(1) as f64
+    let power = sum / count.max(1) as f64;
+    if power.is_nan() || power > MAX_IMAGE_POWER {
+        let brightest = (views.iter().enumerate())
+            .flat_map(|(i, v)| v.target.pixels.iter().map(move |c| (c.max_element(), i)))
+            .fold((f32::MIN, 0), |a, b| if b.0 > a.0 { b } else { a });
+        bail!(
+            "the training targets' mean squared value is {power:.3e}, above {MAX_IMAGE_POWER:e}, where the optimiser's squares overflow \
+             (the brightest pixel, {:.1e}, is in training view {} of {}): scale the scene's lights and the pictures down by one factor \
+             (pictures with alpha are composited over the scene's sky, which follows its lights); a reconstruction does not depend on their scale",
+            brightest.0,
+            brightest.1 + 1,
+            views.len()
+        );
+    }
+    Ok(power)
 }
