@@ -529,3 +529,20 @@ fn a_grid_with_no_voxels_is_named() {
     let out = volgrad_in(d, &["gradcheck", "scene.toml", "--voxels", "10001"]);
     assert_flag_refused(&out, "--voxels");
 }
+
+/// A target cache that names a file is refused as the run loads ("File exists (os error 17)"
+/// came when the first target, rendered, was to be stored).
+#[test]
+fn a_target_cache_that_is_a_file_is_refused() {
+    let dir = fixture(&run_file("0.2", "iterations = 1"));
+    std::fs::write(dir.path().join("file"), "mine").unwrap();
+    let cached = ["optimize", "run.toml", "--target-cache", "file", "-q"];
+    assert_clean_error(
+        &volgrad_in(dir.path(), &cached),
+        &["target cache 'file' is a file"],
+    );
+    assert_eq!(
+        std::fs::read_to_string(dir.path().join("file")).unwrap(),
+        "mine"
+    );
+}

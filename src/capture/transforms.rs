@@ -369,6 +369,9 @@ fn pose(rows: &[[f64; 4]; 4]) -> Result<(DVec3, DVec3, DVec3)> {
 
 /// A frame's image: the path as given, or with `.exr` or `.png` added when it has no extension.
 fn image_path(dir: &Path, name: &str) -> Result<PathBuf> {
+    if name.trim().is_empty() {
+        bail!("file_path is empty: it names the frame's picture");
+    }
     let path = dir.join(name);
     if path.extension().is_some() {
         return Ok(path);

@@ -209,7 +209,7 @@ fn two_frames_of_one_image_are_refused() {
 }
 
 /// A file_path without an extension is looked for as .exr, then .png; when neither is there the
-/// error names both files it looked for.
+/// error names both files it looked for. An empty one is refused as such.
 #[test]
 fn an_image_without_an_extension_is_looked_for_as_exr_then_png() {
     let dir = tempfile::tempdir().unwrap();
@@ -226,6 +226,9 @@ fn an_image_without_an_extension_is_looked_for_as_exr_then_png() {
         error.contains("a.exr") && error.contains("a.png"),
         "{error}"
     );
+    // An empty name is said to be one, not looked for as '.exr' and '.png'.
+    let error = image_path(d, "").unwrap_err().to_string();
+    assert_eq!(error, "file_path is empty: it names the frame's picture");
 }
 
 /// instant-ngp's `colmap2nerf.py` writes the size as decimals ("w": 20.0): a whole number is

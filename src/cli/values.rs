@@ -25,7 +25,7 @@ pub fn duration(text: &str) -> Result<Duration, String> {
         "h" => 3600.0,
         _ => {
             return Err(format!(
-                "unknown unit '{unit}' in '{text}' (use s, m or h, e.g. 120s)"
+                "unknown unit '{unit}' in '{text}' (use ms, s, m, min or h, e.g. 120s)"
             ))
         }
     };
@@ -128,6 +128,7 @@ mod tests {
             assert!(duration(bad).is_err(), "'{bad}' parsed");
         }
         assert!(duration("10d").unwrap_err().contains("unknown unit 'd'"));
+        assert!(duration("5ns").unwrap_err().contains("ms, s, m, min or h"));
         assert!(duration("1e-10s")
             .unwrap_err()
             .contains("shorter than a nanosecond"));

@@ -386,7 +386,7 @@ fn colour_channels(names: &[String], c: usize, alpha: Option<usize>) -> Result<C
         return Ok(Colour::Rgb([at(".R"), at(".G"), at(".B")]));
     }
     bail!(
-        "no colour channels: its channels are {} (volgrad reads R, G and B, or a grey Y)",
+        "no colour channels: its channels are {} (volgrad reads R, G and B, or a grey Y alone or beside A: not Y beside chroma, as RY and BY)",
         names.join(", ")
     )
 }
@@ -416,6 +416,9 @@ mod tests {
             let error = rgb(refused).unwrap_err().to_string();
             assert!(error.contains("no colour channels"), "{refused:?}: {error}");
         }
+        // Y beside chroma (a luminance-chroma EXR) is not a grey picture, and the message says so.
+        let error = rgb(&["BY", "RY", "Y"]).unwrap_err().to_string();
+        assert!(error.contains("not Y beside chroma"), "{error}");
         // An image volgrad made itself names no channels: the first three, or grey.
         assert_eq!(
             colour_channels(&[], 4, Some(3)).unwrap(),

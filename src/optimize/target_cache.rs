@@ -36,6 +36,12 @@ pub struct TargetCache {
 impl TargetCache {
     /// The cache in `dir` (created by the first write) for the targets of `truth`.
     pub fn open(dir: &Path, truth: &Scene) -> Result<TargetCache> {
+        if dir.exists() && !dir.is_dir() {
+            bail!(
+                "the target cache '{}' is a file: it names a folder (the first run that uses it makes it)",
+                dir.display()
+            );
+        }
         let exe = std::env::current_exe().context("cannot locate the volgrad executable")?;
         let bytes = std::fs::read(&exe)
             .with_context(|| format!("cannot read '{}' to fingerprint it", exe.display()))?;
