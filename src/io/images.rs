@@ -208,14 +208,14 @@ const LINEAR_NAMES: [&str; 6] = [
     "linear rec.709 (srgb)",
 ];
 
-/// The decoding `override_space` or, without one, the file's declaration and storage ask for.
-/// A file that declares other primaries (`chromaticities`, or a space such as ACEScg or Display
-/// P3) or a curve volgrad does not decode (a log encoding) is refused rather than read as if it
-/// were sRGB or linear Rec.709; an override takes its values as they are, whatever it declares.
 /// The gammas a "GammaN" colour space is decoded with.
 const MIN_GAMMA: f32 = 0.1;
 const MAX_GAMMA: f32 = 10.0;
 
+/// The decoding `override_space` or, without one, the file's declaration and storage ask for.
+/// A file that declares other primaries (`chromaticities`, or a space such as ACEScg or Display
+/// P3) or a curve volgrad does not decode (a log encoding) is refused rather than read as if it
+/// were sRGB or linear Rec.709; an override takes its values as they are, whatever it declares.
 fn decoding(
     declared: &str,
     stored_type: &str,

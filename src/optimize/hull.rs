@@ -12,16 +12,17 @@
 use glam::{IVec3, Vec3};
 use rayon::prelude::*;
 
-use crate::optimize::targets::View;
+use crate::optimize::targets::{mean_square, View};
 use crate::render::camera::Camera;
 use crate::render::lights::Lights;
 use crate::volume::brickmap::corner;
 use crate::volume::transform::IndexTransform;
 
 /// A pixel is background when each channel is within this share of the targets' brightness
-/// (`background_scale`, their RMS pixel value) of the environment: rendered targets show the environment exactly there; a photograph's
-/// noise and smoke this faint are about this small.
+/// (`background_scale`) of the environment: rendered targets show the environment exactly there;
+/// a photograph's noise and smoke this faint are about this small.
 pub const BACKGROUND_TOLERANCE: f64 = 0.01;
+
 /// The targets' brightness the background tolerance is a share of: their RMS channel value √P,
 /// with every channel clipped at ten times the channels' 99th percentile. Where no pixel stands
 /// out that far (the usual case) it is √P to the bit; a few hot pixels (a firefly, the sun in a
@@ -36,22 +37,8 @@ pub fn background_scale(views: &[View]) -> f64 {
         return 0.0;
     }
     let rank = (channels.len() - 1) * 99 / 100;
-    let clip = 10.0
-        * channels
-            .select_nth_unstable_by(rank, f32::total_cmp)
-            .1
-            .abs();
-    let (sum, count) = views.iter().fold((0.0, 0usize), |(s, n), v| {
-        let power: f64 = (v.target.pixels.iter())
-            .map(|c| {
-                c.clamp(Vec3::splat(-clip), Vec3::splat(clip))
-                    .as_dvec3()
-                    .length_squared()
-            })
-            .sum();
-        (s + power, n + 3 * v.target.pixels.len())
-    });
-    (sum / count.max(1) as f64).sqrt()
+    let percentile = *channels.select_nth_unstable_by(rank, f32::total_cmp).1;
+    mean_square(views, 10.0 * percentile.abs()).sqrt()
 }
 
 /// Environment samples per pixel side for the background a pixel averages.

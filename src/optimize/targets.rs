@@ -546,6 +546,22 @@ fn read_target(
     })
 }
 
+/// The targets' mean squared channel value, each channel clipped to ±`clip`.
+pub fn mean_square(views: &[View], clip: f32) -> f64 {
+    let (sum, count) = views.iter().fold((0.0, 0usize), |(s, n), v| {
+        let power: f64 = (v.target.pixels.iter())
+            // In f64: a channel of 1e20 squares beyond f32.
+            .map(|c| {
+                c.clamp(Vec3::splat(-clip), Vec3::splat(clip))
+                    .as_dvec3()
+                    .length_squared()
+            })
+            .sum();
+        (s + power, n + 3 * v.target.pixels.len())
+    });
+    sum / count.max(1) as f64
+}
+
 /// The brightest training targets a reconstruction takes: P up to 10¹⁸, pixels near 10⁹ (a sky
 /// in cd/m² is near 10⁴). The priors' weights scale with P, and beyond it they, and then a step's
 /// gradient, outgrow what the optimiser holds of their squares: the run stood still or fitted
@@ -555,17 +571,7 @@ const MAX_IMAGE_POWER: f64 = 1e18;
 /// The targets' mean squared pixel value per channel: the L2 loss of a black image (P of
 /// `scene_units`); an error beyond `MAX_IMAGE_POWER`.
 pub fn image_power(views: &[View]) -> Result<f64> {
-    let (sum, count) = views.iter().fold((0.0, 0usize), |(s, n), v| {
-        let power: f64 = v
-            .target
-            .pixels
-            .iter()
-            // In f64: a channel of 1e20 squares beyond f32.
-            .map(|c| c.as_dvec3().length_squared())
-            .sum();
-        (s + power, n + 3 * v.target.pixels.len())
-    });
-    let power = sum / count.max(1) as f64;
+    let power = mean_square(views, f32::INFINITY);
     if power.is_nan() || power > MAX_IMAGE_POWER {
         let brightest = (views.iter().enumerate())
             .flat_map(|(i, v)| v.target.pixels.iter().map(move |c| (c.max_element(), i)))
