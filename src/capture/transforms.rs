@@ -312,6 +312,13 @@ fn intrinsics(lens: &Lens, width: u32, height: u32) -> Result<Intrinsics> {
 /// The focal length along one axis from `fl` (pixels) or `angle` (the field of view across
 /// `size` pixels, radians); both given must agree to 0.1 %.
 fn focal(axis: &str, fl: Option<f64>, angle: Option<f64>, size: u32) -> Result<Option<f64>> {
+    // Checked as written: 1e-300 or 1e300 would reach the camera's check as f32's 0 or inf.
+    if let Some(f) = fl.filter(|&f| !(f > 0.0 && (f as f32).is_normal())) {
+        bail!(
+            "fl_{axis} = {}: the focal length f{axis} must be a finite number of pixels > 0 within f32's range",
+            super::quoted_number(f)
+        );
+    }
     let from_angle = angle
         .map(|a| {
             if !(a > 0.0 && a < std::f64::consts::PI) {

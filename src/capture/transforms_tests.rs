@@ -124,6 +124,14 @@ fn what_a_pinhole_cannot_be_is_refused_naming_the_key() {
         (with(r#""fl_x": 30,"#), "disagree"),
         (with(r#""camera_angle_y": 4,"#), "camera_angle_y"),
         (with(r#""fl_y": 0,"#), "fy"),
+        (
+            sized(r#""fl_x": 1e-300, "w": 8, "h": 8,"#),
+            "fl_x = 1e-300: the focal length fx",
+        ),
+        (
+            sized(r#""fl_x": 1e300, "w": 8, "h": 8,"#),
+            "fl_x = 1e300: the focal length fx",
+        ),
         (with(r#""cx": 1e40,"#), "principal point"),
         // Finite, but every ray's direction overflowed to the zero vector.
         (
