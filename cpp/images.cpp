@@ -33,6 +33,18 @@ OIIO::TypeDesc pixel_type_desc(const std::string& t) {
 // fail on a truncated file without a word). A reader may stack several lines, each layer restating
 // the last ("Read error: hit end of file", "PNG read error: IDAT: Read error: hit end of file",
 // "PNG library error"): a line another line already contains is left out, the rest joined by "; ".
+// The first line of `text` that holds more than spaces.
+std::string first_line(const std::string& text) {
+    size_t start = 0;
+    while (start < text.size()) {
+        size_t end = text.find('\n', start);
+        if (end == std::string::npos) end = text.size();
+        if (text.find_first_not_of(" \r", start) < end) return text.substr(start, end - start);
+        start = end + 1;
+    }
+    return "";
+}
+
 std::string oiio_error(const std::string& specific,
                        const std::string& silent = "unknown OpenImageIO error") {
     const std::string all = specific.empty() ? OIIO::geterror() : specific;
@@ -185,10 +197,14 @@ ImageData read_image(rust::Str path_str) {
     // A reader may fill what it could not decode and still report success, keeping the error for
     // whoever asks: a JPEG cut short or with damaged data comes back with its lower part grey, a
     // TIFF cut short with it black. Either is a picture the file does not hold.
+    // The reader's own words follow, first line only: libtiff, for one, repeats its line for
+    // every strip it could not read.
     if (!in->read_image(0, 0, 0, spec.nchannels, OIIO::TypeDesc::FLOAT, into) ||
         in->has_error()) {
-        const std::string silent = "its pixels could not be read (is it truncated or corrupt?)";
-        fail("cannot read image " + quoted(path) + ": " + oiio_error(in->geterror(), silent));
+        const std::string said = oiio_error(first_line(in->geterror()), "");
+        fail("cannot read image " + quoted(path) +
+             ": its pixels could not be read (is it cut short or damaged?)" +
+             (said.empty() ? "" : " (" + said + ")"));
     }
     in->close();
     if (!whole) {

@@ -140,7 +140,7 @@ fn image_errors_name_the_file() {
     let e = err_text(ffi::read_image(path_str(&truncated)));
     assert!(
         e.starts_with(&format!("cannot read image '{}'", path_str(&truncated)))
-            && e.contains("truncated or corrupt"),
+            && e.contains("cut short or damaged"),
         "{e}"
     );
 
@@ -156,6 +156,17 @@ fn image_errors_name_the_file() {
     flipped[bytes.len() / 2] ^= 0xff;
     let damaged = dir.path().join("damaged.png");
     std::fs::write(&damaged, &flipped).unwrap();
+    // A TIFF cut short: libtiff says so once per strip it could not read; the first is kept.
+    let tiff = dir.path().join("whole.tif");
+    ffi::write_image(path_str(&tiff), &test_image(256, 256, 4, true), "uint8").unwrap();
+    let bytes = std::fs::read(&tiff).unwrap();
+    let cut_tiff = dir.path().join("cut.tif");
+    std::fs::write(&cut_tiff, &bytes[..bytes.len() / 4]).unwrap();
+    let e = err_text(ffi::read_image(path_str(&cut_tiff)));
+    assert!(
+        e.contains("cut short or damaged") && e.matches("TIFF").count() <= 1,
+        "{e}"
+    );
     for (path, says) in [(&cut, "end of file"), (&damaged, "PNG read error")] {
         let e = err_text(ffi::read_image(path_str(path)));
         assert!(

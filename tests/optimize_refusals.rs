@@ -238,3 +238,19 @@ fn targets_too_bright_for_the_optimiser_are_refused() {
     );
     assert!(!dir.path().join("out").exists());
 }
+
+/// `level_lr` scales the rate at each upsampling: with levels left out and derived as none (views
+/// whose pixel is about the voxel), it would be ignored without a word, as `unknown.levels = []`
+/// refuses it.
+#[test]
+fn a_level_key_is_refused_when_the_derived_levels_are_none() {
+    let run = run_file("0.2", "iterations = 2\nlevel_lr = 0.7");
+    let dir = fixture(&run);
+    assert_clean_error(
+        &volgrad_in(dir.path(), &["optimize", "run.toml", "--out", "out", "-q"]),
+        &[
+            "optimizer.level_lr has no effect here",
+            "levels derived from the views",
+        ],
+    );
+}

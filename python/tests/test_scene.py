@@ -222,6 +222,7 @@ def bad_calls():
     # fy alone stands for both; the error names it, not fx.
     yield lambda: volgrad.Camera((0, 0, 1), (0, 0, 0), fy=-5.0), ValueError, "focal length fy"
     yield lambda: small_scene(lights=[{"type": "sun"}]), ValueError, "sun"
+    yield lambda: small_scene(lights=["x"]), ValueError, r"light\[0\] must be a table of keys \(a dict, from Python\)"
     yield lambda: small_scene(phase_g=1.5), ValueError, "phase_g"
     yield lambda: small_scene(phase_g=float("nan")), ValueError, "phase_g must be a finite number"
     yield lambda: small_scene(density_scale=float("inf")), ValueError, "density_scale must be a finite"

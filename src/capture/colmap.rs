@@ -51,6 +51,7 @@ pub fn default_images(model: &Path) -> PathBuf {
 pub fn read(model: &Path, images: &Path) -> Result<Vec<CapturedView>> {
     let cameras_path = model.join("cameras.txt");
     let images_path = model.join("images.txt");
+    refuse_binary_model(model)?;
     let read = |path: &Path| {
         crate::io::input::read_text(path).with_context(|| {
             format!(
@@ -63,6 +64,21 @@ pub fn read(model: &Path, images: &Path) -> Result<Vec<CapturedView>> {
         sensors(&read(&cameras_path)?).with_context(|| format!("'{}'", cameras_path.display()))?;
     views(&read(&images_path)?, &sensors, images)
         .with_context(|| format!("'{}'", images_path.display()))
+}
+
+/// COLMAP's own binary model (`cameras.bin`, `images.bin`, what its mapper writes) where the text
+/// model is missing: named, with the command that converts it, instead of "No such file".
+fn refuse_binary_model(model: &Path) -> Result<()> {
+    let text_missing = ["cameras.txt", "images.txt"].map(|name| !model.join(name).exists());
+    let binary = ["cameras.bin", "images.bin"].map(|name| model.join(name).is_file());
+    if text_missing.iter().any(|&missing| missing) && binary.iter().any(|&found| found) {
+        bail!(
+            "'{}' holds a binary COLMAP model (cameras.bin, images.bin); volgrad reads the text one: \
+             convert it with `colmap model_converter --input_path {0} --output_path {0} --output_type TXT`",
+            model.display()
+        );
+    }
+    Ok(())
 }
 
 /// The lines of a COLMAP text file that are not comments, numbered from 1 as an editor does.

@@ -187,6 +187,15 @@ fn what_is_not_a_pinhole_or_not_colmap_is_refused_naming_the_line() {
     let dir = tempfile::tempdir().unwrap();
     let err = format!("{:#}", read(dir.path(), dir.path()).err().unwrap());
     assert!(err.contains("cameras.txt"), "{err}");
+    // COLMAP's binary model, as its mapper writes it, is named with the conversion.
+    for name in ["cameras.bin", "images.bin"] {
+        std::fs::write(dir.path().join(name), [0u8; 8]).unwrap();
+    }
+    let err = format!("{:#}", read(dir.path(), dir.path()).err().unwrap());
+    assert!(
+        err.contains("binary COLMAP model") && err.contains("--output_type TXT"),
+        "{err}"
+    );
 }
 
 /// Without `images`, a model's pictures are beside its `sparse` folder: the project's originals

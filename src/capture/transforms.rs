@@ -159,14 +159,20 @@ const IGNORED_KEYS: [&str; 11] = [
 ];
 
 /// Every key of the JSON object `value` (`what` in errors) is one of `own`, a lens key or an
-/// ignored one. (serde's `deny_unknown_fields` does not work with the flattened `Lens`.)
+/// ignored one, and every lens key holds a number. (serde's `deny_unknown_fields` does not work
+/// with the flattened `Lens`, and a type error inside a flattened struct loses its key's name.)
 fn known_keys(value: &serde_json::Value, what: &str, own: &[&str]) -> Result<()> {
     let Some(object) = value.as_object() else {
         bail!("{what} must be a JSON object");
     };
-    for key in object.keys() {
+    for (key, value) in object {
         let key = key.as_str();
-        if !(own.contains(&key) || LENS_KEYS.contains(&key) || IGNORED_KEYS.contains(&key)) {
+        if LENS_KEYS.contains(&key) {
+            // null stands for an absent key, as serde reads an `Option`.
+            if !(value.is_number() || value.is_null()) {
+                bail!("{what}: {key} must be a number (got {value})");
+            }
+        } else if !(own.contains(&key) || IGNORED_KEYS.contains(&key)) {
             bail!("{what}: unknown key \"{key}\" (the keys volgrad reads and ignores are listed in the manual, docs/pictures.md, \"Cameras\")");
         }
     }
@@ -208,7 +214,10 @@ pub fn read(path: &Path) -> Result<Vec<CapturedView>> {
             None => Ok(()),
         })
         .with_context(|| format!("'{}'", path.display()))?;
-    let file: TransformsFile = serde_json::from_value(value).with_context(not_transforms)?;
+    // The error's path names the key and the frame (`frames[3].transform_matrix[0][1]`).
+    let file: TransformsFile = serde_path_to_error::deserialize(value)
+        .map_err(|e| anyhow::anyhow!("{}: {}", e.path(), e.inner()))
+        .with_context(not_transforms)?;
     file.check()
         .with_context(|| format!("'{}'", path.display()))?;
     let dir = path.parent().unwrap_or(Path::new("."));

@@ -194,6 +194,50 @@ fn what_a_pinhole_cannot_be_is_refused_naming_the_key() {
     assert!(error_of(json).contains("frames[0]: unknown key \"transform_matrx\""));
 }
 
+/// A value of the wrong type is named by its key and frame, not only by its type.
+#[test]
+fn a_value_of_the_wrong_type_is_named_by_its_path() {
+    let file = |top: &str, second_frame: &str| {
+        format!(
+            r#"{{ "camera_angle_x": 0.5, "h": 8, {top} "frames": [{IDENTITY_AT_5}, {second_frame}] }}"#
+        )
+    };
+    let rows =
+        |last: &str| format!(r#"[[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 5], [0, 0, 0, {last}]]"#);
+    let matrix = |last: &str| format!(r#"{{ "transform_matrix": {} }}"#, rows(last));
+    for (json, needle) in [
+        (
+            file(r#""w": "8","#, &matrix("1")),
+            "the top level: w must be a number (got \"8\")",
+        ),
+        (
+            file(
+                r#""w": 8,"#,
+                &format!(r#"{{ "fl_x": true, "transform_matrix": {} }}"#, rows("1")),
+            ),
+            "frames[1]: fl_x must be a number (got true)",
+        ),
+        (
+            file(r#""w": 8,"#, &matrix("\"1\"")),
+            "frames[1].transform_matrix[3][3]: invalid type: string \"1\", expected f64",
+        ),
+        (
+            file(
+                r#""w": 8,"#,
+                &format!(r#"{{ "file_path": 5, "transform_matrix": {} }}"#, rows("1")),
+            ),
+            "frames[1].file_path: invalid type: integer `5`",
+        ),
+        (
+            file(r#""w": 8, "scale": [2],"#, &matrix("1")),
+            "scale: invalid type: sequence",
+        ),
+    ] {
+        let err = error_of(&json);
+        assert!(err.contains(needle), "{needle}: {err}");
+    }
+}
+
 #[test]
 fn two_frames_of_one_image_are_refused() {
     let frame = |name: &str| {

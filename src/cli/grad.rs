@@ -25,7 +25,7 @@ use volgrad::gradient::passes::{derivative_image, GradOptions, GradientRun, Para
 use volgrad::io::fingerprint::image as image_fingerprint;
 use volgrad::io::gradient_files::{self, Provenance};
 use volgrad::io::images::{self, RgbImage};
-use volgrad::io::output::{refuse_overwrite, refuse_unwritable_folder};
+use volgrad::io::output::{refuse_overwrite, refuse_unwritable_folder, require_extension};
 use volgrad::io::progress;
 use volgrad::io::{colormap, vdb};
 use volgrad::render::fingerprint;
@@ -204,9 +204,8 @@ fn target_image(
 
 /// The flags that do not go together (the same on every rank).
 fn check_flags(args: &Args, ranks: usize, vdb_out: &Path) -> Result<()> {
-    let vdb = vdb_out.extension().and_then(|e| e.to_str()) == Some("vdb");
-    if args.estimator != Method::FiniteDifferences && !vdb {
-        bail!("--output must end in .vdb (got '{}')", vdb_out.display());
+    if args.estimator != Method::FiniteDifferences {
+        require_extension(vdb_out, "vdb")?;
     }
     if args.adjoint.parameter != Parameter::Extinction
         && (args.estimator == Method::FiniteDifferences || args.image_of.is_some())

@@ -9,6 +9,7 @@ use clap::ValueEnum;
 use volgrad::io::make_grid::{
     coloured_smoke_albedo, fireball_temperature, make_grid, Class, GridKind, GridSpec,
 };
+use volgrad::io::output::require_extension;
 use volgrad::io::vdb;
 use volgrad::render::scene_check::MAX_COORDINATE;
 
@@ -60,12 +61,7 @@ pub fn run(args: &Args) -> Result<()> {
         Some([x, y, z]) => [*x, *y, *z],
         Some(_) => bail!("--rotate-deg takes three angles (x,y,z)"),
     };
-    if args.output.extension().and_then(|e| e.to_str()) != Some("vdb") {
-        bail!(
-            "--output must end in .vdb (got '{}')",
-            args.output.display()
-        );
-    }
+    require_extension(&args.output, "vdb")?;
     if args.thickness.is_some() && args.kind != GridKind::Slab {
         bail!(
             "--thickness is a slab's: leave it out for {}",

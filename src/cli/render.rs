@@ -2,13 +2,13 @@
 
 use std::path::{Path, PathBuf};
 
-use anyhow::{bail, Result};
+use anyhow::{anyhow, bail, Result};
 
 use super::{bytes, check_same_job, report_non_finite, set_threads, warn_if_empty, SamplingArgs};
 use volgrad::cluster::images::render_shared;
 use volgrad::cluster::Cluster;
 use volgrad::io::images;
-use volgrad::io::output::{refuse_overwrite, refuse_unwritable_folder};
+use volgrad::io::output::{refuse_overwrite, refuse_unwritable_folder, require_extension};
 use volgrad::render::fingerprint;
 use volgrad::render::image::{RenderOptions, RenderStats};
 use volgrad::render::scene::Scene;
@@ -74,13 +74,7 @@ pub fn run(args: &Args, cluster: &Cluster) -> Result<()> {
     });
     // Every rank is given the same flags: one error, printed once.
     cluster.agree(set_threads(sampling.threads).and_then(|_| {
-        if exr.extension().and_then(|e| e.to_str()) != Some("exr") {
-            bail!(
-                "--output must end in .exr (got '{}'); the PNG is written beside it",
-                exr.display()
-            );
-        }
-        Ok(())
+        require_extension(&exr, "exr").map_err(|e| anyhow!("{e}; the PNG is written beside it"))
     }))?;
     let png = exr.with_extension("png");
     let root = cluster.is_root();

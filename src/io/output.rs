@@ -22,6 +22,22 @@ pub fn refuse_overwrite(path: &Path, overwrite: bool) -> Result<()> {
     Ok(())
 }
 
+/// An error unless `path`, given as `--output`, names a file ending in `.{ext}`. A bare `.exr` is a
+/// hidden file without an extension to the file system: it is told so, not that it "must end in
+/// .exr".
+pub fn require_extension(path: &Path, ext: &str) -> Result<()> {
+    if path.extension().and_then(|e| e.to_str()) == Some(ext) {
+        return Ok(());
+    }
+    if path.file_name().and_then(|n| n.to_str()) == Some(&format!(".{ext}")) {
+        bail!(
+            "--output '{}' has no name before its .{ext}",
+            path.display()
+        );
+    }
+    bail!("--output must end in .{ext} (got '{}')", path.display())
+}
+
 /// An error unless `path`'s folder exists and a file can be made in it: checked before the work
 /// that fills `path`, which would otherwise end, after a render of hours, at "the folder does not
 /// exist". (A probe file is made and removed: permission bits do not say what root, ACLs or a
@@ -109,6 +125,18 @@ mod tests {
         prepare_out_dir(&out, std::slice::from_ref(&file), true).unwrap();
         assert!(out.is_dir());
         assert_eq!(std::fs::read_to_string(&file).unwrap(), "mine");
+    }
+
+    #[test]
+    fn an_output_names_its_kind_after_a_name() {
+        let message = |path: &str| match require_extension(Path::new(path), "exr") {
+            Ok(()) => String::from("ok"),
+            Err(e) => e.to_string(),
+        };
+        assert_eq!(message("out/a.exr"), "ok");
+        assert!(message("a.png").contains("must end in .exr (got 'a.png')"));
+        assert!(message(".exr").contains("'.exr' has no name before its .exr"));
+        assert!(message("out/.exr").contains("has no name before its .exr"));
     }
 
     /// A write that fails half-way leaves the old file as it was and no temporary beside it.

@@ -15,7 +15,8 @@ struct IdleKey {
 }
 
 /// The keys `file` leaves without effect. Levels left to the run are derived when it loads, so
-/// `level_lr` and `moments` are idle here only once `unknown.levels` is known to be empty.
+/// `level_lr` and `moments` are idle only once `unknown.levels` is known to be empty: as the file
+/// says, or as the run derives.
 fn idle_keys(file: &RunFile) -> Vec<IdleKey> {
     let o = &file.optimizer;
     let idle = |table, key, because| IdleKey {
@@ -33,7 +34,12 @@ fn idle_keys(file: &RunFile) -> Vec<IdleKey> {
         keys.push(idle("optimizer", "first_level_smoothing", because));
     }
     if file.unknown.levels.as_deref() == Some(&[]) {
-        let because = "unknown.levels = []: no upsampling";
+        let written = (file.given.get("unknown").and_then(|t| t.as_table()))
+            .is_some_and(|t| t.contains_key("levels"));
+        let because = match written {
+            true => "unknown.levels = []: no upsampling",
+            false => "the levels derived from the views and the box are none (unknown.levels = []): no upsampling",
+        };
         keys.push(idle("optimizer", "level_lr", because));
         keys.push(idle("unknown", "moments", because));
     }
@@ -52,8 +58,9 @@ fn table_of<'a>(toml: &'a mut toml::Table, key: &IdleKey) -> Option<&'a mut toml
     }
 }
 
-/// Refuses a key the file gives (`given`: the file as TOML) that the rest of it idles.
-pub fn refuse_given(file: &RunFile, mut given: toml::Table) -> Result<()> {
+/// Refuses a key the file gives that the rest of it idles.
+pub fn refuse_given(file: &RunFile) -> Result<()> {
+    let mut given = file.given.clone();
     for key in idle_keys(file) {
         if table_of(&mut given, &key).is_some_and(|t| t.contains_key(key.key)) {
             let name = match key.table {

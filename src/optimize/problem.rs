@@ -12,6 +12,7 @@ use crate::io::fingerprint::Fingerprint;
 use crate::io::vdb::{self, GridSelector, LevelSet};
 use crate::optimize::adam::Adam;
 use crate::optimize::hull::{self, Hull};
+use crate::optimize::idle_keys;
 use crate::optimize::optimizer_file;
 use crate::optimize::parameters::Parameters;
 use crate::optimize::prior::Prior;
@@ -148,6 +149,8 @@ impl Problem {
         file.unknown
             .check_levels_reach(levels.len(), domain.transform.voxel_size().max_element())?;
         file.unknown.levels = Some(levels);
+        idle_keys::refuse_given(&file)
+            .with_context(|| format!("invalid run file '{}'", run_path.display()))?;
 
         // A start the renderer cannot take is refused before any target is rendered.
         let theta_max = SceneUnits::theta_max_of(&scene, file.unknown.grid)?;

@@ -61,6 +61,10 @@ pub struct RunFile {
     pub unknown: UnknownFile,
     #[serde(default)]
     pub optimizer: OptimizerFile,
+    /// The file's own keys, as it gives them: a key that what the run derives (the levels, left
+    /// out) leaves without effect is refused then, as one the file idles is when it is read.
+    #[serde(skip)]
+    pub given: toml::Table,
 }
 
 fn default_target_spp() -> u32 {
@@ -195,7 +199,7 @@ impl RunFile {
     pub fn read(path: &Path) -> Result<RunFile> {
         let text = crate::io::input::read_text(path)
             .with_context(|| format!("cannot read run file '{}'", path.display()))?;
-        let file: RunFile = toml::from_str(&text).map_err(|e| {
+        let mut file: RunFile = toml::from_str(&text).map_err(|e| {
             // A scene file is what a run file names (the reverse of `SceneFile::parse`'s hint).
             let table = toml::from_str::<toml::Table>(&text).ok();
             match table.is_some_and(|t| t.contains_key("medium") && !t.contains_key("scene")) {
@@ -206,8 +210,9 @@ impl RunFile {
                 false => anyhow::anyhow!("{}: {}", path.display(), e.to_string().trim_end()),
             }
         })?;
+        file.given = toml::from_str(&text)?;
         (crate::io::exact::within_f32(&text).and_then(|_| file.validate()))
-            .and_then(|_| idle_keys::refuse_given(&file, toml::from_str(&text)?))
+            .and_then(|_| idle_keys::refuse_given(&file))
             .with_context(|| format!("invalid run file '{}'", path.display()))?;
         Ok(file)
     }

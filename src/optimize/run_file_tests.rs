@@ -279,8 +279,9 @@ fn levels_must_reach_the_final_voxel_size() {
 #[test]
 fn keys_without_effect_are_refused_and_left_out_of_settings() {
     let read = |text: &str| -> Result<RunFile> {
-        let file = check(text)?;
-        crate::optimize::idle_keys::refuse_given(&file, toml::from_str(text)?)?;
+        let mut file = check(text)?;
+        file.given = toml::from_str(text)?;
+        crate::optimize::idle_keys::refuse_given(&file)?;
         Ok(file)
     };
     let optimizer = |lines: &str| format!("{GOOD}\n[optimizer]\n{lines}");

@@ -236,6 +236,12 @@ pub fn light_list<'de, D: serde::Deserializer<'de>>(d: D) -> Result<Vec<LightFil
     let tables = Vec::<toml::Value>::deserialize(d)?;
     (tables.into_iter().enumerate())
         .map(|(i, table)| {
+            // serde would say "expected internally tagged enum LightFile".
+            if !table.is_table() {
+                return Err(D::Error::custom(format!(
+                    "light[{i}] must be a table of keys (a dict, from Python) with its `type`: constant, envmap or directional (got {table})"
+                )));
+            }
             LightFile::deserialize(table)
                 .map_err(|e| D::Error::custom(format!("light[{i}]: {}", e.message())))
         })
