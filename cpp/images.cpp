@@ -111,15 +111,15 @@ Layout layout_of(const OIIO::ImageInput& in) {
 }
 
 // A file of several images (an EXR's parts, a TIFF's pages, a GIF's frames) does not say which
-// is the picture: reading the first would fit whatever it holds (a black utility part).
-void refuse_several_images(OIIO::ImageInput& in, const std::string& path) {
-    if (in.seek_subimage(1, 0)) {
+// is the picture: reading the first would fit whatever it holds (a black utility part). Asked of
+// a reader of its own, which is then closed: after a failed seek some readers are left unfit to
+// read the first image (OpenImageIO 2.4's GIF reader then crashes in read_image).
+void refuse_several_images(const std::string& path) {
+    if (open_image(path)->seek_subimage(1, 0)) {
         fail("cannot read image " + quoted(path) +
              ": it holds several images (parts, pages or frames) and volgrad reads one: save the "
              "picture alone");
     }
-    // The failed seek leaves the first image current, and an error that is not the file's.
-    (void)in.geterror();
 }
 
 // An EXR's 32-bit unsigned channels hold ids or counts, not radiance; read as colour they would
@@ -155,8 +155,8 @@ ImageSize read_image_size(rust::Str path_str) {
 
 ImageData read_image(rust::Str path_str) {
     const std::string path = to_std(path_str);
+    refuse_several_images(path);
     auto in = open_image(path);
-    refuse_several_images(*in, path);
     refuse_integer_colour(*in, path);
     const OIIO::ImageSpec& spec = in->spec();
     const auto [width, height, whole] = layout_of(*in);

@@ -174,6 +174,26 @@ fn a_png_header_declaring_too_many_pixels_is_refused() {
     assert!(e.contains("bomb.png") && e.contains("20000x20000"), "{e}");
 }
 
+/// A GIF of one frame, the 35-byte one-white-pixel file spelled out, reads as that pixel: the check
+/// for a second frame used to leave OpenImageIO's GIF reader unfit to read the first (a crash).
+#[test]
+fn a_gif_of_one_frame_reads_its_pixel() {
+    let dir = tempfile::tempdir().unwrap();
+    let gif = [
+        &b"GIF89a"[..],
+        &[1, 0, 1, 0, 0x80, 0, 0], // 1 × 1, a global table of two colours
+        &[0xff, 0xff, 0xff, 0, 0, 0], // white, black
+        &[0x2c, 0, 0, 0, 0, 1, 0, 1, 0, 0], // the frame: at (0, 0), 1 × 1
+        &[2, 2, 0x44, 0x01, 0],    // LZW: clear, colour 0, end
+        &[0x3b],
+    ]
+    .concat();
+    let path = write(dir.path(), "white.gif", &gif);
+    let image = ffi::read_image(path_str(&path)).unwrap();
+    assert_eq!((image.width, image.height), (1, 1));
+    assert!(image.pixels.iter().all(|&v| v == 1.0), "{:?}", image.pixels);
+}
+
 /// `data` (an 8-bit RGB image OpenImageIO writes) as `name` in `dir`, and two damaged copies: cut
 /// to half its bytes, and with 64 bytes in its middle inverted.
 fn damaged_copies(dir: &Path, name: &str, data: &ImageData) -> [PathBuf; 2] {

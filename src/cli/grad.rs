@@ -368,11 +368,12 @@ pub fn run(args: &Args, cluster: &Cluster) -> Result<()> {
             .into_iter()
             .map(|run| run.gradient.converted(run.quantum))
             .collect();
-        // Every sample is finite; a sum can still exceed f32's range (lights near 1e30).
-        let beyond_f32 = channels
-            .iter()
-            .flat_map(|g| g.voxels())
-            .find(|(_, v)| !v.is_finite());
+        // Every sample is finite; a sum can still exceed f32's range (lights near 1e30). The
+        // voxel named is the lowest, not the first met: the bricks' order depends on how the
+        // ranks' gradients were merged.
+        let beyond_f32 = (channels.iter().flat_map(|g| g.voxels()))
+            .filter(|(_, v)| !v.is_finite())
+            .min_by_key(|(voxel, _)| voxel.to_array());
         if let Some((voxel, v)) = beyond_f32 {
             bail!("the gradient at voxel {voxel} is {v}, beyond a VDB's f32 values: scale the scene's lights (or emission) down");
         }
