@@ -58,7 +58,10 @@ fn a_file_one_rank_cannot_read_ends_every_rank_with_one_error() {
         started.elapsed()
     );
     assert_eq!(err.matches("error: ").count(), 1, "one message: {err}");
-    assert!(err.contains("view.exr"), "{err}");
+    assert!(
+        err.contains("error: rank 1: ") && err.contains("view.exr"),
+        "{err}"
+    );
     assert!(!err.contains("panicked"), "{err}");
     // The run file itself missing in rank 1's folder: named, not called a difference.
     std::fs::remove_file(d.join("b/run.toml")).unwrap();
@@ -66,7 +69,10 @@ fn a_file_one_rank_cannot_read_ends_every_rank_with_one_error() {
     command.args(app("a")).arg(":").args(app("b"));
     let err = stderr(&wait(command, Duration::from_secs(60)));
     assert_eq!(err.matches("error: ").count(), 1, "one message: {err}");
-    assert!(err.contains("cannot read run file 'run.toml'"), "{err}");
+    assert!(
+        err.contains("rank 1: cannot read run file 'run.toml'"),
+        "{err}"
+    );
 }
 
 /// A run file or a flag every rank refuses: one message, every rank non-zero.

@@ -227,7 +227,9 @@ impl Cluster {
     }
 
     /// `result` if every rank's is `Ok`; else, on every rank, the error of the first rank that
-    /// failed (its message, sent to all), so that all ranks end together with one message.
+    /// failed (its message, sent to all), so that all ranks end together with one message. Where
+    /// rank 0 did not fail, the message names the rank: its machine or folder lacks what rank 0's
+    /// has.
     pub fn agree<T>(&self, result: Result<T>) -> Result<T> {
         if self.size == 1 {
             return result;
@@ -242,7 +244,8 @@ impl Cluster {
             return result;
         };
         let mine = match &result {
-            Err(e) if self.rank == first as usize => format!("{e:#}").into_bytes(),
+            Err(e) if self.rank == first as usize && first == 0 => format!("{e:#}").into_bytes(),
+            Err(e) if self.rank == first as usize => format!("rank {first}: {e:#}").into_bytes(),
             _ => Vec::new(),
         };
         let message = self.gather_all(&mine);
