@@ -467,8 +467,8 @@ fn the_seed_leaves_the_targets_as_they_are() {
     assert_ne!(targets(Some(1)), one, "target_seed changes the targets");
 }
 
-/// Ctrl-C stops the run after the current iteration with a checkpoint and says how to resume;
-/// so does SIGTERM (`timeout`, a batch job's time limit), which ended it mid-write.
+/// Ctrl-C stops the run after the current iteration with a checkpoint, says so when pressed and
+/// how to resume when done; so does SIGTERM (`timeout`, a batch job's time limit), which ended it mid-write.
 #[test]
 fn an_interrupted_run_writes_a_checkpoint() {
     let dir = fixture(&run_file("0.2", "spp = 1\niterations = 100000"));
@@ -494,6 +494,9 @@ fn an_interrupted_run_writes_a_checkpoint() {
         // The hint names the flags the checkpoint's fingerprint holds: without --seed it failed.
         let hint = format!("--resume {o} --seed 5`");
         assert_clean_error(&output, &["interrupted at iteration", &hint]);
+        // Ctrl-C is answered at once: the stop that follows can take an evaluation's time.
+        let said = stderr(&output);
+        assert_eq!(signal == "-INT", said.contains("stopping: "), "{said}");
         let files: Vec<String> = (std::fs::read_dir(d.join(o)).unwrap())
             .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
             .collect();

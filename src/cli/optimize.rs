@@ -74,8 +74,8 @@ pub struct Args {
 static INTERRUPTED: AtomicBool = AtomicBool::new(false);
 
 /// SIGUSR1 and SIGTERM stop the run as Ctrl-C does. Under MPI SIGUSR1 is the signal that
-/// reaches the ranks: OpenMPI's mpirun answers SIGINT by killing them, but forwards SIGUSR1 (and
-/// Slurm delivers it with `scancel --signal=USR1`). SIGTERM is what `timeout` and a batch job's
+/// reaches the ranks: OpenMPI's mpirun answers SIGINT with SIGTERM and SIGKILL a second later,
+/// but forwards SIGUSR1 (and Slurm delivers it with `scancel --signal=USR1`). SIGTERM is what `timeout` and a batch job's
 /// time limit send: the run ends with a checkpoint instead of half-written temporary files.
 fn stop_on_signals() {
     extern "C" fn on_signal(_: libc::c_int) {
@@ -200,6 +200,9 @@ pub fn run(args: &Args, cluster: &Cluster) -> Result<()> {
                 // SAFETY: _exit takes no locks; nothing runs after it.
                 unsafe { libc::_exit(130) }
             }
+            // What follows can take a while (an evaluation under way, then the checkpoint's
+            // own): say so, or the first Ctrl-C looks ignored.
+            eprintln!("\nstopping: the step under way ends, then a checkpoint is written with an evaluation of the held-out views; Ctrl-C again stops at once, without a checkpoint");
         })
         .context("cannot install the Ctrl-C handler"),
     )?;
