@@ -29,10 +29,6 @@ OIIO::TypeDesc pixel_type_desc(const std::string& t) {
     fail("unknown pixel type '" + t + "' (expected half, float or uint8)");
 }
 
-// OpenImageIO's message for a failure, on one line, or `silent` where it gives none (some readers
-// fail on a truncated file without a word). A reader may stack several lines, each layer restating
-// the last ("Read error: hit end of file", "PNG read error: IDAT: Read error: hit end of file",
-// "PNG library error"): a line another line already contains is left out, the rest joined by "; ".
 // The first line of `text` that holds more than spaces.
 std::string first_line(const std::string& text) {
     size_t start = 0;
@@ -45,6 +41,10 @@ std::string first_line(const std::string& text) {
     return "";
 }
 
+// OpenImageIO's message for a failure, on one line, or `silent` where it gives none (some readers
+// fail on a truncated file without a word). A reader may stack several lines, each layer restating
+// the last ("Read error: hit end of file", "PNG read error: IDAT: Read error: hit end of file",
+// "PNG library error"): a line another line already contains is left out, the rest joined by "; ".
 std::string oiio_error(const std::string& specific,
                        const std::string& silent = "unknown OpenImageIO error") {
     const std::string all = specific.empty() ? OIIO::geterror() : specific;

@@ -75,8 +75,9 @@ static INTERRUPTED: AtomicBool = AtomicBool::new(false);
 
 /// SIGUSR1 and SIGTERM stop the run as Ctrl-C does. Under MPI SIGUSR1 is the signal that
 /// reaches the ranks: OpenMPI's mpirun answers SIGINT with SIGTERM and SIGKILL a second later,
-/// but forwards SIGUSR1 (and Slurm delivers it with `scancel --signal=USR1`). SIGTERM is what `timeout` and a batch job's
-/// time limit send: the run ends with a checkpoint instead of half-written temporary files.
+/// but forwards SIGUSR1 (and Slurm delivers it with `scancel --signal=USR1`). SIGTERM is what
+/// `timeout` and a batch job's time limit send: the run ends with a checkpoint instead of
+/// half-written temporary files.
 fn stop_on_signals() {
     extern "C" fn on_signal(_: libc::c_int) {
         // Only an atomic store: async-signal-safe.

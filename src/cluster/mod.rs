@@ -244,8 +244,10 @@ impl Cluster {
             return result;
         };
         let mine = match &result {
-            Err(e) if self.rank == first as usize && first == 0 => format!("{e:#}").into_bytes(),
-            Err(e) if self.rank == first as usize => format!("rank {first}: {e:#}").into_bytes(),
+            Err(e) if self.rank == first as usize => match first {
+                0 => format!("{e:#}").into_bytes(),
+                _ => format!("rank {first}: {e:#}").into_bytes(),
+            },
             _ => Vec::new(),
         };
         let message = self.gather_all(&mine);
