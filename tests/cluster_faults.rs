@@ -291,7 +291,8 @@ fn refused_as_other_files(out: &std::process::Output) {
     );
 }
 
-/// Inputs that differ between machines are named before any check of their content: here rank
+/// Inputs that differ between machines are named before any check of their content, each by its
+/// place in the run: here rank
 /// 1's start holds a value no scene renders, which it would refuse alone while rank 0 went on to
 /// render the targets with it (a rank left in a collective the other never enters).
 #[test]
@@ -317,7 +318,11 @@ fn inputs_that_differ_are_refused_before_their_content_is_checked() {
             .unwrap();
         grid.bricks = original;
     }
-    refused_as_other_files(&in_folders(d, &["optimize", "run.toml", "--out", "o"]));
+    let out = in_folders(d, &["optimize", "run.toml", "--out", "o"]);
+    refused_as_other_files(&out);
+    // The message names the input to copy again.
+    let err = stderr(&out);
+    assert!(err.contains("(the grid of unknown.start differs)"), "{err}");
 }
 
 /// A resumed run's ranks each find their own latest checkpoint: a folder one machine sees

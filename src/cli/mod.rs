@@ -203,7 +203,7 @@ pub fn check_same_job(cluster: &Cluster, inputs: impl FnOnce() -> Vec<String>) -
     for input in inputs() {
         f.text(&input);
     }
-    cluster.check_same_inputs(f.value())
+    cluster.check_same_inputs(&[("the command line or a file it names".into(), f.value())])
 }
 
 /// `--threads T`: a global pool of T workers (default: all cores).

@@ -254,22 +254,40 @@ impl Cluster {
         Err(AgreedError(String::from_utf8_lossy(&message).into_owned()).into())
     }
 
-    /// Refuses a job whose ranks were not given the same work: each rank's `fingerprint` of its
-    /// arguments and inputs, against rank 0's. Ranks started with other flags (an MPMD launch) or
-    /// reading other files (copies out of date on one machine) would add their shares into one
-    /// wrong result, or stop a collective with mismatched sizes.
-    pub fn check_same_inputs(&self, fingerprint: u64) -> Result<()> {
+    /// Refuses a job whose ranks were not given the same work: each rank's fingerprints of its
+    /// arguments and inputs (`parts`, each named as rank 0 prints it), against rank 0's. Ranks
+    /// started with other flags (an MPMD launch) or reading other files (copies out of date on one
+    /// machine) would add their shares into one wrong result, or stop a collective with
+    /// mismatched sizes. The first part that differs is named: which file to copy again.
+    pub fn check_same_inputs(&self, parts: &[(String, u64)]) -> Result<()> {
         if self.size == 1 {
             return Ok(());
         }
-        let all = self.gather_all(&[fingerprint]);
-        match all.iter().position(|&f| f != all[0]) {
-            Some(rank) => Err(AgreedError(format!(
-                "rank {rank} was started with other arguments, or reads other files, than rank 0: every rank must run the same command on the same inputs (files copied alike to every machine)"
-            ))
-            .into()),
-            None => Ok(()),
-        }
+        let counts = self.gather_all(&[parts.len() as u64]);
+        let mine: Vec<u64> = parts.iter().map(|&(_, f)| f).collect();
+        let all = self.gather_all(&mine);
+        let mut lists = counts.iter().scan(0, |start, &count| {
+            let list = &all[*start..*start + count as usize];
+            *start += count as usize;
+            Some(list)
+        });
+        let Some(root) = lists.next() else {
+            return Ok(());
+        };
+        let Some((rank, list)) = (lists.enumerate())
+            .map(|(i, list)| (i + 1, list))
+            .find(|(_, list)| list != &root)
+        else {
+            return Ok(());
+        };
+        let what = match list.iter().zip(root).position(|(a, b)| a != b) {
+            Some(i) if list.len() == root.len() => format!(" ({} differs)", parts[i].0),
+            _ => format!(" ({} inputs where rank 0 has {})", list.len(), root.len()),
+        };
+        Err(AgreedError(format!(
+            "rank {rank} was started with other arguments, or reads other files, than rank 0{what}: every rank must run the same command on the same inputs (files copied alike to every machine)"
+        ))
+        .into())
     }
 
     /// `write()` on rank 0; `Ok` on the others (whose result comes from `agree`).

@@ -122,7 +122,7 @@ impl Problem {
         // Files that differ between machines are named before any check of their content, which
         // could stop one rank while the others go on to render the targets together.
         if cluster.size() > 1 {
-            cluster.check_same_inputs(inputs.fingerprint())?;
+            cluster.check_same_inputs(&inputs.fingerprints())?;
         }
         let Inputs {
             mut file,
@@ -331,18 +331,25 @@ struct Inputs {
 }
 
 impl Inputs {
-    /// The content of everything read: the scene, the known grids and every view.
-    fn fingerprint(&self) -> u64 {
-        let mut f = Fingerprint::default();
-        f.text(&crate::render::fingerprint::scene(&self.scene));
-        for grid in [&self.grids.truth, &self.grids.start].into_iter().flatten() {
-            f.text(&format!("{:?}", grid.transform));
-            crate::render::fingerprint::bricks(&mut f, &grid.bricks);
+    /// The content of everything read, part by part, each named: the scene, the known grids and
+    /// every view.
+    fn fingerprints(&self) -> Vec<(String, u64)> {
+        let mut scene = Fingerprint::default();
+        scene.text(&crate::render::fingerprint::scene(&self.scene));
+        let mut parts = vec![("the scene".to_string(), scene.value())];
+        for (name, grid) in [
+            ("truth", &self.grids.truth),
+            ("unknown.start", &self.grids.start),
+        ] {
+            if let Some(grid) = grid {
+                let mut f = Fingerprint::default();
+                f.text(&format!("{:?}", grid.transform));
+                crate::render::fingerprint::bricks(&mut f, &grid.bricks);
+                parts.push((format!("the grid of {name}"), f.value()));
+            }
         }
-        for view in self.training.iter().chain(&self.held_out) {
-            view.fingerprint_into(&mut f);
-        }
-        f.value()
+        parts.extend((self.training.iter().chain(&self.held_out)).map(ReadView::fingerprint));
+        parts
     }
 
     fn read(run_path: &Path, seed: Option<u64>) -> Result<Inputs> {

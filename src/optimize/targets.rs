@@ -287,8 +287,10 @@ impl ReadView {
         self.camera
     }
 
-    /// Feeds what the view was read as to `f`: its name, camera, lights and pictures.
-    pub fn fingerprint_into(&self, f: &mut crate::io::fingerprint::Fingerprint) {
+    /// What the view was read as (its name, camera, lights and pictures) as a fingerprint, named
+    /// for a message that says it differs between ranks.
+    pub fn fingerprint(&self) -> (String, u64) {
+        let mut f = crate::io::fingerprint::Fingerprint::default();
         f.text(&format!(
             "{} {:?} {}",
             self.name, self.camera, self.light_set
@@ -300,6 +302,8 @@ impl ReadView {
                     .map_or("none".into(), crate::io::fingerprint::image),
             );
         }
+        let name = format!("{}: its camera, lights or pictures", self.name);
+        (name, f.value())
     }
 }
 
