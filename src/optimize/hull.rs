@@ -24,10 +24,11 @@ use crate::volume::transform::IndexTransform;
 pub const BACKGROUND_TOLERANCE: f64 = 0.01;
 
 /// The targets' brightness the background tolerance is a share of: their RMS channel value √P,
-/// with every channel clipped at ten times the channels' 99th percentile. Where no pixel stands
-/// out that far (the usual case) it is √P to the bit; a few hot pixels (a firefly, the sun in a
-/// photograph's sky) would otherwise raise the tolerance past the medium itself, and a view
-/// would clear the start where the medium is.
+/// with every channel clipped at ten times the 99th percentile of the channels that are not 0.
+/// Where no pixel stands out that far (the usual case) it is √P to the bit; a few hot pixels (a
+/// firefly, the sun in a photograph's sky) would otherwise raise the tolerance past the medium
+/// itself, and a view would clear the start where the medium is. (Black channels are left out
+/// of the percentile: a small medium on a black ground would otherwise clip everything to 0.)
 pub fn background_scale(views: &[View]) -> f64 {
     // The percentile of at most 2²⁰ channels, evenly strided: the clip needs no more, and a copy
     // of every channel would add half again to what 100 views of 800² hold.
@@ -35,7 +36,7 @@ pub fn background_scale(views: &[View]) -> f64 {
     let mut channels: Vec<f32> = (views.iter())
         .flat_map(|v| v.target.pixels.iter().flat_map(|c| c.to_array()))
         .step_by(total.div_ceil(1 << 20).max(1))
-        .filter(|c| c.is_finite())
+        .filter(|c| c.is_finite() && *c != 0.0)
         .collect();
     if channels.is_empty() {
         return 0.0;
@@ -257,5 +258,20 @@ mod tests {
             .for_each(|p| *p = Vec3::splat(SKY + 0.005));
         assert!(background_pixels(&faint, &sky, 0.01).iter().all(|&b| b));
         assert!(background_pixels(&faint, &sky, 0.001).iter().all(|&b| !b));
+    }
+
+    /// A small medium on a black ground (most channels 0) keeps a tolerance: the clip is taken
+    /// from the lit channels, and √P is the unclipped RMS where nothing stands out.
+    #[test]
+    fn the_background_scale_of_a_small_medium_on_black_is_its_rms() {
+        let mut view = view_of_ball(Vec3::new(0.0, 0.0, 40.0), 0.5);
+        for p in &mut view.target.pixels {
+            *p = if p.x > SKY { Vec3::ONE } else { Vec3::ZERO };
+        }
+        let lit = view.target.pixels.iter().filter(|p| p.x > 0.0).count();
+        let n = view.target.pixels.len();
+        assert!(lit > 0 && lit * 100 < n, "{lit} of {n}");
+        let scale = background_scale(std::slice::from_ref(&view));
+        assert_eq!(scale, (lit as f64 / n as f64).sqrt());
     }
 }
