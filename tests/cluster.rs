@@ -226,58 +226,81 @@ fn a_wide_sparse_gradient_is_summed_by_its_keys() {
     assert!(grads[0] == grads[1], "3 ranks against 1");
 }
 
-/// SIGUSR1 to mpirun (which forwards it; it answers SIGINT by killing the ranks) stops every rank
-/// after the same iteration with a checkpoint, and one message saying how to resume.
+/// SIGUSR1 to mpirun (which forwards it; it answers SIGINT with SIGTERM and SIGKILL a second
+/// later) stops every rank after the same iteration with a checkpoint, and one message saying how
+/// to resume. So does Ctrl-C handed to every rank (as srun's second one is), which says once that
+/// it is stopping.
 #[test]
 fn sigusr1_to_mpirun_stops_every_rank_with_a_checkpoint() {
-    let dir = tempfile::tempdir().unwrap();
-    let d = dir.path();
-    std::fs::write(
-        d.join("run.toml"),
-        run_file("batch = 3\niterations = 100000"),
-    )
-    .unwrap();
-    let exe = env!("CARGO_BIN_EXE_volgrad");
-    let mut child = mpirun(d)
-        .args(["-n", "2", exe, "optimize", "run.toml", "--out", "o"])
-        .args(["-q", "--threads", "1"])
-        .stdout(Stdio::piped())
-        .stderr(Stdio::piped())
-        .spawn()
+    for signal in [libc::SIGUSR1, libc::SIGINT] {
+        let dir = tempfile::tempdir().unwrap();
+        let d = dir.path();
+        std::fs::write(
+            d.join("run.toml"),
+            run_file("batch = 3\niterations = 100000"),
+        )
         .unwrap();
-    // Running once the first evaluation's log is written.
-    let started = Instant::now();
-    while !d.join("o/log.csv").exists() {
-        assert!(started.elapsed() < LIMIT, "the run never started");
-        std::thread::sleep(Duration::from_millis(100));
+        let exe = env!("CARGO_BIN_EXE_volgrad");
+        let mut child = mpirun(d)
+            .args(["-n", "2", exe, "optimize", "run.toml", "--out", "o"])
+            .args(["-q", "--threads", "1"])
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped())
+            .spawn()
+            .unwrap();
+        // Running once the first evaluation's log is written.
+        let started = Instant::now();
+        while !d.join("o/log.csv").exists() {
+            assert!(started.elapsed() < LIMIT, "the run never started");
+            std::thread::sleep(Duration::from_millis(100));
+        }
+        let pid = child.id().to_string();
+        let ranks = std::process::Command::new("pgrep")
+            .args(["-P", &pid, "-x", "volgrad"])
+            .output()
+            .unwrap();
+        let to: Vec<libc::pid_t> = match signal {
+            libc::SIGUSR1 => vec![child.id() as libc::pid_t],
+            _ => (String::from_utf8_lossy(&ranks.stdout).split_whitespace())
+                .map(|p| p.parse().unwrap())
+                .collect(),
+        };
+        assert!(!to.is_empty(), "no rank found");
+        for p in to {
+            // SAFETY: a plain kill(2) of our own child or its children.
+            unsafe { libc::kill(p, signal) };
+        }
+        let deadline = Instant::now() + Duration::from_secs(60);
+        while child.try_wait().unwrap().is_none() {
+            assert!(Instant::now() < deadline, "the ranks did not stop");
+            std::thread::sleep(Duration::from_millis(50));
+        }
+        let out = child.wait_with_output().unwrap();
+        let err = stderr(&out);
+        assert!(!out.status.success(), "{err}");
+        assert_eq!(
+            err.matches("error: interrupted at iteration").count(),
+            1,
+            "{err}"
+        );
+        assert_eq!(
+            err.matches("stopping: ").count(),
+            usize::from(signal == libc::SIGINT),
+            "{err}"
+        );
+        assert!(!err.contains("error (rank"), "{err}");
+        let states = std::fs::read_dir(d.join("o"))
+            .unwrap()
+            .filter(|e| {
+                e.as_ref()
+                    .unwrap()
+                    .path()
+                    .extension()
+                    .is_some_and(|x| x == "state")
+            })
+            .count();
+        assert!(states >= 1, "{err}");
     }
-    // SAFETY: a plain kill(2) of our own child.
-    unsafe { libc::kill(child.id() as libc::pid_t, libc::SIGUSR1) };
-    let deadline = Instant::now() + Duration::from_secs(60);
-    while child.try_wait().unwrap().is_none() {
-        assert!(Instant::now() < deadline, "the ranks did not stop");
-        std::thread::sleep(Duration::from_millis(50));
-    }
-    let out = child.wait_with_output().unwrap();
-    let err = stderr(&out);
-    assert!(!out.status.success(), "{err}");
-    assert_eq!(
-        err.matches("error: interrupted at iteration").count(),
-        1,
-        "{err}"
-    );
-    assert!(!err.contains("error (rank"), "{err}");
-    let states = std::fs::read_dir(d.join("o"))
-        .unwrap()
-        .filter(|e| {
-            e.as_ref()
-                .unwrap()
-                .path()
-                .extension()
-                .is_some_and(|x| x == "state")
-        })
-        .count();
-    assert!(states >= 1, "{err}");
 }
 
 /// Pixel batches split their pixels, not their views, over the ranks: the same `final.vdb` at 1

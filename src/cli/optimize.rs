@@ -190,12 +190,17 @@ pub fn run(args: &Args, cluster: &Cluster) -> Result<()> {
                 .try_for_each(|dir| checkpoint::remove_earlier_run(&dir))
         }))?;
     }
+    // Said by rank 0 alone: a launcher that hands Ctrl-C to every rank (srun's second one)
+    // would otherwise print each line once per rank.
+    let root = cluster.is_root();
     cluster.agree(
-        ctrlc::set_handler(|| {
+        ctrlc::set_handler(move || {
             // A second Ctrl-C does not wait for a long iteration to end (files being written
             // are left as they were: each is renamed into place whole).
             if INTERRUPTED.swap(true, Ordering::SeqCst) {
-                eprintln!("error: interrupted twice: stopped without a checkpoint");
+                if root {
+                    eprintln!("error: interrupted twice: stopped without a checkpoint");
+                }
                 // _exit, as main's panic hook ends the process: at once, whatever the workers
                 // hold (std::process::exit, which the project denies, would run atexit handlers).
                 // SAFETY: _exit takes no locks; nothing runs after it.
@@ -203,7 +208,9 @@ pub fn run(args: &Args, cluster: &Cluster) -> Result<()> {
             }
             // What follows can take a while (an evaluation under way, then the checkpoint's
             // own): say so, or the first Ctrl-C looks ignored.
-            eprintln!("\nstopping: the step under way ends, then a checkpoint is written with an evaluation of the held-out views; Ctrl-C again stops at once, without a checkpoint");
+            if root {
+                eprintln!("\nstopping: the step under way ends, then a checkpoint is written with an evaluation of the held-out views; Ctrl-C again stops at once, without a checkpoint");
+            }
         })
         .context("cannot install the Ctrl-C handler"),
     )?;
