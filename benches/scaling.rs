@@ -235,7 +235,12 @@ fn main() {
         ]);
         let (openvdb, bridge, from_data, majorant) = load_parts(vdb_path, &scene);
         let stored = run.gradient.block_count() * 64;
-        let nonzero = run.gradient.voxels().filter(|&(_, g)| g != 0.0).count();
+        let nonzero = run
+            .gradient
+            .voxels()
+            .iter()
+            .filter(|&&(_, g)| g != 0.0)
+            .count();
         parts.push(format!(
             "| {name} | {openvdb:.3} s | {bridge:.3} s | {from_data:.3} s | {majorant:.3} s | {nonzero} of {stored} ({:.0} %) |",
             100.0 * nonzero as f64 / stored.max(1) as f64

@@ -11,11 +11,11 @@ use common::*;
 use glam::{IVec3, Vec3};
 use volgrad::gradient::adjoint::{Estimator, Suffix};
 use volgrad::gradient::fd::{self, FdOptions};
-use volgrad::gradient::grid::{GradientGrid, Quanta};
+use volgrad::gradient::grid::GradientGrid;
 use volgrad::gradient::loss::Loss;
 use volgrad::gradient::passes::{
-    add_gradient_of, derivative_image, gradient, gradient_grid_for, quantum_for, sample_scale,
-    GradOptions, Parameter,
+    add_gradient_of, derivative_image, gradient, gradient_grid_for, sample_scale, BandedGradient,
+    GradOptions, Parameter, QuantumBands,
 };
 use volgrad::gradient::pixel_samples::PixelSamples;
 use volgrad::gradient::runs::MeanAndError;
@@ -307,7 +307,7 @@ fn gradients_stay_finite_in_extreme_media() {
                 "{name} {estimator:?}: non-finite samples dropped"
             );
             assert!(
-                run.gradient.voxels().all(|(_, x)| x.is_finite()),
+                run.values().voxels().all(|(_, x)| x.is_finite()),
                 "{name} {estimator:?}: non-finite gradient"
             );
         }
@@ -428,25 +428,25 @@ fn passes_added_into_one_grid_sum_to_their_own_gradients() {
         .collect();
     let spp = 16;
     let scale = sample_scale(&scene, Parameter::Extinction);
-    let quantum = quantum_for(adjoints.iter().map(|a| (&a[..], scale)), spp);
+    let bands = QuantumBands::of(adjoints.iter().map(|a| (&a[..], scale)), spp);
     let every_pixel = PixelSet::All(pixels);
     let base = options(&scene, Estimator::Joint, spp, 0);
-    let mut shared = gradient_grid_for::<Quanta>(&scene, &base);
+    let mut shared = BandedGradient::new(bands.clone(), gradient_grid_for(&scene, &base));
     let mut separate = std::collections::BTreeMap::<[i32; 3], f64>::new();
     for (k, adjoint) in adjoints.iter().enumerate() {
         let pass = GradOptions {
             seed: 5 + k as u64,
             ..base
         };
-        add_gradient_of(&scene, adjoint, &pass, quantum, &every_pixel, &mut shared);
-        let mut own = gradient_grid_for::<Quanta>(&scene, &pass);
-        add_gradient_of(&scene, adjoint, &pass, quantum, &every_pixel, &mut own);
+        add_gradient_of(&scene, (adjoint, scale), &pass, &every_pixel, &mut shared);
+        let mut own = BandedGradient::new(bands.clone(), gradient_grid_for(&scene, &pass));
+        add_gradient_of(&scene, (adjoint, scale), &pass, &every_pixel, &mut own);
         for (v, q) in own.voxels() {
             *separate.entry(v.to_array()).or_default() += q;
         }
     }
     separate.retain(|_, q| *q != 0.0);
-    let shared: std::collections::BTreeMap<[i32; 3], f64> = (shared.voxels())
+    let shared: std::collections::BTreeMap<[i32; 3], f64> = (shared.voxels().into_iter())
         .filter(|(_, q)| *q != 0.0)
         .map(|(v, q)| (v.to_array(), q))
         .collect();
@@ -521,7 +521,7 @@ fn paths_that_follow_the_adjoint_keep_the_gradients_expectation() {
 
 #[test]
 fn samples_far_below_a_quantum_keep_their_sum() {
-    // A pass adds its samples in whole quanta, sized by the largest |δ| (`quantum_for`): beside
+    // A pass adds its samples in whole quanta, sized by the largest |δ| (`bands`): beside
     // one pixel whose adjoint is 10⁸ times the others', theirs are fractions of a quantum. The
     // same paths with quanta 2²⁶ times coarser must keep ⟨g, 1⟩ and the lower half's sum in the
     // mean over seeds (the difference is rounding alone). Rounded with a dither they do; rounded
@@ -532,22 +532,18 @@ fn samples_far_below_a_quantum_keep_their_sum() {
     let adjoint = vec![Vec3::ONE; pixels as usize];
     let spp = 4;
     let scale = sample_scale(&scene, Parameter::Extinction);
-    let fine = quantum_for([(&adjoint[..], scale)], spp);
+    let fine = QuantumBands::of([(&adjoint[..], scale)], spp).quantum(0);
     let coarse = fine * 2f64.powi(26);
     let sums = |seed: u64, quantum: f64| {
         let pass = options(&scene, Estimator::Joint, spp, seed);
-        let mut grid = gradient_grid_for::<Quanta>(&scene, &pass);
-        add_gradient_of(
-            &scene,
-            &adjoint,
-            &pass,
-            quantum,
-            &PixelSet::All(pixels),
-            &mut grid,
-        );
+        let bands = QuantumBands::one(quantum);
+        let mut grid = BandedGradient::new(bands, gradient_grid_for(&scene, &pass));
+        let all = PixelSet::All(pixels);
+        add_gradient_of(&scene, (&adjoint, scale), &pass, &all, &mut grid);
         let sum = |lower: bool| {
-            (grid.voxels().filter(|(v, _)| !lower || v.z < N / 2))
-                .map(|(_, q)| q * quantum)
+            (grid.voxels().into_iter())
+                .filter(|(v, _)| !lower || v.z < N / 2)
+                .map(|(_, g)| g)
                 .sum::<f64>()
         };
         [sum(false), sum(true)]

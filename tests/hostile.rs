@@ -45,10 +45,10 @@ fn a_peaked_phase_function_gives_finite_images_and_gradients() {
                     run.stats.non_finite, 0,
                     "g = {g}, {estimator}: dropped samples"
                 );
-                let voxels = run.gradient.voxels().count();
+                let voxels = run.gradient.voxels().len();
                 assert!(voxels > 100, "g = {g}, {estimator}: {voxels} voxels");
                 assert!(
-                    run.gradient.voxels().all(|(_, v)| v.is_finite()),
+                    run.values().voxels().all(|(_, v)| v.is_finite()),
                     "g = {g}, {estimator}: non-finite gradient"
                 );
             }
@@ -263,13 +263,11 @@ fn an_infinite_adjoint_pixel_is_dropped_and_counted_not_spread() {
     let with = gradient(&scene, &adjoint, &options);
     assert_eq!(without.stats.non_finite, 0);
     assert!(with.stats.non_finite > 0, "the pixel's samples are counted");
-    assert_eq!(with.quantum, without.quantum);
+    assert_eq!(with.gradient.bands, without.gradient.bands);
     // The voxels with a gradient, in order: a pixel of δ = 0 still splats zeros, which can open
     // bricks (and change the order bricks are listed in) where the dropped samples do not.
     let voxels = |run: &volgrad::gradient::passes::GradientRun| -> Vec<_> {
-        let mut voxels: Vec<_> = run
-            .gradient
-            .voxels()
+        let mut voxels: Vec<_> = (run.gradient.voxels().into_iter())
             .filter(|&(_, q)| q != 0.0)
             .map(|(v, q)| (v.to_array(), q.to_bits()))
             .collect();
@@ -280,12 +278,15 @@ fn an_infinite_adjoint_pixel_is_dropped_and_counted_not_spread() {
     assert_eq!(voxels(&with), voxels(&without));
 }
 
-/// One pixel whose δ is 10⁹ times the others' (a firefly in a target, the sun in a photograph's
-/// sky) where the camera sees only sky: its paths add nothing, and the others' gradient keeps its
-/// digits. The quantum once followed the largest δ alone, and the others' samples, 10⁹ times
-/// smaller, were rounded with a quantum near their own size: ⟨g, 1⟩ came out 5 times off.
+/// Pixels whose δ is 10⁹ to 10²⁹ times the others' (a firefly in a target, the sun in a
+/// photograph's sky) where the camera sees only sky: their paths add nothing, and the others'
+/// gradient keeps its digits. The quantum once followed the largest δ alone: the others' samples,
+/// 10⁹ times smaller, came out 5 times off; with one quantum for every pixel (sized for one
+/// sample of the largest and for the sum of all), 10¹² left 80 voxels of a few quanta each, 10²⁰
+/// and beyond a gradient of exactly 0. Beyond 2³⁶ the hot pixels get a band and quantum of their
+/// own, and the others' gradient is theirs alone, bit for bit.
 #[test]
-fn a_hot_adjoint_pixel_that_sees_only_sky_leaves_the_others_their_digits() {
+fn hot_adjoint_pixels_that_see_only_sky_leave_the_others_their_digits() {
     let mut scene = lumpy_block_scene(Filter::Trilinear, false, 0.5);
     // 90° at distance 14: the 6-wide block fills the middle of the image, the corners are sky.
     scene.camera = volgrad::render::camera::Camera::new(
@@ -298,13 +299,36 @@ fn a_hot_adjoint_pixel_that_sees_only_sky_leaves_the_others_their_digits() {
     );
     let mut adjoint = Loss::Mean.adjoint(&RgbImage::new(8, 8), None);
     let options = GradOptions::new(Estimator::Joint, 4, 11, 16);
-    adjoint[0] = Vec3::ZERO;
-    let without = gradient(&scene, &adjoint, &options);
-    adjoint[0] = Vec3::splat(1e9 * adjoint[1].x);
-    let with = gradient(&scene, &adjoint, &options);
-    let (a, b) = (without.values().sum(), with.values().sum());
+    let (corners, ordinary) = ([0, 7, 56, 63], adjoint[1]);
+    for c in corners {
+        adjoint[c] = Vec3::ZERO;
+    }
+    let without = gradient(&scene, &adjoint, &options).values();
+    let a = without.sum();
+    let hot = |hot: &[usize], factor: f32| {
+        let mut adjoint = adjoint.clone();
+        for &c in hot {
+            adjoint[c] = Vec3::splat(factor * ordinary.x);
+        }
+        gradient(&scene, &adjoint, &options)
+    };
+    // Within the range: one band, and the others' samples rounded to the hot pixel's quantum.
+    let b = hot(&corners[..1], 1e9).values().sum();
     assert!(
         a != 0.0 && ((b - a) / a).abs() < 0.01,
         "⟨g, 1⟩ {a} without the hot pixel, {b} with it"
     );
+    for (pixels, factor) in [(1, 1e12), (1, 1e20), (1, 1e29), (4, 1e25)] {
+        let run = hot(&corners[..pixels], factor);
+        assert_eq!(run.gradient.bands.len(), 2, "{pixels} pixels of {factor:e}");
+        let with: Vec<_> = (run.values().voxels())
+            .map(|(v, g)| (v, g.to_bits()))
+            .collect();
+        let expected: Vec<_> = (without.voxels()).map(|(v, g)| (v, g.to_bits())).collect();
+        assert!(
+            with == expected,
+            "{pixels} pixels of {factor:e}: ⟨g, 1⟩ {} against {a}",
+            run.values().sum()
+        );
+    }
 }

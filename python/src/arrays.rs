@@ -7,7 +7,7 @@ use anyhow::{bail, Result};
 use glam::{DAffine3, IVec3};
 use numpy::ndarray::{Array3, ArrayView3};
 use rayon::prelude::*;
-use volgrad::gradient::grid::{Accumulator, GradientGrid};
+use volgrad::gradient::grid::GradientGrid;
 use volgrad::volume::brickmap::{leaf_offset, BrickMap, Leaf, BRICK_VOXELS};
 use volgrad::volume::transform::IndexTransform;
 
@@ -233,17 +233,13 @@ pub fn from_brickmap(grid: &BrickMap, place: VoxelBox, what: &str) -> Result<Arr
 
 /// The voxels of a gradient grid that lie in `place`, dense (0 where no path reached); refused
 /// when `place` is too large.
-pub fn gradient_in<T: Accumulator>(
-    gradient: &GradientGrid<T>,
-    factor: f64,
-    place: VoxelBox,
-) -> Result<Array3<f32>> {
+pub fn gradient_in(gradient: &GradientGrid<f64>, place: VoxelBox) -> Result<Array3<f32>> {
     place.checked_len("the gradient")?;
     let mut dense = Array3::<f32>::zeros((place.shape[0], place.shape[1], place.shape[2]));
     if let Some(slice) = dense.as_slice_mut() {
         for (v, value) in gradient.voxels() {
             if let Some(o) = place.offset(v) {
-                slice[o] = (value * factor) as f32;
+                slice[o] = value as f32;
             }
         }
     }

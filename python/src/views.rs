@@ -9,9 +9,9 @@ use numpy::{IntoPyArray, PyArrayDyn, PyReadonlyArrayDyn, PyUntypedArrayMethods};
 use pyo3::exceptions::PyRuntimeWarning;
 use pyo3::prelude::*;
 use volgrad::gradient::adjoint::Estimator;
-use volgrad::gradient::grid::{GradientGrid, Quanta};
 use volgrad::gradient::passes::{
-    add_gradient_of, gradient_grid_for, quantum_for, sample_scale, GradOptions, Parameter,
+    add_gradient_of, gradient_grid_for, sample_scale, BandedGradient, GradOptions, Parameter,
+    QuantumBands,
 };
 use volgrad::render::camera::Camera as RustCamera;
 use volgrad::render::image::{self as image_loop, RenderOptions};
@@ -301,7 +301,7 @@ pub fn grad(
         });
     }
     let scale = sample_scale(scene, parameter);
-    let quantum = quantum_for(deltas.iter().map(|d| (&d[..], scale)), sampling.spp);
+    let bands = QuantumBands::of(deltas.iter().map(|d| (&d[..], scale)), sampling.spp);
     // `volgrad grad`'s defaults: per-path suffixes, radiance.
     let pass = GradOptions {
         parameter,
@@ -312,8 +312,8 @@ pub fn grad(
     let mut planes = Vec::with_capacity(channels);
     for c in 0..channels {
         let channel = (channels > 1).then_some(c);
-        let mut total: GradientGrid<Quanta> =
-            gradient_grid_for(scene, &GradOptions { channel, ..pass });
+        let grid = gradient_grid_for(scene, &GradOptions { channel, ..pass });
+        let mut total = BandedGradient::new(bands.clone(), grid);
         for (i, (camera, delta)) in cameras.iter().zip(deltas).enumerate() {
             scene.camera = *camera;
             let options = GradOptions {
@@ -323,11 +323,11 @@ pub fn grad(
             };
             let every_pixel = PixelSet::All(camera.width * camera.height);
             let (_, stats) =
-                add_gradient_of(scene, delta, &options, quantum, &every_pixel, &mut total);
+                add_gradient_of(scene, (delta, scale), &options, &every_pixel, &mut total);
             paths += stats.paths;
             non_finite += stats.non_finite;
         }
-        planes.push(arrays::gradient_in(&total, quantum, place)?);
+        planes.push(arrays::gradient_in(&total.values(), place)?);
     }
     let values = match channels {
         1 => planes.pop().expect("one channel").into_dyn(),

@@ -364,10 +364,8 @@ pub fn run(args: &Args, cluster: &Cluster) -> Result<()> {
         // What the report needs of the gradient, then the gradient itself goes, and the exported grid
         // goes as soon as its values are in the bridge's arrays: a large gradient is held twice at a
         // time, not four times.
-        let mut channels: Vec<GradientGrid<f32>> = runs
-            .into_iter()
-            .map(|run| run.gradient.converted(run.quantum))
-            .collect();
+        let mut channels: Vec<GradientGrid<f32>> =
+            runs.into_iter().map(|run| run.values()).collect();
         // Every sample is finite; a sum can still exceed f32's range (lights near 1e30). The
         // voxel named is the lowest, not the first met: the bricks' order depends on how the
         // ranks' gradients were merged.

@@ -5,7 +5,7 @@
 use anyhow::Result;
 
 use crate::cluster::images::{render_shared, sum_stats};
-use crate::cluster::sparse_sum::sum_over_ranks;
+use crate::cluster::sparse_sum::sum_bands_over_ranks;
 use crate::cluster::Cluster;
 use crate::gradient::loss::Loss;
 use crate::gradient::objective::{adjoint_image, check_target, AdjointImage};
@@ -53,7 +53,7 @@ pub fn gradient_shared(
     let pixels = scene.camera.width * scene.camera.height;
     let set = PixelSet::share(pixels, cluster.rank(), cluster.size());
     let mut run = gradient_of(scene, adjoint, options, &set);
-    run.gradient = sum_over_ranks(cluster, run.gradient).0;
+    run.gradient = sum_bands_over_ranks(cluster, run.gradient).0;
     sum_stats(cluster, &mut run.stats);
     run
 }

@@ -12,6 +12,7 @@
 use glam::IVec3;
 
 use crate::cluster::Cluster;
+use crate::gradient::bands::BandedGradient;
 use crate::gradient::grid::{GradientGrid, Quanta, BLOCK_EDGE, BLOCK_VOXELS};
 
 /// Bitmaps up to this many blocks (16 MiB); wider ranges gather keys.
@@ -97,6 +98,26 @@ pub fn sum_over_ranks(
         seconds: started.elapsed().as_secs_f64(),
     };
     (sum, traffic)
+}
+
+/// `gradient`'s bands each summed over the ranks (every rank has the same bands: they follow
+/// the adjoint, which every rank has whole), with what they moved together.
+pub fn sum_bands_over_ranks(
+    cluster: &Cluster,
+    gradient: BandedGradient,
+) -> (BandedGradient, Traffic) {
+    let BandedGradient { bands, grids } = gradient;
+    let mut traffic = Traffic::default();
+    let grids = (grids.into_iter())
+        .map(|grid| {
+            let (sum, moved) = sum_over_ranks(cluster, grid);
+            traffic.blocks += moved.blocks;
+            traffic.bytes_sent += moved.bytes_sent;
+            traffic.seconds += moved.seconds;
+            sum
+        })
+        .collect();
+    (BandedGradient { bands, grids }, traffic)
 }
 
 /// `values` (i64 quanta) summed over the ranks in place, saturating at ±2⁶³ as a rank's own sums

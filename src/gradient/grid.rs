@@ -85,7 +85,7 @@ impl Accumulator for f64 {
 /// A gradient in whole quanta of its pass (`GradientRun::quantum`). Integer sums are exact, hence
 /// associative: the pass's result is the same whatever order its samples are added in, on any
 /// number of threads or processes, where a floating-point sum would change in its last bits. A
-/// sum beyond ±2⁶³ quanta saturates (`passes::quantum_for` says what headroom the quantum leaves).
+/// sum beyond ±2⁶³ quanta saturates (`bands::quantum_for` says what headroom the quantum leaves).
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
 pub struct Quanta(pub i64);
 

@@ -4,6 +4,7 @@
 pub mod adjoint;
 pub mod albedo_gradient;
 pub mod alpha_gradient;
+pub mod bands;
 pub mod emission_gradient;
 pub mod fd;
 pub mod gradcheck;

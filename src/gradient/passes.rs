@@ -9,6 +9,7 @@ use rayon::prelude::*;
 
 use crate::gradient::adjoint::{GradientSink, Replay, Scratch};
 use crate::gradient::alpha_gradient::alpha_gradient_sample;
+pub use crate::gradient::bands::{BandedGradient, QuantumBands};
 use crate::gradient::grid::{corner_dither, Accumulator, GradientGrid, Quanta};
 use crate::gradient::in_order::InOrder;
 pub use crate::gradient::options::{GradOptions, Measured, Parameter};
@@ -22,37 +23,6 @@ use crate::render::scene::Scene;
 use crate::volume::albedo::{Albedo, AlbedoGrid};
 use crate::volume::brickmap::{corner, BrickMap};
 use crate::volume::tracking::TrackingStats;
-
-/// The quantum of a gradient pass with adjoint images `deltas` at `spp`, each with the scale of
-/// its samples' d_pixel (`sample_scale`): the power of two just above the larger of
-/// - Σ|δ|·scale / 2⁵⁴: a voxel's sum, at most Σᵢ |δᵢ| times a path's d_pixel, keeps 2⁸ times
-///   `scale` of headroom below i64's 2⁶³ quanta, and its resolution follows the whole image's
-///   weight, not one pixel's: beside a hot pixel whose δ is 10⁹ times the others' (a firefly, the
-///   sun in a photograph, which the volume cannot change) the others' samples keep their digits;
-/// - the largest |δ|·scale / (spp · 2⁴⁴): one sample, at most |δ|/spp · d_pixel, keeps 2¹⁹ times
-///   `scale` of headroom (a peaked phase function's NEE is some 10³ times the light).
-///
-/// Samples are rounded with a dither (`Quanta::from_f32_dithered`), so that those far below a
-/// quantum keep their mean.
-pub fn quantum_for<'a>(deltas: impl IntoIterator<Item = (&'a [Vec3], f64)>, spp: u32) -> f64 {
-    // Over the finite values only: one infinite δ would make the quantum 1 and round every other
-    // sample to 0 (its own samples are dropped and counted by the pass).
-    let (largest, total) = deltas
-        .into_iter()
-        .flat_map(|(delta, scale)| {
-            delta
-                .iter()
-                .map(move |d| d.abs().max_element() as f64 * scale)
-        })
-        .filter(|x| x.is_finite())
-        .fold((0.0f64, 0.0f64), |(m, s), x| (m.max(x), s + x));
-    let bound = (total * 2f64.powi(-54)).max(largest / spp.max(1) as f64 * 2f64.powi(-44));
-    if bound > 0.0 && bound.is_finite() {
-        2f64.powi(bound.log2().ceil() as i32)
-    } else {
-        1.0
-    }
-}
 
 /// How large one path's sample of ∂pixel/∂θ can be in `scene`, per unit of adjoint, to within a
 /// modest factor: the brightest radiance a path carries (its lights', its emission's) times, for
@@ -89,9 +59,8 @@ pub fn optical_depth_per_unit(scene: &Scene) -> f64 {
 }
 
 pub struct GradientRun {
-    /// The gradient in quanta: `quantum` × these values is ∂loss/∂voxel.
-    pub gradient: GradientGrid<Quanta>,
-    pub quantum: f64,
+    /// The gradient in quanta, by band of the adjoint's size.
+    pub gradient: BandedGradient,
     /// The radiance of the adjoint pass's own paths (a by-product, same spp).
     pub image: RgbImage,
     pub stats: RenderStats,
@@ -100,7 +69,7 @@ pub struct GradientRun {
 impl GradientRun {
     /// ∂loss/∂voxel as f32 values.
     pub fn values(&self) -> GradientGrid<f32> {
-        self.gradient.converted(self.quantum)
+        self.gradient.values()
     }
 }
 
@@ -432,28 +401,27 @@ pub fn gradient_of(
     set: &PixelSet,
 ) -> GradientRun {
     let scale = sample_scale(scene, options.parameter);
-    let quantum = quantum_for([(adjoint, scale)], options.spp);
-    let mut gradient = gradient_grid_for(scene, options);
-    let (image, stats) = add_gradient_of(scene, adjoint, options, quantum, set, &mut gradient);
+    let bands = QuantumBands::of([(adjoint, scale)], options.spp);
+    let mut gradient = BandedGradient::new(bands, gradient_grid_for(scene, options));
+    let (image, stats) = add_gradient_of(scene, (adjoint, scale), options, set, &mut gradient);
     GradientRun {
         gradient,
-        quantum,
         image,
         stats,
     }
 }
 
-/// `gradient_of` in quanta of `quantum`, added into `gradient` (from `gradient_grid_for`): passes
-/// whose gradients add up (an optimisation step's views, Python's cameras) share one quantum and
-/// one grid instead of each filling one that is then merged (8 % of an optimisation step on the
-/// worked example). Returns the image (a pixel that took no path reads 0) and the counters.
+/// `gradient_of` for an adjoint whose samples have `scale` (`sample_scale`), added into
+/// `gradient` in its bands' quanta: passes whose gradients add up (an optimisation step's views,
+/// Python's cameras) share one set of bands and grids instead of each filling its own that are
+/// then merged (8 % of an optimisation step on the worked example). Returns the image (a pixel
+/// that took no path reads 0) and the counters.
 pub fn add_gradient_of(
     scene: &Scene,
-    adjoint: &[Vec3],
+    (adjoint, scale): (&[Vec3], f64),
     options: &GradOptions,
-    quantum: f64,
     set: &PixelSet,
-    gradient: &mut GradientGrid<Quanta>,
+    gradient: &mut BandedGradient,
 ) -> (RgbImage, RenderStats) {
     let camera = &scene.camera;
     let w = camera.width;
@@ -469,18 +437,26 @@ pub fn add_gradient_of(
     };
     let pass = GradientPass { scene, options };
     let seed = options.stream_seed();
+    let BandedGradient { bands, grids } = gradient;
     let stats = over_pixels(
         scene,
         set,
         spp,
         options.progress.then_some("gradient"),
-        || (Vec::<Splat>::new(), Vec::<(u32, Vec3)>::new()),
+        || {
+            let splats = (0..bands.len())
+                .map(|_| Vec::<Splat>::new())
+                .collect::<Vec<_>>();
+            (splats, Vec::<(u32, Vec3)>::new())
+        },
         |(splats, pixels), x, y, worker| {
             let index = y * w + x;
             let delta = adjoint[index as usize] * channel_mask;
             let (samples, divisor) = options.samples.draw(spp, delta, seed, index as u64);
+            let band = bands.band_of(adjoint[index as usize], scale);
+            let quantum = bands.quantum(band);
             let mut sink = SplatSink {
-                splats,
+                splats: &mut splats[band],
                 // In f64: for a tiny δ, 1/quantum exceeds f32's range though δ/quantum does not.
                 weight: (delta.as_dvec3() * (1.0 / (divisor * quantum))).as_vec3(),
                 dither: Dither::new(seed, index as u64),
@@ -498,7 +474,9 @@ pub fn add_gradient_of(
             pixels.push((index, sum / samples.max(1) as f32));
         },
         |(splats, pixels)| {
-            apply(gradient, &splats, active);
+            for (grid, splats) in grids.iter_mut().zip(&splats) {
+                apply(grid, splats, active);
+            }
             for (i, c) in pixels {
                 image.pixels[i as usize] = c;
             }

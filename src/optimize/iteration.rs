@@ -7,7 +7,7 @@
 //!    δ = ∂loss/∂pixel;
 //! 3. the gradient passes (colour's, then alpha's), each rank over its share of the pixels, their
 //!    paths spread over the pixels in proportion to δ (`pixel_samples`),
-//!    accumulated as quanta of one quantum for the whole batch (`passes::quantum_for`);
+//!    accumulated as quanta of one set of bands for the whole batch (`gradient::bands`);
 //! 4. the sum over the ranks (`cluster::sparse_sum`), exact, so that the step is the same bits at
 //!    any number of ranks and threads.
 //!
@@ -21,14 +21,13 @@ use rand::seq::SliceRandom;
 use rand::{Rng, RngCore};
 
 use crate::cluster::images::sum_rendered_pixels;
-use crate::cluster::sparse_sum::{sum_over_ranks, Traffic};
+use crate::cluster::sparse_sum::{sum_bands_over_ranks, Traffic};
 use crate::cluster::Cluster;
 use crate::gradient::adjoint::Estimator;
-use crate::gradient::grid::Quanta;
 use crate::gradient::objective::check_target;
 use crate::gradient::passes::{
-    add_gradient_of, gradient_grid_for, optical_depth_per_unit, quantum_for, sample_scale,
-    GradOptions, Measured, Parameter,
+    add_gradient_of, gradient_grid_for, optical_depth_per_unit, sample_scale, BandedGradient,
+    GradOptions, Measured, Parameter, QuantumBands,
 };
 use crate::gradient::pixel_samples::{path_cost, PixelSamples};
 use crate::io::images::RgbImage;
@@ -121,15 +120,15 @@ pub fn images_gradient(
         alpha_adjoints.push(alpha);
     }
     let alpha_scale = optical_depth_per_unit(scene);
-    let quantum = quantum_for(
-        (adjoints.iter().map(|a| &a.delta[..]).zip(scales)).chain(
-            alpha_adjoints
-                .iter()
-                .flatten()
-                .map(|a| (&a.delta[..], alpha_scale)),
-        ),
-        s.spp,
-    );
+    let deltas = (adjoints
+        .iter()
+        .map(|a| &a.delta[..])
+        .zip(scales.iter().copied()))
+    .chain((alpha_adjoints.iter().flatten()).map(|a| (&a.delta[..], alpha_scale)));
+    let bands = match s.samples_follow_adjoint {
+        true => QuantumBands::single(deltas, s.spp),
+        false => QuantumBands::of(deltas, s.spp),
+    };
     let colour_samples = pixel_samples(problem, &pieces, adjoints.iter().map(Some));
     let alpha_samples = pixel_samples(problem, &pieces, alpha_adjoints.iter().map(Option::as_ref));
     // An emission unknown's gradient is wanted over its whole box: the pass would otherwise
@@ -142,8 +141,13 @@ pub fn images_gradient(
         ..GradOptions::new(estimator, s.spp, 0, s.max_depth)
     };
     pass.adjoint.suffix_paths = s.suffix_paths;
-    let mut total = gradient_grid_for::<Quanta>(scene, &pass);
-    for ((piece, adjoint), alpha) in pieces.iter().zip(&adjoints).zip(&alpha_adjoints) {
+    let mut total = BandedGradient::new(bands, gradient_grid_for(scene, &pass));
+    let passes = pieces
+        .iter()
+        .zip(&adjoints)
+        .zip(scales)
+        .zip(&alpha_adjoints);
+    for (((piece, adjoint), scale), alpha) in passes {
         problem.look_through(scene, &mut lit, &problem.views[piece.view]);
         let pixels = piece.pixels(scene.camera.width * scene.camera.height, cluster);
         let options = GradOptions {
@@ -153,9 +157,8 @@ pub fn images_gradient(
         };
         add_gradient_of(
             scene,
-            &adjoint.delta,
+            (&adjoint.delta, scale),
             &options,
-            quantum,
             &pixels,
             &mut total,
         );
@@ -165,14 +168,14 @@ pub fn images_gradient(
                 samples: alpha_samples,
                 ..options
             };
-            add_gradient_of(scene, &alpha.delta, &options, quantum, &pixels, &mut total);
+            let alpha = (&alpha.delta[..], alpha_scale);
+            add_gradient_of(scene, alpha, &options, &pixels, &mut total);
         }
     }
-    let (total, traffic) = sum_over_ranks(cluster, total);
+    let (total, traffic) = sum_bands_over_ranks(cluster, total);
     let inside = |v: &IVec3| domain.is_none_or(|(lo, hi)| v.cmpge(lo).all() && v.cmple(hi).all());
-    let voxels = (total.voxels())
+    let voxels = (total.voxels().into_iter())
         .filter(|(v, _)| inside(v))
-        .map(|(v, q)| (v, q * quantum))
         .collect();
     Ok(ImagesGradient {
         voxels,
