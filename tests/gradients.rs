@@ -471,8 +471,11 @@ fn paths_that_follow_the_adjoint_keep_the_gradients_expectation() {
         })
         .collect();
     let uniform = |seed| options(&scene, Estimator::Joint, 16, seed);
-    let listed = adjoint.iter().map(|d| (d.abs().element_sum(), 1.0));
-    let following = PixelSamples::following_adjoint(listed, 1);
+    let listed: Vec<_> = adjoint
+        .iter()
+        .map(|d| (d.abs().element_sum(), 1.0))
+        .collect();
+    let following = PixelSamples::following_adjoint(&listed, 1);
     let PixelSamples::Adjoint { per_adjoint } = following else {
         panic!("{following:?}")
     };

@@ -61,18 +61,46 @@ impl PixelSamples {
     }
 
     /// Samples in proportion to |δ|₁ that cost what `spp` uniform samples do: over the pixels
-    /// (|δᵢ|₁, cᵢ), cᵢ one path's cost there, `per_adjoint` = spp · Σ cᵢ / Σ |δᵢ|₁ cᵢ. Uniform
-    /// when every δ is 0 (or no pixel is given). A non-finite δ is left out of the sums: its
-    /// samples are dropped and counted by the pass whatever their number, and in the sums it
-    /// would leave every other pixel without a path.
-    pub fn following_adjoint(pixels: impl IntoIterator<Item = (f32, f32)>, spp: u32) -> Self {
-        let (mut cost, mut weighted) = (0.0f64, 0.0f64);
-        for (adjoint, path_cost) in pixels.into_iter().filter(|(a, _)| a.is_finite()) {
-            cost += path_cost as f64;
-            weighted += adjoint as f64 * path_cost as f64;
+    /// (|δᵢ|₁, cᵢ), cᵢ one path's cost there, `per_adjoint` = k with Σ min(k·|δᵢ|₁, 8·spp)·cᵢ =
+    /// spp·Σ cᵢ. The cap counts in that sum: else one outlier (a firefly in a target: 10⁴ beside
+    /// residuals of 0.01) would take most of the budget and keep only its 8·spp paths of it,
+    /// leaving the pass a hundredth of its cost. Uniform when
+    /// every δ is 0 (or no pixel is given). A non-finite δ is left out of the sums: its samples
+    /// are dropped and counted by the pass whatever their number, and in the sums it would leave
+    /// every other pixel without a path.
+    pub fn following_adjoint(pixels: &[(f32, f32)], spp: u32) -> Self {
+        let pixels: Vec<(f64, f64)> = (pixels.iter())
+            .filter(|(a, _)| a.is_finite())
+            .map(|&(a, c)| (f64::from(a), f64::from(c)))
+            .collect();
+        let budget = spp as f64 * pixels.iter().map(|&(_, c)| c).sum::<f64>();
+        let most = MOST_PER_PIXEL * spp as f64;
+        // Water-filling: k from the pixels below the cap, the capped ones' cost taken off the
+        // budget; raising k can only cap more pixels, so the capped set grows until it holds.
+        let mut capped_above = f64::INFINITY;
+        let mut per_adjoint = f64::NAN;
+        loop {
+            let (mut capped_cost, mut weighted) = (0.0f64, 0.0f64);
+            for &(a, c) in &pixels {
+                match a >= capped_above {
+                    true => capped_cost += most * c,
+                    false => weighted += a * c,
+                }
+            }
+            let k = (budget - capped_cost) / weighted;
+            if !(weighted > 0.0 && k.is_finite() && k > 0.0) {
+                break;
+            }
+            per_adjoint = k;
+            // The pixels k now puts above the cap; none new: k holds.
+            let above = most / k;
+            if above >= capped_above || !pixels.iter().any(|&(a, _)| a >= above && a < capped_above)
+            {
+                break;
+            }
+            capped_above = above;
         }
-        let per_adjoint = spp as f64 * cost / weighted;
-        if weighted > 0.0 && per_adjoint.is_finite() {
+        if per_adjoint.is_finite() {
             PixelSamples::Adjoint { per_adjoint }
         } else {
             PixelSamples::Uniform
@@ -120,7 +148,7 @@ mod tests {
     fn samples_follow_the_adjoint_at_the_cost_of_uniform_ones() {
         let pixels = [(0.0, 1.0), (1.0, 3.0), (3.0, 10.0), (0.5, 2.0)];
         let spp = 8;
-        let samples = PixelSamples::following_adjoint(pixels, spp);
+        let samples = PixelSamples::following_adjoint(&pixels, spp);
         let uniform_cost: f64 = pixels.iter().map(|&(_, c)| c as f64 * spp as f64).sum();
         let expected = |a: f32| samples.draw(spp, Vec3::new(a, 0.0, 0.0), 1, 0);
         let cost: f64 = (pixels.iter())
@@ -143,6 +171,28 @@ mod tests {
         assert_eq!(samples.draw(8, Vec3::ONE, 1, 0), (64, 64.0));
     }
 
+    /// One pixel of |δ| 10⁴ beside a thousand of 0.01, a firefly in a target: it takes its 8·spp
+    /// paths and the others share the rest of the uniform pass's cost, 7.9 paths each at spp 8.
+    /// Without the cap in the sum k was set as if the outlier took 7,920 paths: the pass cost
+    /// 72 paths in all, not 8,008, the others 0.008 each.
+    #[test]
+    fn an_outlier_pixel_leaves_the_others_the_uniform_pass_cost() {
+        let mut pixels = vec![(0.01f32, 1.0f32); 1000];
+        pixels.push((1e4, 1.0));
+        let samples = PixelSamples::following_adjoint(&pixels, 8);
+        let expected = |a: f32| samples.draw(8, Vec3::new(a, 0.0, 0.0), 1, 0).1;
+        let cost: f64 = pixels.iter().map(|&(a, _)| expected(a)).sum();
+        assert!((cost - 8.0 * 1001.0).abs() < 1e-6 * cost, "{cost}");
+        assert_eq!(expected(1e4), 64.0);
+        assert!((expected(0.01) - 7.944).abs() < 1e-3, "{}", expected(0.01));
+        // Capping one pixel raises k and caps the next: 50 at the first round, 30 at the
+        // second, and the twenty of 1 take k = 0.3 each; the cost still comes out whole.
+        let mut pixels = vec![(1.0f32, 1.0f32); 20];
+        pixels.extend([(50.0, 1.0), (30.0, 1.0)]);
+        let samples = PixelSamples::following_adjoint(&pixels, 1);
+        assert_eq!(samples, PixelSamples::Adjoint { per_adjoint: 0.3 });
+    }
+
     #[test]
     fn a_huge_spp_keeps_the_count_below_the_rounding_stream() {
         let samples = PixelSamples::Adjoint { per_adjoint: 1e30 };
@@ -153,19 +203,19 @@ mod tests {
     #[test]
     fn without_an_adjoint_the_samples_stay_uniform() {
         assert_eq!(
-            PixelSamples::following_adjoint([(0.0, 1.0), (0.0, 5.0)], 8),
+            PixelSamples::following_adjoint(&[(0.0, 1.0), (0.0, 5.0)], 8),
             PixelSamples::Uniform
         );
         assert_eq!(
-            PixelSamples::following_adjoint([], 8),
+            PixelSamples::following_adjoint(&[], 8),
             PixelSamples::Uniform
         );
     }
 
     #[test]
     fn a_non_finite_adjoint_leaves_the_other_pixels_their_paths() {
-        let with = |bad| PixelSamples::following_adjoint([(1.0, 3.0), (bad, 3.0), (2.0, 1.0)], 8);
-        let without = PixelSamples::following_adjoint([(1.0, 3.0), (2.0, 1.0)], 8);
+        let with = |bad| PixelSamples::following_adjoint(&[(1.0, 3.0), (bad, 3.0), (2.0, 1.0)], 8);
+        let without = PixelSamples::following_adjoint(&[(1.0, 3.0), (2.0, 1.0)], 8);
         for bad in [f32::INFINITY, f32::NAN] {
             assert_eq!(with(bad), without, "{bad}");
         }

@@ -216,7 +216,7 @@ fn pixel_samples<'a>(
             listed.push((delta.abs().element_sum(), path_cost(lookups)));
         }
     }
-    PixelSamples::following_adjoint(listed, problem.settings.spp)
+    PixelSamples::following_adjoint(&listed, problem.settings.spp)
 }
 
 /// A piece's part of the batch from a primal render whose pixels the ranks share and sum, scaled
