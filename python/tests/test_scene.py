@@ -329,6 +329,23 @@ def test_a_gradient_does_not_depend_on_the_units():
         np.testing.assert_allclose(gradient, expected, rtol=1e-3, atol=1e-4 * np.abs(expected).max())
 
 
+def test_a_hot_adjoint_pixel_on_the_sky_leaves_the_gradient_as_it_was():
+    """An adjoint pixel 1e12 to 1e30 times the others where the camera sees only sky adds nothing,
+    and the others keep their gradient bit for bit: it gets a quantum of its own. With one
+    quantum sized for it, the others' gradient was exactly 0 from 1e10 on."""
+    scene = small_scene()
+    corner_only = np.zeros((24, 24, 3), np.float32)
+    corner_only[0, 0] = 1.0
+    assert not scene.grad(corner_only, spp=4, seed=1).any(), "the corner sees only sky"
+    adjoint = np.ones((24, 24, 3), np.float32)
+    adjoint[0, 0] = 0.0
+    expected = scene.grad(adjoint, spp=4, seed=1)
+    assert np.abs(expected).max() > 0
+    for hot in [1e12, 1e20, 1e30]:
+        adjoint[0, 0] = hot
+        assert np.array_equal(scene.grad(adjoint, spp=4, seed=1), expected), hot
+
+
 def test_an_emission_gradient_does_not_depend_on_the_units():
     """An emission grid's samples carry dLe/dv: with the radiance 1e-10 (or 1e10) as large, its
     gradient is the usual one scaled, not rounded to 0 (or stopped at a ceiling) by a quantum

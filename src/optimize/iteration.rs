@@ -120,11 +120,9 @@ pub fn images_gradient(
         alpha_adjoints.push(alpha);
     }
     let alpha_scale = optical_depth_per_unit(scene);
-    let deltas = (adjoints
-        .iter()
-        .map(|a| &a.delta[..])
-        .zip(scales.iter().copied()))
-    .chain((alpha_adjoints.iter().flatten()).map(|a| (&a.delta[..], alpha_scale)));
+    let colour_deltas = (adjoints.iter().map(|a| &a.delta[..])).zip(scales.iter().copied());
+    let alpha_deltas = (alpha_adjoints.iter().flatten()).map(|a| (&a.delta[..], alpha_scale));
+    let deltas = colour_deltas.chain(alpha_deltas);
     let bands = match s.samples_follow_adjoint {
         true => QuantumBands::single(deltas, s.spp),
         false => QuantumBands::of(deltas, s.spp),
@@ -142,9 +140,7 @@ pub fn images_gradient(
     };
     pass.adjoint.suffix_paths = s.suffix_paths;
     let mut total = BandedGradient::new(bands, gradient_grid_for(scene, &pass));
-    let passes = pieces
-        .iter()
-        .zip(&adjoints)
+    let passes = (pieces.iter().zip(&adjoints))
         .zip(scales)
         .zip(&alpha_adjoints);
     for (((piece, adjoint), scale), alpha) in passes {
