@@ -4,12 +4,13 @@
 
 mod common;
 
+use std::io::BufRead;
 use std::path::Path;
 use std::process::{Output, Stdio};
 use std::time::{Duration, Instant};
 
 use common::mpi::{mpirun, ranks, repo, run_file, LIMIT};
-use common::{ok, stderr};
+use common::ok;
 use volgrad::io::vdb::{read_grid, GridSelector};
 
 /// Every active voxel's value (index and bits), in the file's order.
@@ -226,31 +227,47 @@ fn a_wide_sparse_gradient_is_summed_by_its_keys() {
     assert!(grads[0] == grads[1], "3 ranks against 1");
 }
 
-/// SIGUSR1 to mpirun (which forwards it; it answers SIGINT with SIGTERM and SIGKILL a second
-/// later) stops every rank after the same iteration with a checkpoint, and one message saying how
-/// to resume. So does Ctrl-C handed to every rank (as srun's second one is), which says once that
-/// it is stopping.
+/// SIGUSR1 to mpirun (which forwards it) stops every rank after the same iteration with a
+/// checkpoint, and one message saying how to resume. So does Ctrl-C handed to every rank (as
+/// srun's second one is), which says once that it is stopping, and Ctrl-C to mpirun, which hands
+/// the ranks SIGTERM and SIGKILL a second later: with evaluations of seconds (8,192 spp), the
+/// checkpoint waits for none (with one it was killed, and left no checkpoint).
 #[test]
 fn sigusr1_to_mpirun_stops_every_rank_with_a_checkpoint() {
-    for signal in [libc::SIGUSR1, libc::SIGINT] {
+    let run = run_file("batch = 3\niterations = 100000");
+    let slow_evaluations = (run.replace("eval_spp = 64", "eval_spp = 8192"))
+        .replace("eval_every = 4", "eval_every = 100000")
+        .replace("checkpoint_every = 4", "checkpoint_every = 100000");
+    for (signal, to_ranks, run) in [
+        (libc::SIGUSR1, false, &run),
+        (libc::SIGINT, true, &run),
+        (libc::SIGINT, false, &slow_evaluations),
+    ] {
         let dir = tempfile::tempdir().unwrap();
         let d = dir.path();
-        std::fs::write(
-            d.join("run.toml"),
-            run_file("batch = 3\niterations = 100000"),
-        )
-        .unwrap();
+        std::fs::write(d.join("run.toml"), run).unwrap();
         let exe = env!("CARGO_BIN_EXE_volgrad");
         let mut child = mpirun(d)
             .args(["-n", "2", exe, "optimize", "run.toml", "--out", "o"])
-            .args(["-q", "--threads", "1"])
-            .stdout(Stdio::piped())
+            .args(["--threads", "1"])
+            .stdout(Stdio::null())
             .stderr(Stdio::piped())
             .spawn()
             .unwrap();
-        // Running once the first evaluation's log is written.
+        // Read as it comes: stepping once the run has said what its first iterations cost (after
+        // the start's evaluation, which would keep a rank past mpirun's second).
+        let said = std::sync::Arc::new(std::sync::Mutex::new(String::new()));
+        let reader = {
+            let (pipe, said) = (child.stderr.take().unwrap(), said.clone());
+            std::thread::spawn(move || {
+                for line in std::io::BufReader::new(pipe).lines().map_while(Result::ok) {
+                    *said.lock().unwrap() += &(line + "\n");
+                }
+            })
+        };
         let started = Instant::now();
-        while !d.join("o/log.csv").exists() {
+        // "the first N iterations took … and one evaluation …"
+        while !said.lock().unwrap().contains(" and one evaluation ") {
             assert!(started.elapsed() < LIMIT, "the run never started");
             std::thread::sleep(Duration::from_millis(100));
         }
@@ -259,9 +276,9 @@ fn sigusr1_to_mpirun_stops_every_rank_with_a_checkpoint() {
             .args(["-P", &pid, "-x", "volgrad"])
             .output()
             .unwrap();
-        let to: Vec<libc::pid_t> = match signal {
-            libc::SIGUSR1 => vec![child.id() as libc::pid_t],
-            _ => (String::from_utf8_lossy(&ranks.stdout).split_whitespace())
+        let to: Vec<libc::pid_t> = match to_ranks {
+            false => vec![child.id() as libc::pid_t],
+            true => (String::from_utf8_lossy(&ranks.stdout).split_whitespace())
                 .map(|p| p.parse().unwrap())
                 .collect(),
         };
@@ -271,21 +288,25 @@ fn sigusr1_to_mpirun_stops_every_rank_with_a_checkpoint() {
             unsafe { libc::kill(p, signal) };
         }
         let deadline = Instant::now() + Duration::from_secs(60);
-        while child.try_wait().unwrap().is_none() {
+        let status = loop {
+            if let Some(status) = child.try_wait().unwrap() {
+                break status;
+            }
             assert!(Instant::now() < deadline, "the ranks did not stop");
             std::thread::sleep(Duration::from_millis(50));
-        }
-        let out = child.wait_with_output().unwrap();
-        let err = stderr(&out);
-        assert!(!out.status.success(), "{err}");
+        };
+        reader.join().unwrap();
+        let err = said.lock().unwrap().clone();
+        assert!(!status.success(), "{err}");
         assert_eq!(
             err.matches("error: interrupted at iteration").count(),
             1,
             "{err}"
         );
+        // Said for Ctrl-C, not for the SIGTERM mpirun turns it into (a batch job's time limit).
         assert_eq!(
             err.matches("stopping: ").count(),
-            usize::from(signal == libc::SIGINT),
+            usize::from(to_ranks),
             "{err}"
         );
         assert!(!err.contains("error (rank"), "{err}");

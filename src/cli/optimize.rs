@@ -206,10 +206,10 @@ pub fn run(args: &Args, cluster: &Cluster) -> Result<()> {
                 // SAFETY: _exit takes no locks; nothing runs after it.
                 unsafe { libc::_exit(130) }
             }
-            // What follows can take a while (an evaluation under way, then the checkpoint's
-            // own): say so, or the first Ctrl-C looks ignored.
+            // What follows can take a while (an evaluation under way): say so, or the first
+            // Ctrl-C looks ignored.
             if root {
-                eprintln!("\nstopping: the step under way ends, then a checkpoint is written with an evaluation of the held-out views; Ctrl-C again stops at once, without a checkpoint");
+                eprintln!("\nstopping: the step or evaluation under way ends, then a checkpoint is written (without an evaluation); Ctrl-C again stops at once, without a checkpoint");
             }
         })
         .context("cannot install the Ctrl-C handler"),

@@ -286,13 +286,17 @@ impl<'a> Run<'a> {
         row.reduce_bytes = traffic.bytes_sent;
         row.reduce_seconds = traffic.seconds;
         let it = self.position.iteration;
-        // A checkpoint comes with an evaluation: its VDB carries the held-out PSNR and its
-        // picture shows the held-out renders.
+        // A checkpoint comes with an evaluation, an interrupted run's not: one can take minutes,
+        // and mpirun kills the ranks a second after it hands them Ctrl-C.
         let checkpoint_now = it.is_multiple_of(u64::from(s.checkpoint_every)) || done;
         if checkpoint_now || it.is_multiple_of(u64::from(s.eval_every)) {
             let started = Instant::now();
-            self.evaluation = self.evaluate();
-            row.record(&self.evaluation);
+            if self.interrupted {
+                self.evaluation = Evaluation::default();
+            } else {
+                self.evaluation = self.evaluate();
+                row.record(&self.evaluation);
+            }
             // Counted before the checkpoint saves the log, so that a run resumed from it counts
             // this evaluation too; the checkpoint's own writing is added after.
             self.position.evaluation_seconds += started.elapsed().as_secs_f64();
