@@ -18,6 +18,7 @@ use volgrad::optimize::problem::Problem;
 use volgrad::optimize::reconstruct::{reconstruct, RunOptions};
 use volgrad::optimize::schedule::Stop;
 use volgrad::optimize::study;
+use volgrad::render::interrupt;
 
 #[derive(clap::Args)]
 pub struct Args {
@@ -69,8 +70,8 @@ pub struct Args {
     pub quiet: bool,
 }
 
-/// Set by Ctrl-C (or SIGUSR1, SIGTERM); the loop stops after the current iteration and writes a
-/// checkpoint.
+/// Set by Ctrl-C (or SIGUSR1, SIGTERM); the loop stops after the current iteration (giving up an
+/// evaluation under way) and writes a checkpoint.
 static INTERRUPTED: AtomicBool = AtomicBool::new(false);
 
 /// SIGUSR1 and SIGTERM stop the run as Ctrl-C does. Under MPI SIGUSR1 is the signal that
@@ -80,11 +81,12 @@ static INTERRUPTED: AtomicBool = AtomicBool::new(false);
 /// half-written temporary files.
 fn stop_on_signals() {
     extern "C" fn on_signal(_: libc::c_int) {
-        // Only an atomic store: async-signal-safe.
+        // Only atomic operations: async-signal-safe. An evaluation under way is given up.
         INTERRUPTED.store(true, Ordering::SeqCst);
+        interrupt::stop_stoppable();
     }
     #[cfg(unix)]
-    // SAFETY: the handler only stores to an atomic, which is async-signal-safe.
+    // SAFETY: the handler only loads and stores atomics, which is async-signal-safe.
     unsafe {
         for signal in [libc::SIGUSR1, libc::SIGTERM] {
             libc::signal(signal, on_signal as *const () as libc::sighandler_t);
@@ -206,10 +208,11 @@ pub fn run(args: &Args, cluster: &Cluster) -> Result<()> {
                 // SAFETY: _exit takes no locks; nothing runs after it.
                 unsafe { libc::_exit(130) }
             }
-            // What follows can take a while (an evaluation under way): say so, or the first
-            // Ctrl-C looks ignored.
+            // An evaluation under way is given up; a step ends first: say so, or the first
+            // Ctrl-C looks ignored on a long step.
+            interrupt::stop_stoppable();
             if root {
-                eprintln!("\nstopping: the step or evaluation under way ends, then a checkpoint is written (without an evaluation); Ctrl-C again stops at once, without a checkpoint");
+                eprintln!("\nstopping: the step under way ends, then a checkpoint is written; Ctrl-C again stops at once, without a checkpoint");
             }
         })
         .context("cannot install the Ctrl-C handler"),

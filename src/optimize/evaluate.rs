@@ -11,6 +11,7 @@ use crate::io::images::RgbImage;
 use crate::optimize::problem::Problem;
 use crate::optimize::run_file::EvalSpp;
 use crate::render::image::RenderOptions;
+use crate::render::interrupt;
 use crate::render::scene::Scene;
 
 /// Seeds the held-out renders apart from training and targets; the same for every evaluation, so
@@ -94,14 +95,18 @@ const AUTO_MAX_PATHS: u64 = 1 << 28;
 /// and their difference measures its noise, E[(A − B)²]/4 = Var((A + B)/2). With a fixed
 /// `eval_spp` that is one round; with "auto" a view gets rounds of more samples until its noise
 /// is at most `AUTO_NOISE_SHARE` of its error, or the caps are reached. Every decision is made
-/// from images every rank holds whole, so the ranks agree on it.
+/// from images every rank holds whole, so the ranks agree on it. None when a stop
+/// (`interrupt::stop_stoppable`, from Ctrl-C) cut it short on any rank: the ranks agree on that
+/// after every render.
 pub fn evaluate(
     problem: &Problem,
     scene: &Scene,
     level: usize,
     exposures: &[f32],
     cluster: &Cluster,
-) -> Evaluation {
+) -> Option<Evaluation> {
+    let stretch = interrupt::Stoppable::begin();
+    let stopped = || cluster.max_each([f64::from(u8::from(stretch.stopped()))])[0] > 0.0;
     let mut scene = scene.clone();
     let mut e = Evaluation::default();
     let (mut lit, mut relit) = (0, Vec::new());
@@ -130,6 +135,9 @@ pub fn evaluate(
         let (mut a, mut b) = (render_half(0, 0, half_spp), render_half(0, 1, half_spp));
         let mut round = 1;
         let (image, noise) = loop {
+            if stopped() {
+                return None;
+            }
             let image = RgbImage::average(&a, &b);
             let noise = mean_squared_error(&a, &b) / 4.0;
             let error = mean_squared_error(&image, &target);
@@ -165,7 +173,7 @@ pub fn evaluate(
         e.volume_rmse = Some(rmse);
         e.haze = haze;
     }
-    e
+    Some(e)
 }
 
 /// An evaluation's first and largest samples per pixel: `eval_spp` twice, or "auto"'s range.

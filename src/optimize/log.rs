@@ -1,8 +1,12 @@
 //! `log.csv`: one row per iteration. Evaluation columns are empty on iterations without an
-//! evaluation; volume columns are empty without a truth.
+//! evaluation; volume columns are empty without a truth. And the log as a chart, `progress.png`.
+
+use std::path::Path;
 
 use anyhow::{bail, Context, Result};
 
+use crate::io::chart::{self, Chart, Scale, Series};
+use crate::io::output::write_bytes_whole;
 use crate::io::table::{Align, Table};
 use crate::optimize::evaluate::Evaluation;
 
@@ -169,6 +173,43 @@ impl LogRow {
             heldout_spp: opt(17)?,
         })
     }
+}
+
+/// progress.png/.svg: held-out PSNR (top) and training loss (bottom) against optimisation time.
+pub fn write_progress_chart(out: &Path, log: &[LogRow]) -> Result<()> {
+    let psnr: Vec<(f64, f64)> = log
+        .iter()
+        .filter_map(|r| r.psnr.map(|p| (r.seconds, p)))
+        .collect();
+    let loss: Vec<(f64, f64)> = log.iter().map(|r| (r.seconds, r.loss)).collect();
+    if psnr.is_empty() || !loss.iter().any(|p| p.1 > 0.0) {
+        return Ok(());
+    }
+    let chart = |title: &str, y: &str, scale: Scale, name: &str, points: Vec<(f64, f64)>| Chart {
+        title: title.into(),
+        x_label: "optimisation time (s)".into(),
+        y_label: y.into(),
+        x_scale: Scale::Linear,
+        y_scale: scale,
+        series: vec![Series {
+            name: name.into(),
+            points,
+        }],
+    };
+    let top = chart(
+        "held-out PSNR",
+        "PSNR (dB)",
+        Scale::Linear,
+        "held-out",
+        psnr,
+    );
+    let bottom = chart("training loss", "loss", Scale::Log, "training", loss);
+    write_bytes_whole(
+        &out.join("progress.svg"),
+        chart::stack_to_svg(&[&top, &bottom])?,
+    )?;
+    chart::write_stack_png(&[&top, &bottom], &out.join("progress.png"))?;
+    Ok(())
 }
 
 #[cfg(test)]

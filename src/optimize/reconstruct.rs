@@ -33,7 +33,6 @@ use glam::IVec3;
 use crate::cluster::sparse_sum::Traffic;
 use crate::cluster::Cluster;
 use crate::gradient::adjoint::Estimator;
-use crate::io::chart::{self, Chart, Scale, Series};
 use crate::io::fingerprint::Fingerprint;
 use crate::io::output::write_bytes_whole;
 use crate::io::vdb::meta;
@@ -44,7 +43,7 @@ use crate::optimize::evaluate::{evaluate, spp_range, Evaluation};
 use crate::optimize::exposure::{factors, Exposure};
 use crate::optimize::holdout_picture::write_holdout_picture;
 use crate::optimize::iteration::images_gradient;
-use crate::optimize::log::LogRow;
+use crate::optimize::log::{write_progress_chart, LogRow};
 use crate::optimize::parameters::Parameters;
 use crate::optimize::problem::Problem;
 use crate::optimize::resample::upsample;
@@ -182,15 +181,21 @@ impl<'a> Run<'a> {
         };
         if run.position.iteration == 0 {
             let started = Instant::now();
-            run.evaluation = run.evaluate();
+            let evaluation = run.evaluate();
             run.position.evaluation_seconds += started.elapsed().as_secs_f64();
             let mut row = run.row(f64::NAN, 0.0);
-            row.record(&run.evaluation);
+            // Cut short, it stops the run after its first iteration (Ctrl-C's flag is set).
+            if let Some(evaluation) = evaluation {
+                row.record(&evaluation);
+                run.evaluation = evaluation;
+            }
             run.log = vec![row];
         } else if run.fraction() >= 1.0 {
             // A finished run resumed has nothing to iterate, but its final.vdb and summary carry
             // an evaluation's held-out PSNR, as those of a run that ends here do.
-            run.evaluation = run.evaluate();
+            let evaluation = run.evaluate();
+            run.interrupted = evaluation.is_none();
+            run.evaluation = evaluation.unwrap_or_default();
         }
         Ok(run)
     }
@@ -200,7 +205,7 @@ impl<'a> Run<'a> {
         self.stop.fraction(p.iteration, p.optimisation_seconds)
     }
 
-    fn evaluate(&self) -> Evaluation {
+    fn evaluate(&self) -> Option<Evaluation> {
         let level = self.position.level as usize;
         let scene = self.problem.scene_at(self.parameters.result(), level);
         let exposures = self.exposures();
@@ -287,14 +292,16 @@ impl<'a> Run<'a> {
         row.reduce_seconds = traffic.seconds;
         let it = self.position.iteration;
         // A checkpoint comes with an evaluation, an interrupted run's not: one can take minutes,
-        // and mpirun kills the ranks a second after it hands them Ctrl-C.
-        let checkpoint_now = it.is_multiple_of(u64::from(s.checkpoint_every)) || done;
+        // and mpirun kills the ranks a second after it hands them Ctrl-C. One cut short by
+        // Ctrl-C (every rank agrees) is given up, and the run stops with a checkpoint.
+        let mut checkpoint_now = it.is_multiple_of(u64::from(s.checkpoint_every)) || done;
         if checkpoint_now || it.is_multiple_of(u64::from(s.eval_every)) {
             let started = Instant::now();
-            if self.interrupted {
-                self.evaluation = Evaluation::default();
-            } else {
-                self.evaluation = self.evaluate();
+            let evaluation = (!self.interrupted).then(|| self.evaluate()).flatten();
+            self.interrupted = evaluation.is_none();
+            checkpoint_now |= self.interrupted;
+            self.evaluation = evaluation.unwrap_or_default();
+            if !self.interrupted {
                 row.record(&self.evaluation);
             }
             // Counted before the checkpoint saves the log, so that a run resumed from it counts
@@ -545,43 +552,6 @@ fn step(
         }
     }
     Ok((loss, images.traffic))
-}
-
-/// progress.png/.svg: held-out PSNR (top) and training loss (bottom) against optimisation time.
-fn write_progress_chart(out: &Path, log: &[LogRow]) -> Result<()> {
-    let psnr: Vec<(f64, f64)> = log
-        .iter()
-        .filter_map(|r| r.psnr.map(|p| (r.seconds, p)))
-        .collect();
-    let loss: Vec<(f64, f64)> = log.iter().map(|r| (r.seconds, r.loss)).collect();
-    if psnr.is_empty() || !loss.iter().any(|p| p.1 > 0.0) {
-        return Ok(());
-    }
-    let chart = |title: &str, y: &str, scale: Scale, name: &str, points: Vec<(f64, f64)>| Chart {
-        title: title.into(),
-        x_label: "optimisation time (s)".into(),
-        y_label: y.into(),
-        x_scale: Scale::Linear,
-        y_scale: scale,
-        series: vec![Series {
-            name: name.into(),
-            points,
-        }],
-    };
-    let top = chart(
-        "held-out PSNR",
-        "PSNR (dB)",
-        Scale::Linear,
-        "held-out",
-        psnr,
-    );
-    let bottom = chart("training loss", "loss", Scale::Log, "training", loss);
-    write_bytes_whole(
-        &out.join("progress.svg"),
-        chart::stack_to_svg(&[&top, &bottom])?,
-    )?;
-    chart::write_stack_png(&[&top, &bottom], &out.join("progress.png"))?;
-    Ok(())
 }
 
 fn progress_bar(progress: bool, stop: &Stop) -> indicatif::ProgressBar {
