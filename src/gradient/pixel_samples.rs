@@ -64,10 +64,10 @@ impl PixelSamples {
     /// (|δᵢ|₁, cᵢ), cᵢ one path's cost there, `per_adjoint` = k with Σ min(k·|δᵢ|₁, 8·spp)·cᵢ =
     /// spp·Σ cᵢ. The cap counts in that sum: else one outlier (a firefly in a target: 10⁴ beside
     /// residuals of 0.01) would take most of the budget and keep only its 8·spp paths of it,
-    /// leaving the pass a hundredth of its cost. Uniform when
-    /// every δ is 0 (or no pixel is given). A non-finite δ is left out of the sums: its samples
-    /// are dropped and counted by the pass whatever their number, and in the sums it would leave
-    /// every other pixel without a path.
+    /// leaving the pass a hundredth of its cost. Uniform when every δ is 0 (or no pixel is
+    /// given). A non-finite δ is left out of the sums: its samples are dropped and counted by the
+    /// pass whatever their number, and in the sums it would leave every other pixel without a
+    /// path.
     pub fn following_adjoint(pixels: &[(f32, f32)], spp: u32) -> Self {
         let pixels: Vec<(f64, f64)> = (pixels.iter())
             .filter(|(a, _)| a.is_finite())
@@ -75,37 +75,45 @@ impl PixelSamples {
             .collect();
         let budget = spp as f64 * pixels.iter().map(|&(_, c)| c).sum::<f64>();
         let most = MOST_PER_PIXEL * spp as f64;
-        // Water-filling: k from the pixels below the cap, the capped ones' cost taken off the
-        // budget; raising k can only cap more pixels, so the capped set grows until it holds.
-        let mut capped_above = f64::INFINITY;
-        let mut per_adjoint = f64::NAN;
-        loop {
-            let (mut capped_cost, mut weighted) = (0.0f64, 0.0f64);
-            for &(a, c) in &pixels {
-                match a >= capped_above {
-                    true => capped_cost += most * c,
-                    false => weighted += a * c,
-                }
-            }
-            let k = (budget - capped_cost) / weighted;
-            if !(weighted > 0.0 && k.is_finite() && k > 0.0) {
-                break;
-            }
-            per_adjoint = k;
-            // The pixels k now puts above the cap; none new: k holds.
-            let above = most / k;
-            if above >= capped_above || !pixels.iter().any(|&(a, _)| a >= above && a < capped_above)
-            {
-                break;
-            }
-            capped_above = above;
+        let weighted: f64 = pixels.iter().map(|&(a, c)| a * c).sum();
+        let mut per_adjoint = budget / weighted;
+        if weighted > 0.0 && pixels.iter().any(|&(a, _)| a * per_adjoint >= most) {
+            per_adjoint = filled_below_the_cap(pixels, budget, most);
         }
-        if per_adjoint.is_finite() {
+        if weighted > 0.0 && per_adjoint.is_finite() {
             PixelSamples::Adjoint { per_adjoint }
         } else {
             PixelSamples::Uniform
         }
     }
+}
+
+/// k with Σ min(k·aᵢ, most)·cᵢ = budget over `pixels` (aᵢ, cᵢ), some of which k = budget / Σ aᵢcᵢ
+/// puts at the cap (water-filling). In order of a, largest first: with the first j pixels capped,
+/// k_j = (budget − most·Σ_{i<j} cᵢ) / Σ_{i≥j} aᵢcᵢ. Capping a pixel that k_j puts at the cap
+/// frees cost, so k_{j+1} ≥ k_j and those before stay capped; the first j whose own pixel k_j
+/// leaves below the cap is the answer. One sort, where capping pixels round by round took a
+/// pass over every pixel per round.
+fn filled_below_the_cap(mut pixels: Vec<(f64, f64)>, budget: f64, most: f64) -> f64 {
+    pixels.sort_unstable_by(|x, y| y.0.total_cmp(&x.0));
+    // Σ_{i≥j} aᵢcᵢ summed from the end, so that no running difference drifts.
+    let mut below: Vec<f64> = (pixels.iter().rev())
+        .scan(0.0, |sum, &(a, c)| {
+            *sum += a * c;
+            Some(*sum)
+        })
+        .collect();
+    below.reverse();
+    let mut capped_cost = 0.0;
+    for (&(a, c), &rest) in pixels.iter().zip(&below) {
+        let k = (budget - capped_cost) / rest;
+        if rest <= 0.0 || k * a < most {
+            return k;
+        }
+        capped_cost += most * c;
+    }
+    // Unreachable with most > spp (every pixel capped would cost more than the budget).
+    f64::NAN
 }
 
 /// One path's cost through a pixel whose primal paths made `lookups` density lookups each on
@@ -191,6 +199,22 @@ mod tests {
         pixels.extend([(50.0, 1.0), (30.0, 1.0)]);
         let samples = PixelSamples::following_adjoint(&pixels, 1);
         assert_eq!(samples, PixelSamples::Adjoint { per_adjoint: 0.3 });
+    }
+
+    /// A heavy tail (aᵢ = 1/i², 200,000 pixels of costs 1 to 3): hundreds of pixels at the cap,
+    /// each capping raising k towards the next, and the cost still the uniform pass's.
+    #[test]
+    fn a_heavy_tail_of_adjoints_costs_the_uniform_pass() {
+        let pixels: Vec<(f32, f32)> = (1..=200_000)
+            .map(|i| (1.0 / (i as f32).powi(2), 1.0 + (i % 3) as f32))
+            .collect();
+        let samples = PixelSamples::following_adjoint(&pixels, 8);
+        let draw = |a: f32| samples.draw(8, Vec3::new(a, 0.0, 0.0), 1, 0).1;
+        let capped = pixels.iter().filter(|&&(a, _)| draw(a) == 64.0).count();
+        let cost: f64 = pixels.iter().map(|&(a, c)| draw(a) * c as f64).sum();
+        let uniform: f64 = pixels.iter().map(|&(_, c)| 8.0 * c as f64).sum();
+        assert!(capped > 100, "{capped} pixels at the cap");
+        assert!((cost - uniform).abs() < 1e-9 * uniform, "{cost} vs {uniform}");
     }
 
     #[test]

@@ -2,7 +2,7 @@
 //! binding sets it when Ctrl-C reaches the interpreter, waits for the loops to drain (the render
 //! checks it once per path, the gradient passes once per pixel: within milliseconds), discards
 //! what they returned and clears it once no call is left running. The command line never sets
-//! it: Ctrl-C ends the process.
+//! it: Ctrl-C ends the process, or with `optimize` stops a stoppable stretch (below).
 //!
 //! The request stops every loop of the process, so each request is counted: a caller whose work
 //! overlapped one (`generation` changed) knows its result is incomplete even if the request was
