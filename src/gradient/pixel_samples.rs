@@ -214,7 +214,10 @@ mod tests {
         let cost: f64 = pixels.iter().map(|&(a, c)| draw(a) * c as f64).sum();
         let uniform: f64 = pixels.iter().map(|&(_, c)| 8.0 * c as f64).sum();
         assert!(capped > 100, "{capped} pixels at the cap");
-        assert!((cost - uniform).abs() < 1e-9 * uniform, "{cost} vs {uniform}");
+        assert!(
+            (cost - uniform).abs() < 1e-9 * uniform,
+            "{cost} vs {uniform}"
+        );
     }
 
     #[test]
