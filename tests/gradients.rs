@@ -428,7 +428,12 @@ fn passes_added_into_one_grid_sum_to_their_own_gradients() {
         .collect();
     let spp = 16;
     let scale = sample_scale(&scene, Parameter::Extinction);
-    let bands = QuantumBands::of(adjoints.iter().map(|a| (&a[..], scale)), spp);
+    let bands = QuantumBands::of(
+        adjoints
+            .iter()
+            .map(|a| (&a[..], scale, PixelSamples::Uniform)),
+        spp,
+    );
     let every_pixel = PixelSet::All(pixels);
     let base = options(&scene, Estimator::Joint, spp, 0);
     let mut shared = BandedGradient::new(bands.clone(), gradient_grid_for(&scene, &base));
@@ -535,7 +540,7 @@ fn samples_far_below_a_quantum_keep_their_sum() {
     let adjoint = vec![Vec3::ONE; pixels as usize];
     let spp = 4;
     let scale = sample_scale(&scene, Parameter::Extinction);
-    let fine = QuantumBands::of([(&adjoint[..], scale)], spp).quantum(0);
+    let fine = QuantumBands::of([(&adjoint[..], scale, PixelSamples::Uniform)], spp).quantum(0);
     let coarse = fine * 2f64.powi(26);
     let sums = |seed: u64, quantum: f64| {
         let pass = options(&scene, Estimator::Joint, spp, seed);

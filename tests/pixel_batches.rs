@@ -1,5 +1,6 @@
-//! Pixel batches (`batch_pixels`): the gradient of N pixels drawn across the views is an unbiased
-//! estimate of the gradient of every pixel of every view.
+//! An optimisation step's gradient over its views' pixels: pixel batches (`batch_pixels`), the
+//! gradient of N pixels drawn across the views, are an unbiased estimate of the gradient of every
+//! pixel of every view; and a hot pixel in a target leaves the others' gradient as it was.
 
 use std::path::Path;
 
@@ -124,6 +125,45 @@ fn a_pixel_batch_estimates_the_gradient_of_every_pixel() {
             "{name}: {} vs {}",
             a.mean,
             b.mean
+        );
+    }
+}
+
+/// A hot pixel in a target (a firefly, the sun in a photograph) where its view sees only sky: its
+/// paths, which follow the adjoint (`samples_follow_adjoint`, the default), are capped at 8·spp,
+/// the other pixels share the rest of the step's paths whatever its value, and what they add
+/// must come out the same but for rounding whether the pixel is 10⁴ or 10³⁰ times its
+/// neighbours. With one quantum for the step, sized for the hot pixel's samples, the others'
+/// samples dithered to 0 or to one quantum far above their own size: a gradient of 0 from 10²⁰
+/// on, and noise beside it.
+#[test]
+fn a_hot_target_pixel_on_the_sky_leaves_the_step_its_digits() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut problem = problem(dir.path(), "batch = 4");
+    let sky = problem.views[0].target.pixels[0];
+    let mut step = |factor: f32| {
+        problem.views[0].target.pixels[0] = sky * factor;
+        let mut scene = problem.scene_at(problem.start.to_brickmap(), 0);
+        let g = images_gradient(
+            &problem,
+            &Cluster::single(),
+            &mut scene,
+            Estimator::Joint,
+            0,
+            &[1.0],
+            problem.domain.voxel_box(0),
+        )
+        .unwrap();
+        let sum: f64 = g.voxels.iter().map(|(_, x)| x).sum();
+        (sum, g.voxels.iter().filter(|(_, x)| *x != 0.0).count())
+    };
+    let (a, voxels) = step(1e4);
+    assert!(a != 0.0 && voxels > 0, "⟨g, 1⟩ {a} over {voxels} voxels");
+    for factor in [1e15, 1e20, 1e30] {
+        let (b, with) = step(factor);
+        assert!(
+            ((b - a) / a).abs() < 1e-5 && with == voxels,
+            "a hot pixel of {factor:e}: ⟨g, 1⟩ {b} over {with} voxels, against {a} over {voxels}"
         );
     }
 }

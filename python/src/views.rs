@@ -13,6 +13,7 @@ use volgrad::gradient::passes::{
     add_gradient_of, gradient_grid_for, sample_scale, BandedGradient, GradOptions, Parameter,
     QuantumBands,
 };
+use volgrad::gradient::pixel_samples::PixelSamples;
 use volgrad::render::camera::Camera as RustCamera;
 use volgrad::render::image::{self as image_loop, RenderOptions};
 use volgrad::render::pixel_set::PixelSet;
@@ -301,7 +302,12 @@ pub fn grad(
         });
     }
     let scale = sample_scale(scene, parameter);
-    let bands = QuantumBands::of(deltas.iter().map(|d| (&d[..], scale)), sampling.spp);
+    let bands = QuantumBands::of(
+        deltas
+            .iter()
+            .map(|d| (&d[..], scale, PixelSamples::Uniform)),
+        sampling.spp,
+    );
     // `volgrad grad`'s defaults: per-path suffixes, radiance.
     let pass = GradOptions {
         parameter,

@@ -3,14 +3,16 @@
 //! quanta, and one quantum cannot serve a pixel whose adjoint is 10²⁰ times the others' (a hot
 //! pixel in a target): sized for it, the others' samples dither to nothing but noise (a gradient
 //! of exactly 0 beside a pixel of 10²⁰ that sees only sky); sized for them, its own overflow. So
-//! a pass groups its pixels in bands of adjoint size, each band with its quantum and its grid,
-//! and adds the bands in f64 at the end, band by band: the same bits whatever the samples' order.
+//! a pass groups its pixels in bands of sample size (the adjoint times what a path there weighs),
+//! each band with its quantum and its grid, and adds the bands in f64 at the end, band by band:
+//! the same bits whatever the samples' order.
 //! A pass whose adjoints span less than `BAND_RANGE` (nearly every one) has one band, and the
 //! bits of the single quantum it always had.
 
 use glam::{IVec3, Vec3};
 
 use crate::gradient::grid::{Accumulator, GradientGrid, Quanta};
+use crate::gradient::pixel_samples::PixelSamples;
 
 /// How far below a band's largest adjoint its smallest may lie: 2³⁶. With the quantum that the
 /// largest sets (`quantum_for`: one sample of it is at most 2⁴⁴ quanta), a sample of the smallest
@@ -19,18 +21,18 @@ use crate::gradient::grid::{Accumulator, GradientGrid, Quanta};
 /// the render matches it); a hot pixel 10¹² times the rest does not fit.
 const BAND_RANGE: f64 = (1u64 << 36) as f64;
 
-/// The quantum of pixels with adjoint images `deltas` at `spp`, each with the scale of its
-/// samples' d_pixel (`passes::sample_scale`): the power of two just above the larger of
-/// - Σ|δ|·scale / 2⁵⁴: a voxel's sum, at most Σᵢ |δᵢ| times a path's d_pixel, keeps 2⁸ times
+/// The quantum of pixels of `sizes` at `spp`: the power of two just above the larger of
+/// - Σ mass / 2⁵⁴: a voxel's sum, at most Σᵢ |δᵢ| times a path's d_pixel, keeps 2⁸ times
 ///   `scale` of headroom below i64's 2⁶³ quanta, and its resolution follows the whole image's
 ///   weight, not one pixel's;
-/// - the largest |δ|·scale / (spp · 2⁴⁴): one sample, at most |δ|/spp · d_pixel, keeps 2¹⁹ times
-///   `scale` of headroom (a peaked phase function's NEE is some 10³ times the light).
+/// - the largest sample size / (spp · 2⁴⁴): one sample, at most |δ|/spp · d_pixel for uniform
+///   paths, keeps 2¹⁹ times `scale` of headroom (a peaked phase function's NEE is some 10³ times
+///   the light).
 ///
 /// Samples are rounded with a dither (`Quanta::from_f32_dithered`), so that those far below a
 /// quantum keep their mean.
-fn quantum_for(sizes: impl Iterator<Item = f64>, spp: u32) -> f64 {
-    let (largest, total) = sizes.fold((0.0f64, 0.0f64), |(m, s), x| (m.max(x), s + x));
+fn quantum_for(sizes: impl Iterator<Item = PixelSize>, spp: u32) -> f64 {
+    let (largest, total) = sizes.fold((0.0f64, 0.0f64), |(m, s), x| (m.max(x.sample), s + x.mass));
     let bound = (total * 2f64.powi(-54)).max(largest / spp.max(1) as f64 * 2f64.powi(-44));
     if bound > 0.0 && bound.is_finite() {
         2f64.powi(bound.log2().ceil() as i32)
@@ -39,15 +41,27 @@ fn quantum_for(sizes: impl Iterator<Item = f64>, spp: u32) -> f64 {
     }
 }
 
-/// The size a pixel's samples are banded by: its adjoint's largest channel times the scale of
-/// its samples. Not finite for a non-finite δ, whose samples the pass drops (and counts).
+/// A pixel's adjoint's largest channel times `scale`. Not finite for a non-finite δ, whose
+/// samples the pass drops (and counts).
 #[inline]
 fn size(delta: Vec3, scale: f64) -> f64 {
     f64::from(delta.abs().max_element()) * scale
 }
 
-/// A pass's bands: band b holds the pixels of size in [`floors[b]`, `floors[b - 1]`), band 0
-/// everything from `floors[0]` up, and the last band everything below; each with its quantum.
+/// What a pixel's samples add, as `size`s: `mass` with the scale of their d_pixel (what all of
+/// them add up to, on average), `sample` with that scale times their path weight
+/// (`PixelSamples::path_weight`: what one of them weighs, times spp). The two are the same for
+/// uniform paths; a pixel that takes paths in proportion to its |δ| has samples as heavy as
+/// every other pixel's, however small its |δ|, and is banded with them by `sample`.
+#[derive(Clone, Copy)]
+struct PixelSize {
+    sample: f64,
+    mass: f64,
+}
+
+/// A pass's bands: band b holds the pixels of sample size in [`floors[b]`, `floors[b - 1]`),
+/// band 0 everything from `floors[0]` up, and the last band everything below; each with its
+/// quantum.
 #[derive(Clone, Debug, PartialEq)]
 pub struct QuantumBands {
     floors: Vec<f64>,
@@ -55,26 +69,37 @@ pub struct QuantumBands {
 }
 
 impl QuantumBands {
-    /// The bands of adjoint images `deltas`, each with the scale of its samples, at `spp`.
-    /// Non-finite δs are left out: one infinite δ would make the quantum 1 and round every other
-    /// sample to 0 (its own samples are dropped and counted by the pass).
-    pub fn of<'a>(deltas: impl IntoIterator<Item = (&'a [Vec3], f64)> + Clone, spp: u32) -> Self {
+    /// The bands of adjoint images `deltas` at `spp`, each with the scale of its samples and
+    /// the paths its pixels take. Non-finite δs are left out: one infinite δ would make the
+    /// quantum 1 and round every other sample to 0 (its own samples are dropped and counted by
+    /// the pass).
+    pub fn of<'a>(
+        deltas: impl IntoIterator<Item = (&'a [Vec3], f64, PixelSamples)> + Clone,
+        spp: u32,
+    ) -> Self {
         let sizes = || {
             (deltas.clone().into_iter())
-                .flat_map(|(delta, scale)| delta.iter().map(move |&d| size(d, scale)))
-                .filter(|x| x.is_finite() && *x > 0.0)
+                .flat_map(move |(delta, scale, samples)| {
+                    delta.iter().map(move |&d| PixelSize {
+                        sample: size(d, scale * samples.path_weight(spp, d)),
+                        mass: size(d, scale),
+                    })
+                })
+                .filter(|x| x.sample.is_finite() && x.sample > 0.0)
         };
         let mut floors = Vec::new();
         let mut quanta = Vec::new();
         let mut ceiling = f64::INFINITY;
         // Each band's floor from the largest size below the last band's floor: a few passes over
         // the sizes, one per band, none for the bands no pixel falls in.
-        while let Some(largest) = sizes().filter(|&x| x < ceiling).reduce(f64::max) {
+        while let Some(largest) = sizes()
+            .map(|x| x.sample)
+            .filter(|&x| x < ceiling)
+            .reduce(f64::max)
+        {
             let floor = largest / BAND_RANGE;
-            quanta.push(quantum_for(
-                sizes().filter(|&x| x < ceiling && x >= floor),
-                spp,
-            ));
+            let band = sizes().filter(|x| x.sample < ceiling && x.sample >= floor);
+            quanta.push(quantum_for(band, spp));
             floors.push(floor);
             ceiling = floor;
         }
@@ -86,17 +111,6 @@ impl QuantumBands {
         QuantumBands { floors, quanta }
     }
 
-    /// One band for every pixel of `deltas`, as `of` would size its first: for passes whose paths
-    /// follow the adjoint (`PixelSamples::Adjoint`). A path there weighs about the same at every
-    /// pixel, 1/k for k paths per unit of |δ| over the whole batch, so a pixel far below a hot
-    /// one takes a path rarely and a heavy one: a band sized by its own |δ| would saturate.
-    pub fn single<'a>(deltas: impl IntoIterator<Item = (&'a [Vec3], f64)>, spp: u32) -> Self {
-        let sizes = (deltas.into_iter())
-            .flat_map(|(delta, scale)| delta.iter().map(move |&d| size(d, scale)))
-            .filter(|x| x.is_finite());
-        QuantumBands::one(quantum_for(sizes, spp))
-    }
-
     /// One band of quantum `quantum` for every pixel.
     pub fn one(quantum: f64) -> Self {
         QuantumBands {
@@ -105,11 +119,11 @@ impl QuantumBands {
         }
     }
 
-    /// The band of a pixel of adjoint `delta` whose samples have `scale`; band 0 for a
-    /// non-finite δ (the pass drops its samples).
+    /// The band of a pixel of adjoint `delta` whose samples have `scale` and `path_weight`
+    /// (`PixelSamples::path_weight`); band 0 for a non-finite δ (the pass drops its samples).
     #[inline]
-    pub fn band_of(&self, delta: Vec3, scale: f64) -> usize {
-        let x = size(delta, scale);
+    pub fn band_of(&self, delta: Vec3, scale: f64, path_weight: f64) -> usize {
+        let x = size(delta, scale * path_weight);
         if !x.is_finite() {
             return 0;
         }
@@ -186,15 +200,16 @@ impl BandedGradient {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use PixelSamples::Uniform;
 
     #[test]
     fn adjoints_within_the_range_have_one_band_and_the_single_quantum() {
         let delta = [Vec3::new(1e-9, 0.0, 0.0), Vec3::splat(0.5), Vec3::ZERO];
-        let bands = QuantumBands::of([(&delta[..], 4.0)], 8);
+        let bands = QuantumBands::of([(&delta[..], 4.0, Uniform)], 8);
         assert_eq!(bands.len(), 1);
         // The larger bound: the largest sample, 0.5·4/8 = 2⁻², over 2⁴⁴.
         assert_eq!(bands.quantum(0), 2f64.powi(-46));
-        assert!((0..3).all(|i| bands.band_of(delta[i], 4.0) == 0));
+        assert!((0..3).all(|i| bands.band_of(delta[i], 4.0, 1.0) == 0));
     }
 
     #[test]
@@ -203,10 +218,10 @@ mod tests {
         let mut delta = ordinary.to_vec();
         delta.push(Vec3::new(0.0, 1e20, 0.0));
         delta.push(Vec3::splat(f32::INFINITY));
-        let bands = QuantumBands::of([(&delta[..], 1.0)], 8);
-        let alone = QuantumBands::of([(&ordinary[..], 1.0)], 8);
+        let bands = QuantumBands::of([(&delta[..], 1.0, Uniform)], 8);
+        let alone = QuantumBands::of([(&ordinary[..], 1.0, Uniform)], 8);
         assert_eq!(bands.len(), 2);
-        let band = |i: usize| bands.band_of(delta[i], 1.0);
+        let band = |i: usize| bands.band_of(delta[i], 1.0, 1.0);
         assert_eq!(
             [band(0), band(1), band(2), band(3), band(4)],
             [1, 1, 1, 0, 0]
@@ -218,8 +233,36 @@ mod tests {
 
     #[test]
     fn no_adjoint_has_one_band_of_quantum_one() {
-        let bands = QuantumBands::of([(&[Vec3::ZERO][..], 1.0)], 8);
+        let bands = QuantumBands::of([(&[Vec3::ZERO][..], 1.0, Uniform)], 8);
         assert_eq!((bands.len(), bands.quantum(0)), (1, 1.0));
-        assert_eq!(bands.band_of(Vec3::ZERO, 1.0), 0);
+        assert_eq!(bands.band_of(Vec3::ZERO, 1.0, 0.0), 0);
+    }
+
+    #[test]
+    fn paths_that_follow_the_adjoint_are_banded_by_what_they_weigh() {
+        // 96 residuals of 1, four of 10⁻³ to 10⁻³⁰ and a hot pixel of 10³⁰: in proportion to |δ|
+        // the residuals' paths all weigh 1/k, whatever their |δ|, and share one band; the hot
+        // pixel, capped at 8·spp paths, weighs 10³⁰/(8·spp) a path and has a band of its own.
+        let mut delta = vec![Vec3::X; 96];
+        delta.extend([1e-3, 1e-10, 1e-20, 1e-30].map(|a| Vec3::new(a, 0.0, 0.0)));
+        delta.push(Vec3::new(1e30, 0.0, 0.0));
+        let pixels: Vec<(f32, f32)> = delta.iter().map(|d| (d.x, 1.0)).collect();
+        let samples = PixelSamples::following_adjoint(&pixels, 8);
+        let bands = QuantumBands::of([(&delta[..], 1.0, samples)], 8);
+        assert_eq!(bands.len(), 2);
+        let band = |d: &Vec3| bands.band_of(*d, 1.0, samples.path_weight(8, *d));
+        assert!(delta[..100].iter().all(|d| band(d) == 1));
+        assert_eq!(band(&delta[100]), 0);
+        // The residuals' quantum is sized by one path's weight, 1/k (k paths per unit of |δ|,
+        // about 7.75 here: none of them is capped): every one of their samples spans the same
+        // 2⁴³ to 2⁴⁴ quanta.
+        let PixelSamples::Adjoint { per_adjoint } = samples else {
+            panic!("{samples:?}")
+        };
+        let quanta = 1.0 / per_adjoint / bands.quantum(1);
+        assert!(
+            quanta <= 2f64.powi(44) && quanta > 2f64.powi(43),
+            "{quanta}"
+        );
     }
 }

@@ -401,7 +401,7 @@ pub fn gradient_of(
     set: &PixelSet,
 ) -> GradientRun {
     let scale = sample_scale(scene, options.parameter);
-    let bands = QuantumBands::of([(adjoint, scale)], options.spp);
+    let bands = QuantumBands::of([(adjoint, scale, options.samples)], options.spp);
     let mut gradient = BandedGradient::new(bands, gradient_grid_for(scene, options));
     let (image, stats) = add_gradient_of(scene, (adjoint, scale), options, set, &mut gradient);
     GradientRun {
@@ -453,7 +453,8 @@ pub fn add_gradient_of(
             let index = y * w + x;
             let delta = adjoint[index as usize] * channel_mask;
             let (samples, divisor) = options.samples.draw(spp, delta, seed, index as u64);
-            let band = bands.band_of(adjoint[index as usize], scale);
+            let path_weight = options.samples.path_weight(spp, adjoint[index as usize]);
+            let band = bands.band_of(adjoint[index as usize], scale, path_weight);
             let quantum = bands.quantum(band);
             let mut sink = SplatSink {
                 splats: &mut splats[band],

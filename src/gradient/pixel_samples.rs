@@ -11,9 +11,10 @@
 //! Unbiased for any expected count mᵢ > 0 that depends on δ alone: nᵢ is mᵢ rounded up or down
 //! at random (E\[nᵢ\] = mᵢ) and each path weighs δᵢ / mᵢ, so E\[Σ paths\] = δᵢ · E\[∂Iᵢ/∂θ\]. The
 //! adjoint comes from renders independent of the pass's paths, so the choice does not correlate
-//! with what the paths find. A path weighs at most |δᵢ|₁/mᵢ, which is 1/k = Σ|δ|c / (spp Σc) (a
-//! mean of |δ|₁, over spp) or, capped, |δᵢ|₁ / (8 spp): either way at most max |δ|₁ / spp, three
-//! times what a uniform path may weigh, well within the quantum's headroom (`quantum_for`).
+//! with what the paths find. A path weighs |δᵢ|/mᵢ: about 1/k = Σ|δ|c / (spp Σc) (a mean of |δ|₁,
+//! over spp) at every pixel, however small its δ, or, capped, |δᵢ| / (8 spp); the gradient's quanta
+//! are sized by that weight (`path_weight`, `bands::QuantumBands`), so that a capped hot pixel's
+//! paths get a band of their own rather than a quantum that rounds every other path away.
 
 use glam::Vec3;
 use rand::Rng;
@@ -44,19 +45,42 @@ impl PixelSamples {
     /// with E\[n\] = divisor. `seed` and `pixel` pick the rounding's random stream.
     #[inline]
     pub fn draw(&self, spp: u32, delta: Vec3, seed: u64, pixel: u64) -> (u32, f64) {
+        let expected = self.expected(spp, delta);
         match *self {
-            PixelSamples::Uniform => (spp, spp as f64),
-            PixelSamples::Adjoint { per_adjoint } => {
-                // Below the rounding's own stream whatever the spp (and u32's range).
-                let most = (MOST_PER_PIXEL * spp as f64).min((ROUNDING_STREAM - 1) as f64);
-                let expected = (per_adjoint * delta.abs().element_sum() as f64).min(most);
-                if expected <= 0.0 {
-                    return (0, 1.0);
-                }
+            PixelSamples::Uniform => (spp, expected),
+            PixelSamples::Adjoint { .. } if expected <= 0.0 => (0, 1.0),
+            PixelSamples::Adjoint { .. } => {
                 let u: f64 = sample_rng(seed, pixel, ROUNDING_STREAM, Pass::Adjoint).gen();
                 let n = expected.floor() as u32 + (u < expected.fract()) as u32;
                 (n, expected)
             }
+        }
+    }
+
+    /// E\[n\], the paths through a pixel whose adjoint is `delta` on average.
+    #[inline]
+    fn expected(&self, spp: u32, delta: Vec3) -> f64 {
+        match *self {
+            PixelSamples::Uniform => spp as f64,
+            PixelSamples::Adjoint { per_adjoint } => {
+                // Below the rounding's own stream whatever the spp (and u32's range).
+                let most = (MOST_PER_PIXEL * spp as f64).min((ROUNDING_STREAM - 1) as f64);
+                (per_adjoint * delta.abs().element_sum() as f64).min(most)
+            }
+        }
+    }
+
+    /// What a path through a pixel whose adjoint is `delta` weighs against a path of `spp`
+    /// uniform ones: spp / E\[n\] (each weighs δ / E\[n\]); exactly 1 for uniform paths, 0 where
+    /// the pixel takes none. The gradient's quanta are sized by it (`QuantumBands`): a pixel
+    /// far below the others in |δ| takes a path rarely and a heavy one.
+    #[inline]
+    pub fn path_weight(&self, spp: u32, delta: Vec3) -> f64 {
+        let expected = self.expected(spp, delta);
+        if expected > 0.0 {
+            spp as f64 / expected
+        } else {
+            0.0
         }
     }
 

@@ -120,15 +120,13 @@ pub fn images_gradient(
         alpha_adjoints.push(alpha);
     }
     let alpha_scale = optical_depth_per_unit(scene);
-    let colour_deltas = (adjoints.iter().map(|a| &a.delta[..])).zip(scales.iter().copied());
-    let alpha_deltas = (alpha_adjoints.iter().flatten()).map(|a| (&a.delta[..], alpha_scale));
-    let deltas = colour_deltas.chain(alpha_deltas);
-    let bands = match s.samples_follow_adjoint {
-        true => QuantumBands::single(deltas, s.spp),
-        false => QuantumBands::of(deltas, s.spp),
-    };
     let colour_samples = pixel_samples(problem, &pieces, adjoints.iter().map(Some));
     let alpha_samples = pixel_samples(problem, &pieces, alpha_adjoints.iter().map(Option::as_ref));
+    let colour_deltas =
+        (adjoints.iter().zip(&scales)).map(|(a, &s)| (&a.delta[..], s, colour_samples));
+    let alpha_deltas =
+        (alpha_adjoints.iter().flatten()).map(|a| (&a.delta[..], alpha_scale, alpha_samples));
+    let bands = QuantumBands::of(colour_deltas.chain(alpha_deltas), s.spp);
     // An emission unknown's gradient is wanted over its whole box: the pass would otherwise
     // cover only its current bricks (none for an empty start, which then never grows) and their
     // apron (outside the box). The density's domain is the medium's bounds already.
