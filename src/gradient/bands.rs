@@ -6,19 +6,19 @@
 //! a pass groups its pixels in bands of sample size (the adjoint times what a path there weighs),
 //! each band with its quantum and its grid, and adds the bands in f64 at the end, band by band:
 //! the same bits whatever the samples' order.
-//! A pass whose adjoints span less than `BAND_RANGE` (nearly every one) has one band, and the
-//! bits of the single quantum it always had.
+//! A pass whose samples' sizes span less than `BAND_RANGE` (nearly every one) has one band, and
+//! the bits of the single quantum it always had.
 
 use glam::{IVec3, Vec3};
 
 use crate::gradient::grid::{Accumulator, GradientGrid, Quanta};
 use crate::gradient::pixel_samples::PixelSamples;
 
-/// How far below a band's largest adjoint its smallest may lie: 2³⁶. With the quantum that the
-/// largest sets (`quantum_for`: one sample of it is at most 2⁴⁴ quanta), a sample of the smallest
-/// still spans 2⁸ quanta per unit of the scale, so dithering adds little to its own noise. A
-/// target's ordinary residuals span less (f32 rounding leaves some 10⁻⁸ of a pixel's value where
-/// the render matches it); a hot pixel 10¹² times the rest does not fit.
+/// How far below a band's largest sample size its smallest may lie: 2³⁶. With the quantum that
+/// the largest sets (`quantum_for`: one sample of it is at most 2⁴⁴ quanta), a sample of the
+/// smallest still spans 2⁸ quanta per unit of the scale, so dithering adds little to its own
+/// noise. A target's ordinary residuals span less (f32 rounding leaves some 10⁻⁸ of a pixel's
+/// value where the render matches it); a hot pixel 10¹² times the rest does not fit.
 const BAND_RANGE: f64 = (1u64 << 36) as f64;
 
 /// The quantum of pixels of `sizes` at `spp`: the power of two just above the larger of
