@@ -1,7 +1,8 @@
 //! Long work without the GIL, on a thread count of the caller's choosing, that Ctrl-C stops.
 //!
 //! The work runs on a scoped thread while the calling thread, which holds no GIL, waits for it
-//! and every 50 ms takes the GIL for a moment to let Python run its signal handlers. When one
+//! and every 50 ms takes the GIL for a moment to let Python run its signal handlers (and, on a
+//! thread other than the main one, to see whether a Ctrl-C has ended the main thread). When one
 //! raises (Ctrl-C's `KeyboardInterrupt`), the image loops are asked to skip their remaining pixels
 //! (`render::interrupt`), the work drains within milliseconds and the exception is raised in its
 //! place. The request stops every call under way, in any thread, and each raises: none returns
@@ -46,6 +47,37 @@ fn this_process_pool() -> PyResult<Arc<rayon::ThreadPool>> {
     Ok(built)
 }
 
+/// Python's signal handlers, run (on the main thread; elsewhere this does nothing), and an error
+/// where one raised; or a `KeyboardInterrupt` where the program is ending on one that reached
+/// its main thread while this call runs on another. Python hands Ctrl-C to the main thread
+/// alone, and from Python 3.13 on the interpreter waits for its other threads before it exits:
+/// a Ctrl-C while the main thread waited for this one (`thread.join()`) ended the main thread and
+/// then waited for this call's end (3.10 to 3.12 exit at once and leave it unfinished).
+fn signals_or_ctrl_c_ending_the_program(py: Python<'_>) -> PyResult<()> {
+    py.check_signals()?;
+    let threading = py.import("threading")?;
+    if threading
+        .call_method0("main_thread")?
+        .call_method0("is_alive")?
+        .is_truthy()?
+    {
+        return Ok(());
+    }
+    // The exception that ended the main thread, as the interpreter recorded it for the
+    // traceback it printed: `sys.last_exc` from 3.12 on, `sys.last_value` before.
+    let sys = py.import("sys")?;
+    let ended_on_ctrl_c = ["last_exc", "last_value"].iter().any(|name| {
+        sys.getattr(*name)
+            .is_ok_and(|e| e.is_instance_of::<PyKeyboardInterrupt>())
+    });
+    match ended_on_ctrl_c {
+        true => Err(PyKeyboardInterrupt::new_err(
+            "interrupted: Ctrl-C ended the main thread while this call ran on another",
+        )),
+        false => Ok(()),
+    }
+}
+
 /// Runs `work` without the GIL, on `threads` worker threads (for `None`, the process's pool of
 /// rayon's default size).
 pub fn run<T: Send>(
@@ -81,7 +113,7 @@ pub fn run<T: Send>(
                     Ok(result) => break Some(result),
                     Err(mpsc::RecvTimeoutError::Disconnected) => break None,
                     Err(mpsc::RecvTimeoutError::Timeout) if signal.is_none() => {
-                        if let Err(e) = Python::attach(|py| py.check_signals()) {
+                        if let Err(e) = Python::attach(signals_or_ctrl_c_ending_the_program) {
                             interrupt::request();
                             signal = Some(e);
                         }

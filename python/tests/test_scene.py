@@ -463,6 +463,52 @@ def test_ctrl_c_interrupts_a_render_within_a_second():
     assert elapsed < 1.0, elapsed
 
 
+
+def test_ctrl_c_that_ends_the_main_thread_stops_another_threads_call():
+    """SIGINT while the main thread does other work (here: sleeps) ends it with KeyboardInterrupt;
+    the interpreter then waits for its other threads, and a volgrad call in one of them raises
+    KeyboardInterrupt within a second instead of running to its end (minutes here)."""
+    script = textwrap.dedent(
+        f"""
+        import signal, threading, time, volgrad
+        signal.signal(signal.SIGINT, signal.default_int_handler)
+        camera = volgrad.Camera((0, 2, 12), (0, 0, 0), width=512, height=512)
+        scene = volgrad.Scene.load({str(SPHERE)!r})
+        started = threading.Event()
+
+        def render_in_a_thread():
+            try:
+                started.set()
+                scene.render([camera], spp=100000, threads=1)
+                print("finished", flush=True)
+            except KeyboardInterrupt:
+                print("interrupted", flush=True)
+
+        threading.Thread(target=render_in_a_thread).start()
+        started.wait()
+        print("rendering", flush=True)
+        time.sleep(600)
+        """
+    )
+    child = subprocess.Popen(
+        [sys.executable, "-c", script],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.DEVNULL,
+        text=True,
+    )
+    try:
+        ready, _, _ = select.select([child.stdout], [], [], 60)
+        assert ready and child.stdout.readline().strip() == "rendering"
+        time.sleep(0.5)
+        sent = time.monotonic()
+        child.send_signal(signal.SIGINT)
+        child.wait(timeout=10)
+        elapsed = time.monotonic() - sent
+    finally:
+        child.kill()
+    assert child.stdout.read().strip() == "interrupted"
+    assert elapsed < 1.0, elapsed
+
 def test_a_forked_child_renders():
     """A child forked after the parent rendered (multiprocessing's default on Linux, a
     DataLoader's workers) renders the same image instead of waiting forever on the parent's
