@@ -48,34 +48,35 @@ fn this_process_pool() -> PyResult<Arc<rayon::ThreadPool>> {
 }
 
 /// Python's signal handlers, run (on the main thread; elsewhere this does nothing), and an error
-/// where one raised; or a `KeyboardInterrupt` where the program is ending on one that reached
-/// its main thread while this call runs on another. Python hands Ctrl-C to the main thread
-/// alone, and from Python 3.13 on the interpreter waits for its other threads before it exits:
-/// a Ctrl-C while the main thread waited for this one (`thread.join()`) ended the main thread and
-/// then waited for this call's end (3.10 to 3.12 exit at once and leave it unfinished).
+/// where one raised; or a `KeyboardInterrupt` where the program is ending on one that reached its
+/// main thread while this call runs on another (`main_thread_ended_on_ctrl_c`).
 fn signals_or_ctrl_c_ending_the_program(py: Python<'_>) -> PyResult<()> {
     py.check_signals()?;
-    let threading = py.import("threading")?;
-    if threading
-        .call_method0("main_thread")?
-        .call_method0("is_alive")?
-        .is_truthy()?
-    {
-        return Ok(());
-    }
-    // The exception that ended the main thread, as the interpreter recorded it for the
-    // traceback it printed: `sys.last_exc` from 3.12 on, `sys.last_value` before.
-    let sys = py.import("sys")?;
-    let ended_on_ctrl_c = ["last_exc", "last_value"].iter().any(|name| {
-        sys.getattr(*name)
-            .is_ok_and(|e| e.is_instance_of::<PyKeyboardInterrupt>())
-    });
-    match ended_on_ctrl_c {
+    // A failure to look (modules torn down late in an exit) is not a reason to stop.
+    match main_thread_ended_on_ctrl_c(py).unwrap_or(false) {
         true => Err(PyKeyboardInterrupt::new_err(
             "interrupted: Ctrl-C ended the main thread while this call ran on another",
         )),
         false => Ok(()),
     }
+}
+
+/// Whether the main thread has ended on a `KeyboardInterrupt`. Python hands Ctrl-C to the main
+/// thread alone, and an interpreter whose main thread has ended waits for its other threads
+/// before it exits: a Ctrl-C while the main thread slept or (from Python 3.13 on) waited for this
+/// one in `thread.join()` ended the main thread and then waited for this call's end.
+fn main_thread_ended_on_ctrl_c(py: Python<'_>) -> PyResult<bool> {
+    let main = py.import("threading")?.call_method0("main_thread")?;
+    if main.call_method0("is_alive")?.is_truthy()? {
+        return Ok(false);
+    }
+    // The exception that ended it, as the interpreter recorded it for the traceback it printed:
+    // `sys.last_exc` from 3.12 on, `sys.last_value` before.
+    let sys = py.import("sys")?;
+    Ok(["last_exc", "last_value"].iter().any(|name| {
+        sys.getattr(*name)
+            .is_ok_and(|e| e.is_instance_of::<PyKeyboardInterrupt>())
+    }))
 }
 
 /// Runs `work` without the GIL, on `threads` worker threads (for `None`, the process's pool of
