@@ -123,7 +123,7 @@ pub fn images_gradient(
     let colour_samples = pixel_samples(problem, &pieces, adjoints.iter().map(Some));
     let alpha_samples = pixel_samples(problem, &pieces, alpha_adjoints.iter().map(Option::as_ref));
     let colour_deltas =
-        (adjoints.iter().zip(&scales)).map(|(a, &s)| (&a.delta[..], s, colour_samples));
+        (adjoints.iter().zip(&scales)).map(|(a, &scale)| (&a.delta[..], scale, colour_samples));
     let alpha_deltas =
         (alpha_adjoints.iter().flatten()).map(|a| (&a.delta[..], alpha_scale, alpha_samples));
     let bands = QuantumBands::of(colour_deltas.chain(alpha_deltas), s.spp);
