@@ -134,8 +134,8 @@ fn a_pixel_batch_estimates_the_gradient_of_every_pixel() {
 /// the other pixels share the rest of the step's paths whatever its value, and what they add
 /// must come out the same but for rounding whether the pixel is 10⁴ or 10³⁰ times its
 /// neighbours. With one quantum for the step, sized for the hot pixel's samples, the others'
-/// samples dithered to 0 or to one quantum far above their own size: a gradient of 0 from 10²⁰
-/// on, and noise beside it.
+/// samples dithered to 0 or to one quantum far above their own size: at 10¹⁵, 20 voxels summing
+/// to exactly 0 where 10⁴ leaves 12,942 (seen).
 #[test]
 fn a_hot_target_pixel_on_the_sky_leaves_the_step_its_digits() {
     let dir = tempfile::tempdir().unwrap();
