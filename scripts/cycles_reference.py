@@ -33,7 +33,8 @@ Cycles marches through heterogeneous volumes in steps (`--step-rate` voxels per 
 default; 0.2 and 0.02 gave the same means). Cycles' light tree is turned off: it undersamples a
 sun inside a dense volume. Cycles' volume reaches on to where its interpolation falls to 0, a voxel
 beyond the outermost active voxel, where volgrad's medium ends half a voxel out: a grid not yet 0
-at its edge shows a difference at its rim (the README, "An independent reference for emission").
+at its edge shows a difference at its rim (docs/validation.md, "Against Blender's Cycles:
+emission").
 """
 
 import math

@@ -524,7 +524,8 @@ fn auto_evaluation_spp_follows_the_error() {
 /// The worked example's pictures, as Blender's Cycles wrote them: every 8-bit sRGB PNG with alpha,
 /// decoded and composited over the sky, is the linear EXR of the same render to 0.5 % in the mean
 /// of each channel (read as linear, the PNGs would be several times brighter); the run file loads
-/// 24 training views and 16 held-out ones, 8 of them relit, and so do the README's other run files.
+/// 24 training views and 16 held-out ones, 8 of them relit, and so do the example's other run
+/// files.
 #[test]
 fn the_worked_examples_pngs_decode_to_its_exrs() {
     use volgrad::optimize::problem::Problem;
@@ -533,7 +534,7 @@ fn the_worked_examples_pngs_decode_to_its_exrs() {
         Problem::load(&repo.join(name), None, false, None, &Cluster::single()).unwrap()
     };
     let (png, exr) = (load("plume.toml"), load("plume-exr.toml"));
-    // The README's other runs load too: the ceiling, the floor, the unknown exposure.
+    // The worked example's other runs load too: the ceiling, the floor, the unknown exposure.
     for name in [
         "plume-ceiling.toml",
         "plume-floor.toml",

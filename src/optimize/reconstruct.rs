@@ -15,7 +15,7 @@
 //! upsampling (`resample`), the brick scales' moments likewise, the priors are means over the
 //! level's voxels (`prior`), and the gradient is smoothed once more per level (`smoothing`). The
 //! learning rate's factor per level (`level_lr`) is measured, not derived: Adam normalises the
-//! gradient's scale away (README, "One rule per level").
+//! gradient's scale away (docs/reconstruct.md, "One rule per level").
 //!
 //! Every random number is a function of (seed, iteration, view slot, pixel, sample) and every
 //! reduction is exact or runs in a fixed order, so a run's result depends on its settings only, not

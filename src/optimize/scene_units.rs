@@ -30,7 +30,7 @@ use crate::volume::emission::EmissionKind;
 /// Optical depth along the box's longest edge that one Adam step may change (the learning rate).
 /// 0.75 rather than the cloud's hand-tuned 0.5: with `LR_DECAY` 0.3, over three seeds of 10
 /// minutes, the smoke plume gained +0.7–1.2 dB held-out and the cloud +0.5–1.0 dB, with 0.70–0.87×
-/// the haze on both (README, "The defaults now, three seeds").
+/// the haze on both (measured at 211173b).
 pub const STEP_OPTICAL_DEPTH: f32 = 0.75;
 /// The learning rate at the end of a run, as a fraction of the first (exponential decay in
 /// between). Budget-bound runs still improve at the end and want their steps kept long; a small
@@ -41,7 +41,7 @@ pub const LR_DECAY: f32 = 0.3;
 /// light already scatters towards a camera; and what the views cannot see into, a thick volume's
 /// inside, keeps about the start. At 2.5, before the hull, the start filled the whole box as a thin
 /// haze; with the hull, 7.5 gave the smoke plume +3.7 dB held-out and a volume RMSE 0.82× at 1000
-/// iterations, and the cloud +0.26 dB, 0.95× at 500 (README, "Settings from the scene, measured").
+/// iterations, and the cloud +0.26 dB, 0.95× at 500 (measured at b8aa2c8).
 pub const START_OPTICAL_DEPTH: f32 = 7.5;
 /// Where total variation's kink at 0 is rounded off, as an optical depth.
 const TV_EPSILON_OPTICAL_DEPTH: f64 = 0.05;
