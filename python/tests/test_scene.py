@@ -463,7 +463,6 @@ def test_ctrl_c_interrupts_a_render_within_a_second():
     assert elapsed < 1.0, elapsed
 
 
-
 def test_ctrl_c_that_ends_the_main_thread_stops_another_threads_call():
     """SIGINT while the main thread does other work (here: sleeps) ends it with KeyboardInterrupt;
     the interpreter then waits for its other threads, and a volgrad call in one of them raises
@@ -508,6 +507,7 @@ def test_ctrl_c_that_ends_the_main_thread_stops_another_threads_call():
         child.kill()
     assert child.stdout.read().strip() == "interrupted"
     assert elapsed < 1.0, elapsed
+
 
 def test_a_forked_child_renders():
     """A child forked after the parent rendered (multiprocessing's default on Linux, a
